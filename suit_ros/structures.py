@@ -1,0 +1,64 @@
+"""Plain-numpy data structures shared by the model, the data sources, the node and evaluation."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+@dataclass
+class Detections:
+    """One frame's 3D boxes (detections, or ground truth with ``scores == 1``).
+
+    :param boxes: ``(N, 7)`` float32 ``x, y, z, l, w, h, yaw`` (geometric centre, REP 103).
+    :param velocities: ``(N, 2)`` float32 ``vx, vy`` in m/s, absolute, in the boxes' frame.
+    :param scores: ``(N,)`` float32 confidence in ``[0, 1]``.
+    :param labels: ``(N,)`` int64 index into the class names.
+    """
+
+    boxes: NDArray[np.float32]
+    velocities: NDArray[np.float32]
+    scores: NDArray[np.float32]
+    labels: NDArray[np.int64]
+
+    def __post_init__(self) -> None:
+        self.boxes = np.ascontiguousarray(self.boxes, dtype=np.float32).reshape(-1, 7)
+        n = len(self.boxes)
+        self.velocities = np.ascontiguousarray(self.velocities, dtype=np.float32).reshape(n, 2)
+        self.scores = np.ascontiguousarray(self.scores, dtype=np.float32).reshape(n)
+        self.labels = np.ascontiguousarray(self.labels, dtype=np.int64).reshape(n)
+
+    def __len__(self) -> int:
+        return len(self.boxes)
+
+    @staticmethod
+    def empty() -> Detections:
+        """Return a frame with no boxes."""
+        return Detections(np.zeros((0, 7), np.float32), np.zeros((0, 2), np.float32),
+                          np.zeros(0, np.float32), np.zeros(0, np.int64))
+
+    def select(self, mask: NDArray[np.bool_] | NDArray[np.int64]) -> Detections:
+        """Return the boxes picked by a boolean mask or an index array."""
+        return Detections(self.boxes[mask], self.velocities[mask], self.scores[mask],
+                          self.labels[mask])
+
+
+@dataclass
+class Frame:
+    """One LiDAR frame with everything the model, training and evaluation need.
+
+    :param points: ``(N, 5)`` float32 ``x, y, z, intensity (0..1), time_lag (s, >= 0)`` in the
+        LiDAR frame.
+    :param pose: ``(4, 4)`` float64 ``T_odom_lidar`` at ``stamp_ns``.
+    :param gt: ground-truth boxes in the LiDAR frame at the stamp, or None at inference.
+    """
+
+    points: NDArray[np.float32]
+    pose: NDArray[np.float64]
+    stamp_ns: int
+    frame_id: str = 'lidar'
+    gt: Detections | None = None
+    num_points: NDArray[np.uint32] | None = None
+    instance_ids: NDArray[np.uint32] | None = None
+    sequence_id: str = ''
