@@ -2,7 +2,7 @@
 from glob import glob
 import os
 
-from setuptools import setup
+from setuptools import find_packages, setup
 
 PACKAGE = 'suit_ros'
 
@@ -10,7 +10,6 @@ PACKAGE = 'suit_ros'
 # ``suit_ros.msg_adapters`` (through the symlink suit_ros/msg_adapters -> ../msg_adapters): a
 # bare top-level ``msg_adapters`` would clash with any other package that picked the same
 # generic name in a shared ROS install space or virtualenv.
-SUBPACKAGES = ['model', 'ops', 'data']
 
 
 def _data_files() -> list:
@@ -36,7 +35,7 @@ def _version() -> str:
 setup(
     name=PACKAGE,
     version=_version(),
-    packages=[PACKAGE, PACKAGE + '.msg_adapters'] + [f'{PACKAGE}.{p}' for p in SUBPACKAGES],
+    packages=find_packages(include=[PACKAGE, PACKAGE + '.*']),
     package_data={PACKAGE: ['checkpoints/*.safetensors', 'checkpoints/*.json',
                             'checkpoints/*.md', 'py.typed'],
                   PACKAGE + '.msg_adapters': ['py.typed']},

@@ -1,0 +1,1 @@
+"""suit_ros.msg_adapters: pure ROS message <-> numpy conversions (no rclpy import)."""

@@ -1,0 +1,1 @@
+"""suit_ros.data."""
