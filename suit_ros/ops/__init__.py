@@ -1,1 +1,1 @@
-"""suit_ros.ops."""
+"""Pure-torch geometry ops: SE(3) helpers, rotated BEV IoU, NMS."""

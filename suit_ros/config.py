@@ -1,0 +1,256 @@
+"""Typed model configuration: dataclasses with the paper's defaults, loaded from YAML strictly.
+
+Unknown keys, wrong types and out-of-range values are errors that name the key and the file.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
+import os
+import typing
+from typing import Any
+
+import yaml
+
+from suit_ros import CLASS_NAMES
+from suit_ros.errors import ConfigError
+
+TEMPORAL_MODES = ('none', 'dense', 'sparse', 'sparse_velocity', 'suit')
+RELAXATIONS = ('square', 'circle', 'rectangle')
+
+
+@dataclass(frozen=True)
+class PillarConfig:
+    """Dynamic pillarization and the PointNet pillar encoder."""
+
+    point_range: tuple[float, float, float, float, float, float] = (
+        -51.2, -51.2, -3.0, 51.2, 51.2, 3.0)
+    pillar_size: float = 0.4
+    in_channels: int = 5          # x, y, z, intensity (0..1), time_lag (s)
+    channels: int = 32
+
+
+@dataclass(frozen=True)
+class BackboneConfig:
+    """2D BEV backbone (strided blocks) and neck (upsample + concatenate)."""
+
+    layer_nums: tuple[int, ...] = (1, 2, 2)
+    layer_strides: tuple[int, ...] = (2, 2, 2)
+    num_filters: tuple[int, ...] = (32, 64, 128)
+    upsample_strides: tuple[int, ...] = (1, 2, 4)
+    num_upsample_filters: tuple[int, ...] = (32, 32, 32)
+
+
+@dataclass(frozen=True)
+class HeadConfig:
+    """CenterHead: targets, losses and decoding (CenterPoint's defaults)."""
+
+    head_channels: int = 32
+    min_overlap: float = 0.1
+    min_radius: int = 2
+    code_weights: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.2)
+    loc_weight: float = 0.25
+    max_objects: int = 500
+    top_k: int = 100
+    score_threshold: float = 0.1
+    nms: str = 'rotated'          # 'rotated' (BEV IoU) or 'circle'
+    nms_iou_threshold: float = 0.2
+    circle_nms_radius: tuple[float, ...] = (2.0, 3.0, 0.5, 0.75)   # metres, per class
+    max_detections: int = 200
+
+
+@dataclass(frozen=True)
+class SamplingConfig:
+    """Significant sampling (paper section IV-A): alpha, K, refined NMS, relaxation."""
+
+    alpha: float = 0.1            # coarse: keep cells with max-class score >= alpha
+    top_k: int = 200              # K
+    nms_iou_threshold: float = 0.1   # refined: suppress overlapping decoded boxes
+    relaxation: str = 'square'    # square | circle | rectangle
+    window: int = 3               # Hs = Ws for square; window bound for circle / rectangle
+    radius: float = 1.5           # rho in cells, for circle
+
+
+@dataclass(frozen=True)
+class GeoNetConfig:
+    """GeoNet: object-centric displacement distribution over an Hw x Hw window of bins.
+
+    Bins are velocities ``k * velocity_step`` (k = -(Hw//2)..Hw//2 per axis); the displacement
+    of a bin is its velocity times the real time gap between the two frames.
+    """
+
+    bins: int = 7                 # Hw = Ww
+    velocity_step: float = 5.0    # m/s between bins: 7 bins cover -15..15 m/s
+    channels: int = 32
+    prune_probability: float = 1e-3   # inference only: skip bins below this probability
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """The whole detector."""
+
+    class_names: tuple[str, ...] = CLASS_NAMES
+    temporal: str = 'suit'        # none | dense | sparse | sparse_velocity | suit
+    pillars: PillarConfig = field(default_factory=PillarConfig)
+    backbone: BackboneConfig = field(default_factory=BackboneConfig)
+    head: HeadConfig = field(default_factory=HeadConfig)
+    sampling: SamplingConfig = field(default_factory=SamplingConfig)
+    geonet: GeoNetConfig = field(default_factory=GeoNetConfig)
+    geo_loss_weight: float = 1.0
+    max_time_gap: float = 0.5     # s: memory older than this is not fused
+
+    def __post_init__(self) -> None:
+        validate(self)
+
+    @property
+    def out_stride(self) -> int:
+        """Stride of the head map relative to the pillar grid."""
+        return int(self.backbone.layer_strides[0])
+
+    def to_dict(self) -> dict[str, Any]:
+        """Return a plain dict (YAML/JSON-serialisable)."""
+        return _plain(asdict(self))
+
+    def diff(self, other: ModelConfig) -> list[str]:
+        """Return the dotted keys whose values differ between two configs."""
+        return _diff(self.to_dict(), other.to_dict(), '')
+
+
+def validate(cfg: ModelConfig) -> None:
+    """Raise ConfigError when a value is out of its range."""
+    def bad(msg: str) -> ConfigError:
+        return ConfigError(f'invalid model config: {msg}')
+    if cfg.temporal not in TEMPORAL_MODES:
+        raise bad(f'temporal must be one of {TEMPORAL_MODES}, got {cfg.temporal!r}')
+    if not cfg.class_names or len(set(cfg.class_names)) != len(cfg.class_names):
+        raise bad('class_names must be a non-empty list of unique names')
+    r = cfg.pillars.point_range
+    if len(r) != 6 or not (r[0] < r[3] and r[1] < r[4] and r[2] < r[5]):
+        raise bad(f'point_range must be (x0, y0, z0, x1, y1, z1) with x0 < x1 ...: {r}')
+    if cfg.pillars.pillar_size <= 0:
+        raise bad('pillars.pillar_size must be > 0')
+    for extent in (r[3] - r[0], r[4] - r[1]):
+        cells = extent / cfg.pillars.pillar_size
+        if abs(cells - round(cells)) > 1e-6:
+            raise bad('point_range extent must be a multiple of pillar_size')
+        total_stride = 1
+        for s in cfg.backbone.layer_strides:
+            total_stride *= s
+        if round(cells) % total_stride:
+            raise bad(f'pillar grid ({round(cells)}) must be divisible by the backbone '
+                      f'strides product ({total_stride})')
+    b = cfg.backbone
+    n = len(b.layer_nums)
+    if not (len(b.layer_strides) == len(b.num_filters) == len(b.upsample_strides)
+            == len(b.num_upsample_filters) == n):
+        raise bad('backbone lists must all have the same length')
+    stride = 1
+    for s, u in zip(b.layer_strides, b.upsample_strides):
+        stride *= s
+        if stride // u != b.layer_strides[0] or stride % u:
+            raise bad('backbone: every upsampled block must land on the first block stride')
+    if cfg.head.nms not in ('rotated', 'circle'):
+        raise bad(f"head.nms must be 'rotated' or 'circle', got {cfg.head.nms!r}")
+    if len(cfg.head.code_weights) != 10:
+        raise bad('head.code_weights needs 10 values (offset 2, z, size 3, rot 2, vel 2)')
+    if len(cfg.head.circle_nms_radius) != len(cfg.class_names):
+        raise bad('head.circle_nms_radius needs one radius per class')
+    s = cfg.sampling
+    if not 0.0 < s.alpha < 1.0:
+        raise bad('sampling.alpha must be in (0, 1)')
+    if s.top_k < 1:
+        raise bad('sampling.top_k must be >= 1')
+    if s.relaxation not in RELAXATIONS:
+        raise bad(f'sampling.relaxation must be one of {RELAXATIONS}')
+    if s.window < 1 or s.window % 2 == 0:
+        raise bad('sampling.window must be odd and >= 1')
+    if cfg.geonet.bins < 1 or cfg.geonet.bins % 2 == 0:
+        raise bad('geonet.bins must be odd and >= 1')
+    if cfg.geonet.velocity_step <= 0:
+        raise bad('geonet.velocity_step must be > 0')
+    if cfg.max_time_gap <= 0:
+        raise bad('max_time_gap must be > 0')
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    return value
+
+
+def _diff(a: Any, b: Any, prefix: str) -> list[str]:
+    if isinstance(a, dict) and isinstance(b, dict):
+        out: list[str] = []
+        for key in sorted(set(a) | set(b)):
+            out += _diff(a.get(key), b.get(key), f'{prefix}{key}.')
+        return [k.rstrip('.') for k in out]
+    return [] if a == b else [prefix]
+
+
+def _coerce(cls: type, data: Any, where: str, source: str) -> Any:
+    """Build dataclass ``cls`` from a mapping, strictly."""
+    if not isinstance(data, dict):
+        raise ConfigError(f'{source}: {where or "top level"} must be a mapping')
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise ConfigError(f'{source}: unknown key(s) {", ".join(where + k for k in unknown)}; '
+                          f'allowed: {", ".join(sorted(known))}')
+    kwargs: dict[str, Any] = {}
+    for name, value in data.items():
+        kwargs[name] = _convert(hints[name], value, f'{where}{name}', source)
+    return cls(**kwargs)
+
+
+def _convert(hint: Any, value: Any, key: str, source: str) -> Any:
+    origin = typing.get_origin(hint)
+    if is_dataclass(hint):
+        return _coerce(hint, value, key + '.', source)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f'{source}: {key} must be a list, got {value!r}')
+        args = typing.get_args(hint)
+        item = args[0]
+        if len(args) != 2 or args[1] is not Ellipsis:
+            if len(value) != len(args):
+                raise ConfigError(f'{source}: {key} needs {len(args)} values, got {len(value)}')
+        return tuple(_convert(item, v, key, source) for v in value)
+    if hint is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f'{source}: {key} must be a number, got {value!r}')
+        return float(value)
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f'{source}: {key} must be an integer, got {value!r}')
+        return value
+    if hint is str:
+        if not isinstance(value, str):
+            raise ConfigError(f'{source}: {key} must be a string, got {value!r}')
+        return value
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f'{source}: {key} must be true or false, got {value!r}')
+        return value
+    return value
+
+
+def model_config_from_dict(data: dict[str, Any], source: str = '<dict>') -> ModelConfig:
+    """Build a ModelConfig from a (possibly partial) mapping; missing keys take defaults."""
+    return typing.cast(ModelConfig, _coerce(ModelConfig, data, '', source))
+
+
+def load_model_config(path: str | os.PathLike[str]) -> ModelConfig:
+    """Load a model config YAML (optionally nested under a top-level ``model:`` key)."""
+    path = os.fspath(path)
+    try:
+        with open(path, encoding='utf-8') as f:
+            data = yaml.safe_load(f)
+    except FileNotFoundError as exc:
+        raise ConfigError(f'model config {path} does not exist') from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'model config {path} is not valid YAML: {exc}') from exc
+    if isinstance(data, dict) and set(data) == {'model'}:
+        data = data['model']
+    return model_config_from_dict(data or {}, path)

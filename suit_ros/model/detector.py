@@ -1,0 +1,257 @@
+"""SUITDetector: the CenterPoint-pillar base with SUIT's sparse temporal path (and its baselines).
+
+Per frame: points -> pillars -> BEV backbone -> F_t; if a memory from the previous frame is
+usable, the past term (equation 11, or the dense warp) is fused with F_t; the CenterHead runs on
+the fused map; the next memory is sampled from the fused map (induction). ``temporal`` selects
+``none`` (single frame), ``dense`` (whole previous map warped by ego motion), ``sparse`` (sparse
+memory, zero displacement), ``sparse_velocity`` (shifted by predicted velocity) or ``suit``
+(GeoNet's displacement distribution).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import NDArray
+import torch
+from torch import Tensor, nn
+
+from suit_ros.config import ModelConfig
+from suit_ros.model.backbone import BEVBackbone
+from suit_ros.model.fusion import TemporalFusion, sparse_past_term, warp_dense
+from suit_ros.model.geonet import GeoNet
+from suit_ros.model.grid import BEVGrid
+from suit_ros.model.head import CenterHead
+from suit_ros.model.memory import (
+    DenseMemory,
+    SparseMemory,
+    ego_transforms,
+    rotate_velocities,
+    transform_sample_positions,
+)
+from suit_ros.model.pillars import PillarEncoder
+from suit_ros.model.sampling import gather_window, relaxation_window, significant_sampling
+from suit_ros.ops.geometry import se3_inverse
+from suit_ros.structures import Frame
+
+Memory = SparseMemory | DenseMemory
+
+
+class SUITDetector(nn.Module):
+    """The detector; see the module docstring."""
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        super().__init__()
+        self.cfg = cfg
+        p, b, h, g = cfg.pillars, cfg.backbone, cfg.head, cfg.geonet
+        self.grid = BEVGrid(p.point_range, p.pillar_size, cfg.out_stride)
+        self.pillars = PillarEncoder(self.grid, p.in_channels, p.channels)
+        self.backbone = BEVBackbone(p.channels, b.layer_nums, b.layer_strides, b.num_filters,
+                                    b.upsample_strides, b.num_upsample_filters)
+        C = self.backbone.out_channels
+        self.fusion = TemporalFusion(C) if cfg.temporal != 'none' else None
+        self.geonet = (GeoNet(C, cfg.sampling.window, g.bins, g.channels, g.velocity_step)
+                       if cfg.temporal == 'suit' else None)
+        self.head = CenterHead(C, len(cfg.class_names), self.grid, h.head_channels,
+                               h.code_weights, h.loc_weight, h.min_overlap, h.min_radius,
+                               h.max_objects)
+
+    @property
+    def device(self) -> torch.device:
+        """Where the weights live."""
+        return next(self.parameters()).device
+
+    # ------------------------------------------------------------------ per-frame pieces
+    def encode(self, points: Sequence[Tensor]) -> Tensor:
+        """Pillars + backbone for a batch of ``(N_i, 5)`` clouds -> ``(B, C, H, W)``."""
+        rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
+                for i, pts in enumerate(points)]
+        bev = self.pillars(torch.cat(rows, dim=0), len(points))
+        return self.backbone(bev)
+
+    def usable(self, memory: Memory | None, stamps_ns: Sequence[int],
+               frame_ids: Sequence[str]) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+        """Which frames of the batch may fuse the memory, and the time gaps (s)."""
+        B = len(stamps_ns)
+        if memory is None:
+            return np.zeros(B, bool), np.zeros(B)
+        dt = (np.asarray(stamps_ns, np.int64) - np.asarray(memory.stamps_ns, np.int64)) * 1e-9
+        same = np.array([a == b for a, b in zip(frame_ids, memory.frame_ids)])
+        ok = same & (dt > 0) & (dt <= self.cfg.max_time_gap)
+        return ok, dt
+
+    def past_term(self, memory: Memory | None, poses: NDArray[np.float64],
+                  stamps_ns: Sequence[int], frame_ids: Sequence[str]
+                  ) -> tuple[Tensor | None, dict[str, Tensor]]:
+        """The W2-projected past features in the current grid, or None when nothing is fused.
+
+        :return: the term ``(B, C, H, W)`` and aux outputs (``geo_logits``, ``sample_index``,
+            ``T_now_prev``) for the GeoNet loss.
+        """
+        aux: dict[str, Tensor] = {}
+        if self.fusion is None or memory is None:
+            return None, aux
+        ok, dt = self.usable(memory, stamps_ns, frame_ids)
+        if not ok.any():
+            return None, aux
+        B = len(stamps_ns)
+        T_now_prev = ego_transforms(np.asarray(poses), memory.poses)
+        if isinstance(memory, DenseMemory):
+            warped = warp_dense(memory.features, np.stack([se3_inverse(T) for T in T_now_prev]),
+                                self.grid)
+            warped = warped * torch.from_numpy(ok).to(warped)[:, None, None, None]
+            return self.fusion.past_dense(warped), aux
+        okt = torch.from_numpy(ok).to(memory.batch_index.device)
+        sel = torch.nonzero(okt[memory.batch_index], as_tuple=True)[0]
+        bi = memory.batch_index[sel]
+        feats, probs, mask = memory.features[sel], memory.probs[sel], memory.mask[sel]
+        sub = SparseMemory(bi, memory.cell_xy[sel], feats, probs, mask, memory.boxes[sel],
+                           memory.velocities[sel], memory.stamps_ns, memory.frame_ids,
+                           memory.poses, memory.window)
+        positions = transform_sample_positions(sub, T_now_prev)
+        dts = torch.from_numpy(dt).to(feats)[bi]                               # (M,)
+        M = feats.shape[0]
+        if self.cfg.temporal == 'suit':
+            win = memory.window
+            patches = (feats * mask[..., None]).permute(0, 2, 1).reshape(M, -1, win, win)
+            logits = self.geonet(patches)
+            q = torch.softmax(logits, dim=1)
+            disp = self.geonet.bin_velocities[None] * dts[:, None, None]
+            aux.update(geo_logits=logits, sample_index=sel)
+            prune = 0.0 if self.training else self.cfg.geonet.prune_probability
+        elif self.cfg.temporal == 'sparse_velocity':
+            v = rotate_velocities(sub.velocities, bi, T_now_prev)
+            disp, q, prune = (v * dts[:, None])[:, None, :], feats.new_ones(M, 1), 0.0
+        else:   # sparse: zero displacement
+            disp, q, prune = feats.new_zeros(M, 1, 2), feats.new_ones(M, 1), 0.0
+        aux['T_now_prev'] = torch.from_numpy(T_now_prev)
+        term = sparse_past_term(feats, probs, mask, positions, bi, disp, q, self.fusion.past,
+                                self.grid, B, prune)
+        return term, aux
+
+    def fuse(self, current: Tensor, past: Tensor | None) -> Tensor:
+        """Concatenate-and-fuse (a no-op for the single-frame model)."""
+        return current if self.fusion is None else self.fusion(current, past)
+
+    def sample_memory(self, fused: Tensor, preds: dict[str, Tensor],
+                      poses: NDArray[np.float64], stamps_ns: Sequence[int],
+                      frame_ids: Sequence[str]) -> Memory | None:
+        """The state handed to the next frame (None for the single-frame model)."""
+        poses = np.asarray(poses, np.float64).copy()
+        if self.cfg.temporal == 'none':
+            return None
+        if self.cfg.temporal == 'dense':
+            return DenseMemory(fused, list(stamps_ns), list(frame_ids), poses)
+        head = self.head
+        samples = significant_sampling(
+            preds['heatmap'], lambda b, c: head.decode_cells(preds, b, c), self.cfg.sampling,
+            self.grid)
+        cells, mask = relaxation_window(samples, self.cfg.sampling, self.grid)
+        prob = torch.sigmoid(preds['heatmap']).amax(dim=1)
+        feats, probs = gather_window(fused, prob, samples.batch_index, cells, mask)
+        return SparseMemory(samples.batch_index, self.grid.cell_to_xy(cells), feats, probs,
+                            mask, samples.boxes, samples.velocities, list(stamps_ns),
+                            list(frame_ids), poses, self.cfg.sampling.window)
+
+    # ------------------------------------------------------------------ training
+    def forward_sequence(self, frames: Sequence[Sequence[Frame]]) -> dict[str, Tensor]:
+        """Losses over a batch of ``B`` sequences of ``T`` frames, memory passed frame to frame.
+
+        :return: ``hm_loss``, ``loc_loss``, ``geo_loss`` (averaged over frames) and ``loss``.
+        """
+        T = len(frames[0])
+        if any(len(seq) != T for seq in frames):
+            raise ValueError('all sequences of a batch must have the same length')
+        device = self.device
+        memory: Memory | None = None
+        prev_gt: list[Frame] | None = None
+        totals = {'hm_loss': torch.zeros((), device=device),
+                  'loc_loss': torch.zeros((), device=device),
+                  'geo_loss': torch.zeros((), device=device)}
+        geo_terms = 0
+        for t in range(T):
+            step = [seq[t] for seq in frames]
+            points = [frame_points(f, device) for f in step]
+            poses = np.stack([f.pose for f in step])
+            stamps = [f.stamp_ns for f in step]
+            ids = [f.frame_id for f in step]
+            current = self.encode(points)
+            past, aux = self.past_term(memory, poses, stamps, ids)
+            fused = self.fuse(current, past)
+            preds = self.head(fused)
+            targets = self.head.build_targets(*gt_tensors(step, device))
+            losses = self.head.loss(preds, targets)
+            totals['hm_loss'] = totals['hm_loss'] + losses['hm_loss']
+            totals['loc_loss'] = totals['loc_loss'] + losses['loc_loss']
+            if 'geo_logits' in aux and prev_gt is not None and isinstance(memory, SparseMemory):
+                totals['geo_loss'] = totals['geo_loss'] + self.geo_loss(memory, aux, prev_gt)
+                geo_terms += 1
+            memory = self.sample_memory(fused, preds, poses, stamps, ids)
+            prev_gt = step
+        out = {k: v / (max(geo_terms, 1) if k == 'geo_loss' else T) for k, v in totals.items()}
+        out['loss'] = (out['hm_loss'] + self.cfg.head.loc_weight * out['loc_loss']
+                       + self.cfg.geo_loss_weight * out['geo_loss'])
+        return out
+
+    def geo_loss(self, memory: SparseMemory, aux: dict[str, Tensor],
+                 prev: Sequence[Frame]) -> Tensor:
+        """GeoNet cross-entropy: each sample's target is the bin of its assigned GT velocity
+        (rotated into the current frame), zero velocity when no GT box contains it."""
+        sel = aux['sample_index']
+        bi = memory.batch_index[sel]
+        centres = memory.cell_xy[sel][:, memory.cell_xy.shape[1] // 2]          # (M, 2)
+        vel, valid = assign_velocities(centres, bi, prev)
+        vel = rotate_velocities(vel, bi, aux['T_now_prev'].numpy())
+        if self.geonet is None:
+            raise RuntimeError('geo_loss needs the suit variant (GeoNet)')
+        return self.geonet.loss(aux['geo_logits'], vel, valid)
+
+
+def frame_points(frame: Frame, device: torch.device) -> Tensor:
+    """A frame's ``(N, 5)`` float32 points on ``device`` (time lag 0 appended to 4 columns)."""
+    pts = np.asarray(frame.points, np.float32)
+    if pts.shape[1] == 4:
+        pts = np.concatenate([pts, np.zeros((len(pts), 1), np.float32)], axis=1)
+    return torch.from_numpy(np.ascontiguousarray(pts[:, :5])).to(device)
+
+
+def gt_tensors(frames: Sequence[Frame], device: torch.device
+               ) -> tuple[list[Tensor], list[Tensor], list[Tensor]]:
+    """GT boxes, velocities and labels of each frame as tensors (empty when a frame has none)."""
+    boxes, vels, labels = [], [], []
+    for f in frames:
+        if f.gt is None:
+            raise ValueError(f'frame {f.stamp_ns} of {f.sequence_id!r} has no ground truth')
+        boxes.append(torch.from_numpy(f.gt.boxes).to(device))
+        vels.append(torch.from_numpy(f.gt.velocities).to(device))
+        labels.append(torch.from_numpy(f.gt.labels).to(device))
+    return boxes, vels, labels
+
+
+def assign_velocities(centres: Tensor, batch_index: Tensor, frames: Sequence[Frame],
+                      margin: float = 0.5) -> tuple[Tensor, Tensor]:
+    """GT velocity of the box (enlarged by ``margin`` m) containing each sample centre.
+
+    Among several containing boxes the nearest centre wins. :return: velocities ``(M, 2)``
+    (zeros when unassigned) and a validity mask ``(M,)``.
+    """
+    M = centres.shape[0]
+    vel = centres.new_zeros(M, 2)
+    valid = torch.zeros(M, dtype=torch.bool, device=centres.device)
+    for b, f in enumerate(frames):
+        idx = torch.nonzero(batch_index == b, as_tuple=True)[0]
+        if idx.numel() == 0 or f.gt is None or len(f.gt) == 0:
+            continue
+        boxes = torch.from_numpy(f.gt.boxes).to(centres)
+        d = centres[idx][:, None, :] - boxes[None, :, :2]                         # (m, G, 2)
+        c, s = torch.cos(boxes[:, 6]), torch.sin(boxes[:, 6])
+        along = (d[..., 0] * c + d[..., 1] * s).abs()
+        across = (-d[..., 0] * s + d[..., 1] * c).abs()
+        inside = (along <= boxes[:, 3] / 2 + margin) & (across <= boxes[:, 4] / 2 + margin)
+        dist = d.norm(dim=-1).masked_fill(~inside, float('inf'))
+        best = dist.argmin(dim=1)
+        hit = torch.isfinite(dist.gather(1, best[:, None]))[:, 0]
+        gv = torch.from_numpy(f.gt.velocities).to(centres)
+        vel[idx[hit]] = gv[best[hit]]
+        valid[idx[hit]] = True
+    return vel, valid

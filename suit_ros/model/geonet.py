@@ -1,0 +1,51 @@
+"""GeoNet (paper section IV-B): where will this object be? A distribution over displacements.
+
+A three-layer CNN looks at a sample's ``Hs x Ws x C`` feature patch and predicts a softmax over
+an ``Hw x Hw`` window of displacement bins. Bins are velocities, ``k * velocity_step`` per axis,
+and a bin's displacement is its velocity times the real time gap between the two frames, so the
+same weights serve a 10 Hz node and a 20 Hz bag.
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+import torch.nn.functional as F
+
+
+class GeoNet(nn.Module):
+    """``(M, C, Hs, Ws)`` patches -> ``(M, Hw * Hw)`` displacement-bin logits."""
+
+    def __init__(self, in_channels: int, window: int, bins: int = 7, channels: int = 32,
+                 velocity_step: float = 5.0) -> None:
+        super().__init__()
+        self.bins = bins
+        self.velocity_step = velocity_step
+        self.net = nn.Sequential(
+            nn.Conv2d(in_channels, channels, 3, padding=1), nn.ReLU(inplace=True),
+            nn.Conv2d(channels, channels, 3, padding=1), nn.ReLU(inplace=True),
+            nn.Conv2d(channels, bins * bins, window))
+        half = bins // 2
+        k = torch.arange(-half, half + 1, dtype=torch.float32) * velocity_step
+        vy, vx = torch.meshgrid(k, k, indexing='ij')
+        self.register_buffer('bin_velocities', torch.stack([vx.reshape(-1), vy.reshape(-1)], 1),
+                             persistent=False)
+
+    def forward(self, patches: Tensor) -> Tensor:
+        """Return logits ``(M, bins * bins)``; bin ``j * bins + i`` is velocity
+        ``((i - bins // 2) * step, (j - bins // 2) * step)``."""
+        return self.net(patches).flatten(1)
+
+    def target_bins(self, velocities: Tensor) -> Tensor:
+        """Bin index ``(M,)`` of velocities ``(M, 2)`` (nearest bin, clipped to the window)."""
+        half = self.bins // 2
+        idx = torch.round(velocities / self.velocity_step).long().clamp(-half, half) + half
+        return idx[:, 1] * self.bins + idx[:, 0]
+
+    def loss(self, logits: Tensor, velocities: Tensor, valid: Tensor | None = None) -> Tensor:
+        """Cross-entropy against the bins of the assigned GT velocities (0 when unassigned)."""
+        if logits.shape[0] == 0:
+            return logits.sum() * 0.0
+        target = self.target_bins(velocities)
+        if valid is not None:
+            target = torch.where(valid, target, self.target_bins(torch.zeros_like(velocities)))
+        return F.cross_entropy(logits, target)

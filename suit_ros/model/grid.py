@@ -1,0 +1,61 @@
+"""The BEV grid: pillar grid and head map geometry, metric <-> cell conversions."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+
+@dataclass(frozen=True)
+class BEVGrid:
+    """Square pillars over ``point_range``; the head map is the pillar grid / ``out_stride``.
+
+    Map index ``[row, col]``: ``col`` along +x from ``x0``, ``row`` along +y from ``y0``; cell
+    ``(c, r)`` covers ``x in [x0 + c * cell, x0 + (c + 1) * cell)``.
+    """
+
+    point_range: tuple[float, float, float, float, float, float]
+    pillar_size: float
+    out_stride: int
+
+    @property
+    def nx(self) -> int:
+        """Pillar grid width (x)."""
+        return int(round((self.point_range[3] - self.point_range[0]) / self.pillar_size))
+
+    @property
+    def ny(self) -> int:
+        """Pillar grid height (y)."""
+        return int(round((self.point_range[4] - self.point_range[1]) / self.pillar_size))
+
+    @property
+    def W(self) -> int:  # noqa: N802 - the usual name of a map width
+        """Head map width."""
+        return self.nx // self.out_stride
+
+    @property
+    def H(self) -> int:  # noqa: N802
+        """Head map height."""
+        return self.ny // self.out_stride
+
+    @property
+    def cell(self) -> float:
+        """Head map cell size in metres."""
+        return self.pillar_size * self.out_stride
+
+    def xy_to_cell(self, xy: Tensor) -> Tensor:
+        """Metric ``(..., 2)`` -> continuous head-map coordinates ``(..., 2)`` (col, row)."""
+        origin = xy.new_tensor(self.point_range[:2])
+        return (xy - origin) / self.cell
+
+    def cell_to_xy(self, colrow: Tensor) -> Tensor:
+        """Head-map cell ``(..., 2)`` (col, row) -> metric centre of that cell ``(..., 2)``."""
+        origin = torch.tensor(self.point_range[:2], dtype=torch.float32, device=colrow.device)
+        return (colrow.to(torch.float32) + 0.5) * self.cell + origin
+
+    def cell_centres(self, device: torch.device | None = None) -> Tensor:
+        """Metric centres of every head-map cell, ``(H, W, 2)``."""
+        rows, cols = torch.meshgrid(torch.arange(self.H, device=device),
+                                    torch.arange(self.W, device=device), indexing='ij')
+        return self.cell_to_xy(torch.stack([cols, rows], dim=-1))

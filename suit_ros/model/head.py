@@ -1,0 +1,205 @@
+"""CenterHead (CenterPoint): class heatmaps + box regression, targets, losses and decoding.
+
+Regression channels, in order: sub-cell offset (2), z (1), log size l, w, h (3), yaw as
+sin, cos (2), velocity vx, vy (2).
+"""
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import Tensor, nn
+import torch.nn.functional as F
+
+from suit_ros.model.grid import BEVGrid
+from suit_ros.ops.nms import batched_nms
+
+REG_SLICES = {'offset': (0, 2), 'z': (2, 3), 'size': (3, 6), 'rot': (6, 8), 'vel': (8, 10)}
+
+
+def gaussian_radius(height: float, width: float, min_overlap: float = 0.1) -> float:
+    """CornerNet's radius rule: the smallest of the three quadratic-root cases (in cells)."""
+    a1, b1 = 1.0, height + width
+    c1 = width * height * (1 - min_overlap) / (1 + min_overlap)
+    r1 = (b1 + math.sqrt(b1 ** 2 - 4 * a1 * c1)) / 2
+    a2, b2 = 4.0, 2 * (height + width)
+    c2 = (1 - min_overlap) * width * height
+    r2 = (b2 + math.sqrt(b2 ** 2 - 4 * a2 * c2)) / 2
+    a3, b3 = 4 * min_overlap, -2 * min_overlap * (height + width)
+    c3 = (min_overlap - 1) * width * height
+    r3 = (b3 + math.sqrt(b3 ** 2 - 4 * a3 * c3)) / 2
+    return min(r1, r2, r3)
+
+
+def draw_gaussian(heatmap: Tensor, col: int, row: int, radius: int) -> None:
+    """Max-in a Gaussian of ``sigma = (2 r + 1) / 6`` centred at ``(col, row)`` into ``(H, W)``."""
+    d = 2 * radius + 1
+    sigma = d / 6.0
+    ys = torch.arange(-radius, radius + 1, dtype=heatmap.dtype, device=heatmap.device)
+    g = torch.exp(-(ys[:, None] ** 2 + ys[None, :] ** 2) / (2 * sigma * sigma))
+    H, W = heatmap.shape
+    left, right = min(col, radius), min(W - col, radius + 1)
+    top, bottom = min(row, radius), min(H - row, radius + 1)
+    if left + right <= 0 or top + bottom <= 0:
+        return
+    region = heatmap[row - top:row + bottom, col - left:col + right]
+    patch = g[radius - top:radius + bottom, radius - left:radius + right]
+    torch.maximum(region, patch, out=region)
+
+
+def focal_loss(logits: Tensor, target: Tensor) -> Tensor:
+    """CornerNet's penalty-reduced focal loss (alpha 2, beta 4), normalised by positives."""
+    pred = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
+    pos = target.eq(1).to(pred.dtype)
+    neg_w = torch.pow(1 - target, 4)
+    pos_loss = (torch.log(pred) * torch.pow(1 - pred, 2) * pos).sum()
+    neg_loss = (torch.log(1 - pred) * torch.pow(pred, 2) * neg_w * (1 - pos)).sum()
+    return -(pos_loss + neg_loss) / pos.sum().clamp(min=1.0)
+
+
+class CenterHead(nn.Module):
+    """Heatmap and regression branches over the BEV feature map ``(B, C, H, W)``."""
+
+    def __init__(self, in_channels: int, num_classes: int, grid: BEVGrid,
+                 head_channels: int = 32, code_weights: tuple[float, ...] = (
+                     1, 1, 1, 1, 1, 1, 1, 1, 0.2, 0.2),
+                 loc_weight: float = 0.25, min_overlap: float = 0.1, min_radius: int = 2,
+                 max_objects: int = 500) -> None:
+        super().__init__()
+        self.grid = grid
+        self.num_classes = num_classes
+        self.min_overlap = min_overlap
+        self.min_radius = min_radius
+        self.max_objects = max_objects
+        self.loc_weight = loc_weight
+        self.register_buffer('code_weights', torch.tensor(code_weights, dtype=torch.float32),
+                             persistent=False)
+
+        def branch(cout: int) -> nn.Sequential:
+            return nn.Sequential(
+                nn.Conv2d(head_channels, head_channels, 3, padding=1, bias=False),
+                nn.BatchNorm2d(head_channels), nn.ReLU(inplace=True),
+                nn.Conv2d(head_channels, cout, 1))
+
+        self.shared = nn.Sequential(
+            nn.Conv2d(in_channels, head_channels, 3, padding=1, bias=False),
+            nn.BatchNorm2d(head_channels), nn.ReLU(inplace=True))
+        self.heatmap = branch(num_classes)
+        self.regression = branch(10)
+        nn.init.constant_(self.heatmap[-1].bias, -2.19)   # prior 0.1, as CenterPoint
+
+    def forward(self, x: Tensor) -> dict[str, Tensor]:
+        """Return ``heatmap`` logits ``(B, K, H, W)`` and the regression maps by name."""
+        s = self.shared(x)
+        reg = self.regression(s)
+        out = {'heatmap': self.heatmap(s)}
+        for name, (a, b) in REG_SLICES.items():
+            out[name] = reg[:, a:b]
+        return out
+
+    # ------------------------------------------------------------------ targets and loss
+    def build_targets(self, boxes: list[Tensor], velocities: list[Tensor],
+                      labels: list[Tensor]) -> dict[str, Tensor]:
+        """CenterPoint targets for a batch of per-sample GT ``(M_i, 7)``, ``(M_i, 2)``, ``(M_i,)``.
+
+        :return: ``heatmap (B, K, H, W)``, ``index (B, O)`` flat cell index, ``mask (B, O)``,
+            ``reg (B, O, 10)`` with O = ``max_objects``.
+        """
+        g = self.grid
+        B, O = len(boxes), self.max_objects
+        device = boxes[0].device if boxes else torch.device('cpu')
+        heat = torch.zeros(B, self.num_classes, g.H, g.W, device=device)
+        index = torch.zeros(B, O, dtype=torch.long, device=device)
+        mask = torch.zeros(B, O, dtype=torch.bool, device=device)
+        reg = torch.zeros(B, O, 10, device=device)
+        for b in range(B):
+            bx = boxes[b].float().cpu()
+            vel = velocities[b].float().cpu()
+            lab = labels[b].long().cpu()
+            cr = g.xy_to_cell(bx[:, :2])
+            k = 0
+            for i in range(min(len(bx), O * 4)):
+                col, row = int(math.floor(cr[i, 0])), int(math.floor(cr[i, 1]))
+                if not (0 <= col < g.W and 0 <= row < g.H) or k >= O:
+                    continue
+                length, width = float(bx[i, 3]) / g.cell, float(bx[i, 4]) / g.cell
+                radius = max(self.min_radius, int(gaussian_radius(length, width,
+                                                                  self.min_overlap)))
+                draw_gaussian(heat[b, int(lab[i])], col, row, radius)
+                index[b, k] = row * g.W + col
+                mask[b, k] = True
+                reg[b, k] = torch.tensor([
+                    float(cr[i, 0]) - col, float(cr[i, 1]) - row, float(bx[i, 2]),
+                    math.log(max(float(bx[i, 3]), 1e-3)), math.log(max(float(bx[i, 4]), 1e-3)),
+                    math.log(max(float(bx[i, 5]), 1e-3)),
+                    math.sin(float(bx[i, 6])), math.cos(float(bx[i, 6])),
+                    float(vel[i, 0]), float(vel[i, 1])])
+                k += 1
+        return {'heatmap': heat, 'index': index, 'mask': mask, 'reg': reg}
+
+    def loss(self, preds: dict[str, Tensor], targets: dict[str, Tensor]) -> dict[str, Tensor]:
+        """Focal heatmap loss + weighted L1 regression loss at the GT centres."""
+        hm_loss = focal_loss(preds['heatmap'], targets['heatmap'])
+        reg_map = torch.cat([preds[n] for n in REG_SLICES], dim=1)       # (B, 10, H, W)
+        B, C = reg_map.shape[:2]
+        flat = reg_map.reshape(B, C, -1).permute(0, 2, 1)                   # (B, HW, 10)
+        idx = targets['index'].unsqueeze(-1).expand(-1, -1, C)
+        pred = torch.gather(flat, 1, idx)                                # (B, O, 10)
+        mask = targets['mask'].unsqueeze(-1).to(pred.dtype)
+        l1 = (torch.abs(pred - targets['reg']) * mask).sum(dim=(0, 1))   # (10,)
+        num = mask.sum().clamp(min=1.0)
+        loc_loss = (l1 / num * self.code_weights).sum()
+        return {'hm_loss': hm_loss, 'loc_loss': loc_loss,
+                'loss': hm_loss + self.loc_weight * loc_loss}
+
+    # ------------------------------------------------------------------ decoding
+    def decode_cells(self, preds: dict[str, Tensor], batch_index: Tensor, cells: Tensor
+                     ) -> tuple[Tensor, Tensor]:
+        """Decode boxes ``(N, 7)`` and velocities ``(N, 2)`` at integer cells ``(N, 2)``."""
+        g = self.grid
+        b, c, r = batch_index.long(), cells[:, 0].long(), cells[:, 1].long()
+
+        def at(name: str) -> Tensor:
+            return preds[name][b, :, r, c]                               # (N, ch)
+
+        off, z, size, rot, vel = at('offset'), at('z'), at('size'), at('rot'), at('vel')
+        x = (c.to(off.dtype) + off[:, 0]) * g.cell + g.point_range[0]
+        y = (r.to(off.dtype) + off[:, 1]) * g.cell + g.point_range[1]
+        dims = torch.exp(size.clamp(max=4.0))
+        yaw = torch.atan2(rot[:, 0], rot[:, 1])
+        boxes = torch.stack([x, y, z[:, 0], dims[:, 0], dims[:, 1], dims[:, 2], yaw], dim=1)
+        return boxes, vel
+
+    def decode(self, preds: dict[str, Tensor], k: int = 100,
+               score_threshold: float | Tensor = 0.1, nms: str = 'rotated',
+               nms_iou_threshold: float = 0.2, circle_radius: Tensor | None = None,
+               max_detections: int = 200) -> list[dict[str, Tensor]]:
+        """Top-K over classes x cells, per-class score threshold, class-aware NMS.
+
+        :return: per sample ``boxes (N, 7)``, ``velocities (N, 2)``, ``scores (N,)``,
+            ``labels (N,)``, ``cells (N, 2)`` (col, row), sorted by descending score.
+        """
+        heat = torch.sigmoid(preds['heatmap'])
+        B, K, H, W = heat.shape
+        thr = torch.as_tensor(score_threshold, dtype=heat.dtype, device=heat.device)
+        thr = thr.expand(K) if thr.ndim == 0 else thr
+        scores, idx = heat.reshape(B, -1).topk(min(k, K * H * W), dim=1)
+        out = []
+        for b in range(B):
+            lab = idx[b] // (H * W)
+            cell = idx[b] % (H * W)
+            keep = scores[b] >= thr[lab]
+            sc, lab, cell = scores[b][keep], lab[keep], cell[keep]
+            cells = torch.stack([cell % W, cell // W], dim=1)
+            bi = torch.full_like(lab, b)
+            boxes, vel = self.decode_cells(preds, bi, cells)
+            kept = batched_nms(boxes, sc, lab, nms, nms_iou_threshold, circle_radius)
+            kept = kept[:max_detections]
+            out.append({'boxes': boxes[kept], 'velocities': vel[kept], 'scores': sc[kept],
+                        'labels': lab[kept], 'cells': cells[kept]})
+        return out
+
+
+def heatmap_peaks(heat: Tensor) -> Tensor:
+    """Zero every heatmap value that is not a 3x3 local maximum (``(B, K, H, W)``)."""
+    return heat * (F.max_pool2d(heat, 3, stride=1, padding=1) == heat)

@@ -1,0 +1,119 @@
+"""SUIT's temporal state: the sparse memory of significant samples, and the dense baseline's map.
+
+Only what significant sampling kept survives a frame: per sample a window of features, their
+metric positions, their heatmap probabilities, the decoded box, plus the frame's stamp, frame id
+and pose. The ego transform that moves the memory into the next frame is computed in float64.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+import torch
+from torch import Tensor
+
+from suit_ros.ops.geometry import ego_transform
+
+
+@dataclass
+class SparseMemory:
+    """Significant samples of one batch of frames (``B`` frames, ``M`` samples, ``P`` cells).
+
+    :param batch_index: ``(M,)`` which frame of the batch each sample belongs to.
+    :param cell_xy: ``(M, P, 2)`` metric positions of each relaxed cell, in the LiDAR frame of
+        capture.
+    :param features: ``(M, P, C)`` BEV features at those cells (zeros where ``mask`` is False).
+    :param probs: ``(M, P)`` max-class heatmap probability p(R | I) at each cell.
+    :param mask: ``(M, P)`` which window cells belong to the relaxed neighbourhood.
+    :param boxes: ``(M, 7)`` box decoded at the sample's centre cell.
+    :param velocities: ``(M, 2)`` velocity decoded at the sample's centre cell.
+    :param poses: ``(B, 4, 4)`` float64 ``T_odom_lidar`` of each frame.
+    """
+
+    batch_index: Tensor
+    cell_xy: Tensor
+    features: Tensor
+    probs: Tensor
+    mask: Tensor
+    boxes: Tensor
+    velocities: Tensor
+    stamps_ns: list[int]
+    frame_ids: list[str]
+    poses: NDArray[np.float64]
+    window: int
+
+    @property
+    def num_samples(self) -> int:
+        """Number of significant samples ``M``."""
+        return int(self.batch_index.shape[0])
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the memory (tensors, poses, stamps; ids counted by their length)."""
+        tensors = (self.batch_index, self.cell_xy, self.features, self.probs, self.mask,
+                   self.boxes, self.velocities)
+        return (sum(t.numel() * t.element_size() for t in tensors) + self.poses.nbytes
+                + 8 * len(self.stamps_ns) + sum(len(f) for f in self.frame_ids))
+
+    def detach(self) -> SparseMemory:
+        """Return a copy cut from the autograd graph (truncated backprop through time)."""
+        return SparseMemory(self.batch_index, self.cell_xy.detach(), self.features.detach(),
+                            self.probs.detach(), self.mask, self.boxes.detach(),
+                            self.velocities.detach(), list(self.stamps_ns),
+                            list(self.frame_ids), self.poses.copy(), self.window)
+
+
+@dataclass
+class DenseMemory:
+    """The dense baseline's state: the whole previous fused BEV map ``(B, C, H, W)``."""
+
+    features: Tensor
+    stamps_ns: list[int]
+    frame_ids: list[str]
+    poses: NDArray[np.float64]
+
+    @property
+    def num_samples(self) -> int:
+        """Every cell is kept: ``B * H * W``."""
+        B, _, H, W = self.features.shape
+        return int(B * H * W)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes held by the memory."""
+        return (self.features.numel() * self.features.element_size() + self.poses.nbytes
+                + 8 * len(self.stamps_ns) + sum(len(f) for f in self.frame_ids))
+
+
+def ego_transforms(poses_now: NDArray[np.float64], poses_prev: NDArray[np.float64]
+                   ) -> NDArray[np.float64]:
+    """Batch of ``T_now_prev = inv(T_odom_now) @ T_odom_prev``, ``(B, 4, 4)`` float64."""
+    return np.stack([ego_transform(a, b) for a, b in zip(poses_now, poses_prev)])
+
+
+def transform_sample_positions(memory: SparseMemory, T_now_prev: NDArray[np.float64]) -> Tensor:
+    """Move every sample cell into the current LiDAR frame: ``(M, P, 2)`` metres, float32.
+
+    Each cell is lifted to 3D at its sample's box centre height, transformed in float64 with its
+    frame's ``T_now_prev``, and projected back to BEV.
+    """
+    M, P, _ = memory.cell_xy.shape
+    if M == 0:
+        return memory.cell_xy.new_zeros((0, P, 2))
+    T = torch.from_numpy(np.ascontiguousarray(T_now_prev)).to(memory.cell_xy.device)
+    T = T[memory.batch_index]                                              # (M, 4, 4) f64
+    xyz = torch.cat([memory.cell_xy.double(),
+                     memory.boxes[:, None, 2:3].double().expand(M, P, 1)], dim=-1)
+    moved = torch.einsum('mij,mpj->mpi', T[:, :3, :3], xyz) + T[:, None, :3, 3]
+    return moved[..., :2].float()
+
+
+def rotate_velocities(velocities: Tensor, batch_index: Tensor,
+                      T_now_prev: NDArray[np.float64]) -> Tensor:
+    """Rotate ``(M, 2)`` velocities from the previous frame's axes into the current frame's."""
+    if velocities.shape[0] == 0:
+        return velocities
+    R = torch.from_numpy(np.ascontiguousarray(T_now_prev[:, :2, :2])).to(velocities.device)
+    R = R[batch_index].to(velocities.dtype)
+    return torch.einsum('mij,mj->mi', R, velocities)

@@ -1,0 +1,78 @@
+"""Dynamic pillarization, the PointNet pillar encoder (PFN) and the scatter to a BEV image.
+
+No fixed maximum of points per pillar: every point in range contributes, pillar statistics are
+segment reductions over a sort-free ``unique`` of the pillar keys (pure torch).
+"""
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from suit_ros.model.grid import BEVGrid
+
+
+class PillarEncoder(nn.Module):
+    """Points -> pillar features -> pseudo-image ``(B, C, ny, nx)``.
+
+    Each point is decorated with its offsets to the pillar's point mean (3) and to the pillar
+    centre (2), as PointPillars does, passed through Linear + BatchNorm + ReLU, and max-pooled
+    per pillar.
+    """
+
+    def __init__(self, grid: BEVGrid, in_channels: int = 5, channels: int = 32) -> None:
+        super().__init__()
+        self.grid = grid
+        self.in_channels = in_channels
+        self.out_channels = channels
+        self.linear = nn.Linear(in_channels + 5, channels, bias=False)
+        self.norm = nn.BatchNorm1d(channels, eps=1e-3, momentum=0.01)
+
+    def voxelize(self, points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        """Assign points to pillars.
+
+        :param points: ``(P, 1 + in_channels)``: batch index, x, y, z, features...
+        :return: the in-range points ``(P', 1 + in_channels)``, their pillar id ``(P',)``
+            (index into the unique pillars) and the unique pillar keys ``(U,)`` encoded as
+            ``(b * ny + iy) * nx + ix``.
+        """
+        g = self.grid
+        x0, y0, z0, x1, y1, z1 = g.point_range
+        xyz = points[:, 1:4]
+        inside = ((xyz[:, 0] >= x0) & (xyz[:, 0] < x1) & (xyz[:, 1] >= y0) & (xyz[:, 1] < y1)
+                  & (xyz[:, 2] >= z0) & (xyz[:, 2] < z1))
+        pts = points[inside]
+        ix = ((pts[:, 1] - x0) / g.pillar_size).long().clamp_(0, g.nx - 1)
+        iy = ((pts[:, 2] - y0) / g.pillar_size).long().clamp_(0, g.ny - 1)
+        key = (pts[:, 0].long() * g.ny + iy) * g.nx + ix
+        keys, inverse = torch.unique(key, return_inverse=True)
+        return pts, inverse, keys
+
+    def forward(self, points: Tensor, batch_size: int) -> Tensor:
+        """Encode ``(P, 1 + in_channels)`` points into ``(B, C, ny, nx)``."""
+        g = self.grid
+        pts, inverse, keys = self.voxelize(points)
+        feats = pts[:, 1:]
+        U = keys.shape[0]
+        ones = torch.ones_like(inverse, dtype=feats.dtype)
+        count = torch.zeros(U, dtype=feats.dtype, device=feats.device).index_add_(0, inverse, ones)
+        mean = torch.zeros(U, 3, dtype=feats.dtype, device=feats.device)
+        mean.index_add_(0, inverse, feats[:, :3])
+        mean = mean / count.clamp(min=1.0)[:, None]
+        ix = (keys % g.nx).to(feats.dtype)
+        iy = ((keys // g.nx) % g.ny).to(feats.dtype)
+        centre_x = (ix + 0.5) * g.pillar_size + g.point_range[0]
+        centre_y = (iy + 0.5) * g.pillar_size + g.point_range[1]
+        decorated = torch.cat([
+            feats,
+            feats[:, :3] - mean[inverse],
+            (feats[:, 0] - centre_x[inverse])[:, None],
+            (feats[:, 1] - centre_y[inverse])[:, None],
+        ], dim=1)
+        x = torch.relu(self.norm(self.linear(decorated)))
+        pillar = torch.zeros(U, self.out_channels, dtype=x.dtype, device=x.device)
+        pillar = pillar.scatter_reduce_(0, inverse[:, None].expand_as(x), x, 'amax',
+                                        include_self=False)
+        canvas = torch.zeros(batch_size * g.ny * g.nx, self.out_channels, dtype=x.dtype,
+                             device=x.device)
+        canvas[keys] = pillar
+        return canvas.view(batch_size, g.ny, g.nx, self.out_channels).permute(0, 3, 1, 2)

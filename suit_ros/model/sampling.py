@@ -1,0 +1,128 @@
+"""Significant sampling (paper section IV-A): coarse, top-K, refined NMS, relaxation.
+
+From a frame's heatmap p(R_t | I_t) it keeps only a few locations around likely objects:
+cells whose max-class score is at least ``alpha`` (coarse), the ``K`` best of them (top-K), one
+per object after NMS on the boxes decoded there (refined), and a neighbourhood around each
+(relaxation: a square ``Hs x Ws`` window, a circle of radius ``rho`` cells, or the decoded box's
+rectangle). The features at these cells, their positions and probabilities form the memory.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor
+
+from suit_ros.config import SamplingConfig
+from suit_ros.model.grid import BEVGrid
+from suit_ros.ops.iou import bev_iou
+from suit_ros.ops.nms import _greedy
+
+
+@dataclass
+class Samples:
+    """Where the samples are: ``(M,)`` batch index, ``(M, 2)`` centre cells (col, row)."""
+
+    batch_index: Tensor
+    cells: Tensor
+    scores: Tensor
+    boxes: Tensor
+    velocities: Tensor
+
+
+def coarse_topk(prob: Tensor, alpha: float, k: int) -> tuple[Tensor, Tensor, Tensor]:
+    """Cells with ``prob >= alpha``, at most ``k`` per frame, best first.
+
+    :param prob: ``(B, H, W)`` max-class heatmap probability.
+    :return: batch index ``(N,)``, cells ``(N, 2)`` (col, row), scores ``(N,)``.
+    """
+    B, H, W = prob.shape
+    flat = prob.reshape(B, -1)
+    scores, idx = flat.topk(min(k, H * W), dim=1)
+    keep = scores >= alpha
+    b = torch.arange(B, device=prob.device)[:, None].expand_as(idx)[keep]
+    idx, scores = idx[keep], scores[keep]
+    cells = torch.stack([idx % W, idx // W], dim=1)
+    return b, cells, scores
+
+
+def refined_nms(boxes: Tensor, scores: Tensor, batch_index: Tensor, iou_threshold: float,
+                min_distance: float) -> Tensor:
+    """Class-agnostic NMS within each frame: a kept sample suppresses any other whose decoded box
+    overlaps it (BEV IoU > ``iou_threshold``) or whose decoded centre lies closer than
+    ``min_distance`` metres (so small objects, whose neighbouring cells all point at the same
+    centre, also keep one sample). Returns kept indices, best first."""
+    if boxes.shape[0] == 0:
+        return torch.zeros(0, dtype=torch.long, device=boxes.device)
+    order = torch.argsort(scores, descending=True, stable=True)
+    b, bi = boxes[order], batch_index[order]
+    same = bi[:, None] == bi[None, :]
+    dist = torch.cdist(b[:, :2].float(), b[:, :2].float())
+    suppress = ((bev_iou(b, b) > iou_threshold) | (dist < min_distance)) & same
+    suppress.fill_diagonal_(False)
+    return _greedy(suppress, order)
+
+
+def relaxation_window(samples: Samples, cfg: SamplingConfig, grid: BEVGrid
+                      ) -> tuple[Tensor, Tensor]:
+    """The relaxed neighbourhood of each sample.
+
+    :return: cells ``(M, P, 2)`` (col, row) of the ``window x window`` patch around each centre
+        (row-major, P = window^2), and a mask ``(M, P)`` of the cells that belong to the
+        neighbourhood: all of the square, the disc of radius ``cfg.radius`` cells, or the cells
+        whose centre lies inside the decoded box (the centre cell always), and inside the map.
+    """
+    R = cfg.window // 2
+    rng = torch.arange(-R, R + 1, device=samples.cells.device)
+    dr, dc = torch.meshgrid(rng, rng, indexing='ij')
+    offsets = torch.stack([dc.reshape(-1), dr.reshape(-1)], dim=1)            # (P, 2)
+    cells = samples.cells[:, None, :] + offsets[None]                          # (M, P, 2)
+    inside = ((cells[..., 0] >= 0) & (cells[..., 0] < grid.W) & (cells[..., 1] >= 0)
+              & (cells[..., 1] < grid.H))
+    if cfg.relaxation == 'square':
+        member = torch.ones_like(inside)
+    elif cfg.relaxation == 'circle':
+        member = (offsets.pow(2).sum(-1) <= cfg.radius ** 2)[None].expand_as(inside)
+    else:   # rectangle: cell centres inside the decoded box footprint
+        xy = grid.cell_to_xy(cells)                                             # (M, P, 2)
+        box = samples.boxes
+        d = xy - box[:, None, :2]
+        c, s = torch.cos(box[:, 6])[:, None], torch.sin(box[:, 6])[:, None]
+        along = d[..., 0] * c + d[..., 1] * s
+        across = -d[..., 0] * s + d[..., 1] * c
+        member = ((along.abs() <= box[:, None, 3] / 2) & (across.abs() <= box[:, None, 4] / 2))
+        member[:, offsets.shape[0] // 2] = True
+    return cells, inside & member
+
+
+def significant_sampling(heatmap_logits: Tensor, decode_cells, cfg: SamplingConfig,
+                         grid: BEVGrid) -> Samples:
+    """Select the significant samples of a batch of frames.
+
+    :param heatmap_logits: ``(B, K, H, W)``.
+    :param decode_cells: ``(batch_index, cells) -> (boxes (N, 7), velocities (N, 2))``, the
+        head's decoder at given cells.
+    """
+    prob = torch.sigmoid(heatmap_logits).amax(dim=1)
+    b, cells, scores = coarse_topk(prob, cfg.alpha, cfg.top_k)
+    boxes, vel = decode_cells(b, cells)
+    keep = refined_nms(boxes.detach(), scores.detach(), b, cfg.nms_iou_threshold, grid.cell)
+    return Samples(b[keep], cells[keep], scores[keep], boxes[keep], vel[keep])
+
+
+def gather_window(features: Tensor, prob: Tensor, batch_index: Tensor, cells: Tensor,
+                  mask: Tensor) -> tuple[Tensor, Tensor]:
+    """Features ``(M, P, C)`` and probabilities ``(M, P)`` at window cells (zero outside mask).
+
+    :param features: ``(B, C, H, W)``; ``prob``: ``(B, H, W)``.
+    """
+    M, P, _ = cells.shape
+    B, C, H, W = features.shape
+    col = cells[..., 0].clamp(0, W - 1)
+    row = cells[..., 1].clamp(0, H - 1)
+    b = batch_index[:, None].expand(M, P)
+    flat = (b * H + row) * W + col                                             # (M, P)
+    feat = features.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat.reshape(-1)]
+    feat = feat.view(M, P, C) * mask[..., None].to(feat.dtype)
+    p = prob.reshape(-1)[flat.reshape(-1)].view(M, P) * mask.to(prob.dtype)
+    return feat, p

@@ -1,0 +1,84 @@
+"""Non-maximum suppression in pure torch: circle NMS (centre distance) and rotated BEV-IoU NMS.
+
+Both are greedy in descending score order, like their CUDA counterparts, but vectorised: the
+pairwise suppression matrix is computed once, then a short loop over the kept boxes resolves
+it (N is at most a few hundred after top-K).
+"""
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from suit_ros.ops.iou import bev_iou
+
+
+def _greedy(suppress: Tensor, order: Tensor) -> Tensor:
+    """Greedy NMS over a boolean ``(N, N)`` suppression matrix given in score order."""
+    sup = suppress.cpu().numpy()
+    removed = np.zeros(sup.shape[0], dtype=bool)
+    keep: list[int] = []
+    for i in range(sup.shape[0]):
+        if removed[i]:
+            continue
+        keep.append(i)
+        removed |= sup[i]
+    return order[torch.tensor(keep, dtype=torch.long, device=order.device)]
+
+
+def circle_nms(centers: Tensor, scores: Tensor, radius: float | Tensor) -> Tensor:
+    """Keep the highest-scoring centre within each ``radius`` (metres) neighbourhood.
+
+    :param centers: ``(N, 2)`` BEV centres.
+    :param scores: ``(N,)``.
+    :param radius: suppression radius, scalar or per box ``(N,)`` (the kept box's radius).
+    :return: kept indices ``(K,)`` in descending score order.
+    """
+    if centers.shape[0] == 0:
+        return torch.zeros(0, dtype=torch.long, device=centers.device)
+    order = torch.argsort(scores, descending=True, stable=True)
+    c = centers[order]
+    r = torch.as_tensor(radius, dtype=c.dtype, device=c.device)
+    r = r[order] if r.ndim else r.expand(c.shape[0])
+    d2 = torch.cdist(c.double(), c.double()).pow(2)
+    suppress = d2 <= (r[:, None].double() ** 2)
+    suppress.fill_diagonal_(False)
+    return _greedy(suppress, order)
+
+
+def rotated_nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
+    """Greedy NMS on rotated BEV IoU of ``(N, 7)`` boxes; returns kept indices."""
+    if boxes.shape[0] == 0:
+        return torch.zeros(0, dtype=torch.long, device=boxes.device)
+    order = torch.argsort(scores, descending=True, stable=True)
+    b = boxes[order]
+    suppress = bev_iou(b, b) > iou_threshold
+    suppress.fill_diagonal_(False)
+    return _greedy(suppress, order)
+
+
+def batched_nms(boxes: Tensor, scores: Tensor, labels: Tensor, kind: str = 'rotated',
+                iou_threshold: float = 0.2, radius: Tensor | None = None) -> Tensor:
+    """Class-aware NMS: boxes of different labels never suppress each other.
+
+    :param kind: ``'rotated'`` (BEV IoU > ``iou_threshold``) or ``'circle'`` (``radius`` per
+        class, a ``(num_classes,)`` tensor in metres).
+    :return: kept indices in descending score order.
+    """
+    if boxes.shape[0] == 0:
+        return torch.zeros(0, dtype=torch.long, device=boxes.device)
+    order = torch.argsort(scores, descending=True, stable=True)
+    b, lab = boxes[order], labels[order]
+    same = lab[:, None] == lab[None, :]
+    if kind == 'rotated':
+        suppress = (bev_iou(b, b) > iou_threshold) & same
+    elif kind == 'circle':
+        if radius is None:
+            raise ValueError('circle NMS needs per-class radii')
+        r = radius.to(b.dtype)[lab]
+        d2 = torch.cdist(b[:, :2].double(), b[:, :2].double()).pow(2)
+        suppress = (d2 <= r[:, None].double() ** 2) & same
+    else:
+        raise ValueError(f"unknown NMS kind {kind!r}: use 'rotated' or 'circle'")
+    suppress.fill_diagonal_(False)
+    return _greedy(suppress, order)
