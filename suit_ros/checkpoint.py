@@ -1,0 +1,170 @@
+"""Checkpoints: safetensors weights + JSON metadata (config, class names, metrics, code version).
+
+Nothing here unpickles: a pickle or ``torch.save`` archive is refused with a message that says
+what it is and what to do.
+"""
+from __future__ import annotations
+
+import datetime
+import json
+import os
+from pathlib import Path
+import subprocess
+from typing import Any
+
+import torch
+
+from suit_ros import __version__
+from suit_ros.config import ModelConfig, model_config_from_dict
+from suit_ros.errors import CheckpointError, ConfigError
+
+FORMAT = 'suit_ros/1'
+DEFAULT_NAME = 'suit_default.safetensors'
+
+
+def default_checkpoint_path() -> Path:
+    """The checkpoint shipped with the package (used when none is given)."""
+    return Path(__file__).resolve().parent / 'checkpoints' / DEFAULT_NAME
+
+
+def code_version() -> str:
+    """``suit_ros.__version__`` plus ``git describe`` when run from a checkout."""
+    try:
+        described = subprocess.run(
+            ['git', 'describe', '--always', '--dirty'], cwd=Path(__file__).parent,
+            capture_output=True, text=True, timeout=5, check=False).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        described = ''
+    return f'{__version__}+{described}' if described else __version__
+
+
+def save_checkpoint(path: str | os.PathLike[str], model: torch.nn.Module, config: ModelConfig,
+                    metrics: dict[str, Any] | None = None,
+                    extra: dict[str, Any] | None = None) -> Path:
+    """Write the model's weights and metadata to a ``.safetensors`` file (atomically)."""
+    from safetensors.torch import save_file
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
+    meta = {
+        'format': FORMAT,
+        'config': config.to_dict(),
+        'class_names': list(config.class_names),
+        'metrics': metrics or {},
+        'code_version': code_version(),
+        'created': datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds'),
+        'extra': extra or {},
+    }
+    tmp = path.with_suffix(path.suffix + '.tmp')
+    save_file(state, str(tmp), metadata={'suit_ros': json.dumps(meta)})
+    os.replace(tmp, path)
+    return path
+
+
+def _sniff(path: Path) -> None:
+    with open(path, 'rb') as f:
+        head = f.read(8)
+    if head[:1] == b'\x80' or head[:2] == b'PK':
+        kind = 'a pickle' if head[:1] == b'\x80' else 'a torch.save (zip/pickle) archive'
+        raise CheckpointError(
+            f'{path} is {kind}, not a suit_ros checkpoint. Pickles can run code when loaded, so '
+            'suit_ros refuses them; export the weights to safetensors (suit-ros train writes '
+            'them) and pass that file.')
+    if len(head) < 8:
+        raise CheckpointError(f'{path} is too short to be a checkpoint ({len(head)} bytes)')
+
+
+def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Return a checkpoint's metadata without loading its tensors."""
+    from safetensors import safe_open
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f'checkpoint {path} does not exist; train one with '
+                              '`suit-ros train` or pass --checkpoint')
+    _sniff(path)
+    try:
+        with safe_open(str(path), framework='pt') as f:
+            raw = (f.metadata() or {}).get('suit_ros')
+    except Exception as exc:  # safetensors raises several types for corrupt headers
+        raise CheckpointError(f'{path} is not a valid safetensors file ({exc}); it may be '
+                              'truncated or corrupt') from exc
+    if raw is None:
+        raise CheckpointError(f'{path} is a safetensors file but not a suit_ros checkpoint '
+                              '(no suit_ros metadata)')
+    try:
+        meta = json.loads(raw)
+    except json.JSONDecodeError as exc:
+        raise CheckpointError(f'{path}: corrupt suit_ros metadata ({exc})') from exc
+    if meta.get('format') != FORMAT:
+        raise CheckpointError(f'{path}: unsupported checkpoint format {meta.get("format")!r} '
+                              f'(this suit_ros reads {FORMAT})')
+    return dict(meta)
+
+
+def load_checkpoint(path: str | os.PathLike[str], device: torch.device | str | None = None,
+                    expect_config: ModelConfig | None = None,
+                    expect_classes: tuple[str, ...] | list[str] | None = None,
+                    ) -> tuple[Any, ModelConfig, dict[str, Any]]:
+    """Load a checkpoint into a fresh SUITDetector.
+
+    :param expect_config: when given, the checkpoint's config must equal it (the keys that
+        differ are listed in the error).
+    :param expect_classes: when given, the class names must match, in order.
+    :return: ``(model, config, metadata)``; the model is in eval mode on ``device``.
+    """
+    from safetensors.torch import load_file
+
+    from suit_ros.model.detector import SUITDetector
+    meta = read_metadata(path)
+    try:
+        cfg = model_config_from_dict(meta['config'], f'{path} (embedded config)')
+    except (ConfigError, KeyError, TypeError) as exc:
+        raise CheckpointError(f'{path}: embedded config is invalid: {exc}') from exc
+    if expect_config is not None and cfg != expect_config:
+        diff = ', '.join(cfg.diff(expect_config)) or '?'
+        raise CheckpointError(f'{path} was trained with a different model config '
+                              f'(differs in: {diff}); use the config stored in the checkpoint '
+                              'or retrain')
+    if expect_classes is not None and tuple(expect_classes) != tuple(cfg.class_names):
+        raise CheckpointError(f'{path} detects classes {list(cfg.class_names)}, but '
+                              f'{list(expect_classes)} were expected')
+    try:
+        state = load_file(str(path), device='cpu')
+    except Exception as exc:
+        raise CheckpointError(f'{path}: cannot read tensors ({exc}); the file is corrupt') from exc
+    model = SUITDetector(cfg)
+    missing, unexpected = _check_keys(model, state)
+    if missing or unexpected:
+        raise CheckpointError(
+            f'{path} does not match the model built from its config: missing tensors '
+            f'{missing[:5]}{"..." if len(missing) > 5 else ""}, unexpected {unexpected[:5]}')
+    try:
+        model.load_state_dict(state, strict=True)
+    except RuntimeError as exc:
+        raise CheckpointError(f'{path}: tensor shapes do not match the config ({exc})') from exc
+    if device is not None:
+        model = model.to(device)
+    return model.eval(), cfg, meta
+
+
+def _check_keys(model: torch.nn.Module, state: dict[str, torch.Tensor]
+                ) -> tuple[list[str], list[str]]:
+    own = set(model.state_dict())
+    return sorted(own - set(state)), sorted(set(state) - own)
+
+
+def load_weights_into(model: torch.nn.Module, path: str | os.PathLike[str]) -> list[str]:
+    """Initialise ``model`` from a checkpoint's shared tensors (stage-2 fine-tuning).
+
+    Tensors present in both with equal shapes are copied; the model's own extra modules (the
+    temporal path) keep their initialisation. :return: the names that were not initialised.
+    """
+    from safetensors.torch import load_file
+    read_metadata(path)
+    state = load_file(str(path), device='cpu')
+    own = model.state_dict()
+    shared = {k: v for k, v in state.items() if k in own and own[k].shape == v.shape}
+    if not shared:
+        raise CheckpointError(f'{path} shares no tensors with this model')
+    model.load_state_dict(shared, strict=False)
+    return sorted(set(own) - set(shared))
