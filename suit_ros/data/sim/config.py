@@ -1,0 +1,108 @@
+"""Configuration of the synthetic world and its LiDAR (dataclasses and named presets)."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from suit_ros.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    """A spinning multi-beam LiDAR.
+
+    :param beams: 16, 32, 64 or 128 evenly spread over ``fov_down..fov_up`` degrees, unless
+        ``elevations`` lists the beam angles explicitly (degrees).
+    :param extrinsic_xyz: LiDAR position in base_link (m); ``extrinsic_rpy``: its orientation.
+    """
+
+    beams: int = 32
+    fov_down: float = -30.0
+    fov_up: float = 10.0
+    elevations: tuple[float, ...] | None = None
+    azimuth_resolution: float = 0.2       # degrees
+    rate_hz: float = 10.0
+    max_range: float = 100.0
+    min_range: float = 1.0
+    range_noise: float = 0.02             # m, 1 sigma
+    dropout: float = 0.05                 # probability a return is lost
+    motion_distortion: bool = False       # cast each column from the pose at its firing time
+    extrinsic_xyz: tuple[float, float, float] = (0.9, 0.0, 1.8)
+    extrinsic_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def beam_elevations(self) -> np.ndarray:
+        """Beam elevation angles in radians, ascending; ring ``i`` is ``elevations[i]``."""
+        if self.elevations is not None:
+            return np.radians(np.sort(np.asarray(self.elevations, np.float64)))
+        return np.radians(np.linspace(self.fov_down, self.fov_up, self.beams))
+
+    @property
+    def columns(self) -> int:
+        """Azimuth columns per sweep."""
+        return int(round(360.0 / self.azimuth_resolution))
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """What a simulated drive contains.
+
+    :param frames: number of LiDAR frames (sweeps) to produce.
+    """
+
+    frames: int = 100
+    block: float = 70.0                   # road grid spacing (m)
+    grid_half: int = 5                    # intersections from the centre to the edge
+    lanes_per_direction: int = 2
+    lane_width: float = 3.5
+    sidewalk_width: float = 3.0
+    moving_vehicles: int = 45
+    parked_vehicles: int = 30
+    pedestrians: int = 45
+    cyclists: int = 12
+    truck_fraction: float = 0.15
+    ego_max_speed: float = 13.0
+    odom_rate_hz: float = 50.0
+    odom_noise: float = 0.0               # m / rad noise on recorded odometry
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+
+    def validate(self) -> SimConfig:
+        """Raise ConfigError on out-of-range values; return self."""
+        lc = self.lidar
+        if self.frames < 1:
+            raise ConfigError('frames must be >= 1')
+        if lc.elevations is None and lc.beams not in (16, 32, 64, 128):
+            raise ConfigError(f'beams must be 16, 32, 64 or 128 (or give elevations), '
+                              f'got {lc.beams}')
+        if not 0.01 <= lc.azimuth_resolution <= 5.0:
+            raise ConfigError('azimuth_resolution must be within 0.01..5 degrees')
+        if abs(360.0 / lc.azimuth_resolution - lc.columns) > 1e-6:
+            raise ConfigError('azimuth_resolution must divide 360 degrees')
+        if not 1.0 <= lc.rate_hz <= 50.0:
+            raise ConfigError('rate_hz must be within 1..50')
+        if not 10.0 <= lc.max_range <= 300.0:
+            raise ConfigError('max_range must be within 10..300 m')
+        if not 0.0 <= lc.dropout < 1.0:
+            raise ConfigError('dropout must be in [0, 1)')
+        return self
+
+
+PRESETS: dict[str, SimConfig] = {
+    'demo': SimConfig(frames=100),
+    'train': SimConfig(frames=60),
+    'val': SimConfig(frames=40),
+    'test': SimConfig(frames=8, moving_vehicles=20, parked_vehicles=10, pedestrians=15,
+                      cyclists=5, lidar=LidarConfig(beams=16, azimuth_resolution=0.4)),
+}
+
+
+def preset(name: str, **overrides: object) -> SimConfig:
+    """A named preset (``demo``, ``train``, ``val``, ``test``) with optional field overrides."""
+    if name not in PRESETS:
+        raise ConfigError(f'unknown preset {name!r}; choose from {", ".join(PRESETS)}')
+    cfg = PRESETS[name]
+    lidar_keys = {k: v for k, v in overrides.items() if k in LidarConfig.__dataclass_fields__}
+    other = {k: v for k, v in overrides.items() if k not in lidar_keys}
+    if lidar_keys:
+        cfg = replace(cfg, lidar=replace(cfg.lidar, **lidar_keys))  # type: ignore[arg-type]
+    return replace(cfg, **other).validate()  # type: ignore[arg-type]
