@@ -236,6 +236,11 @@ def _convert(hint: Any, value: Any, key: str, source: str) -> Any:
     return value
 
 
+def dataclass_from_dict(cls: type, data: Any, source: str) -> Any:
+    """Build any config dataclass from a mapping, strictly (unknown keys are errors)."""
+    return _coerce(cls, data, '', source)
+
+
 def model_config_from_dict(data: dict[str, Any], source: str = '<dict>') -> ModelConfig:
     """Build a ModelConfig from a (possibly partial) mapping; missing keys take defaults."""
     return typing.cast(ModelConfig, _coerce(ModelConfig, data, '', source))

@@ -154,6 +154,10 @@ class SUITDetector(nn.Module):
                             list(frame_ids), poses, self.cfg.sampling.window)
 
     # ------------------------------------------------------------------ training
+    def forward(self, frames: Sequence[Sequence[Frame]]) -> dict[str, Tensor]:
+        """Training forward (what DistributedDataParallel calls): :meth:`forward_sequence`."""
+        return self.forward_sequence(frames)
+
     def forward_sequence(self, frames: Sequence[Sequence[Frame]]) -> dict[str, Tensor]:
         """Losses over a batch of ``B`` sequences of ``T`` frames, memory passed frame to frame.
 

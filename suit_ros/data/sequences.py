@@ -1,0 +1,125 @@
+"""Sequence datasets for training and evaluation: synthetic drives (cached), bags, nuScenes.
+
+A dataset is a list of sequences, each a list of :class:`~suit_ros.structures.Frame` in time
+order. Training samples clips of 1-4 consecutive frames from them.
+
+The synthetic splits use disjoint seed ranges: ``train`` seeds 1000+, ``val`` seeds 9000+. The
+fixed validation set (used by every number in docs/results.md) is ``val`` seeds 9000..9003,
+preset ``val`` (40 frames each at 10 Hz, 32 beams).
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from suit_ros.structures import Detections, Frame
+
+SPLIT_SEEDS = {'train': 1000, 'val': 9000, 'demo': 7}
+VAL_SEQUENCES = 4
+
+
+def _cache_key(preset_name: str, seed: int, frames: int) -> str:
+    from dataclasses import asdict
+
+    from suit_ros.data.sim import preset
+    cfg = asdict(preset(preset_name, frames=frames))
+    blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 1}, sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+def synthetic_sequence(preset_name: str, seed: int, frames: int,
+                       cache_dir: str | os.PathLike[str] | None = None) -> list[Frame]:
+    """One simulated drive as frames, optionally cached on disk (npz per drive)."""
+    from suit_ros.data.sim import preset, sim_frames
+    path = None
+    if cache_dir is not None:
+        path = Path(cache_dir) / f'{preset_name}-{seed}-{frames}-' \
+            f'{_cache_key(preset_name, seed, frames)}.npz'
+        if path.is_file():
+            return load_sequence(path)
+    out = list(sim_frames(preset(preset_name, frames=frames), seed))
+    if path is not None:
+        save_sequence(path, out)
+    return out
+
+
+def synthetic_split(split: str, sequences: int, frames: int,
+                    cache_dir: str | os.PathLike[str] | None = None,
+                    preset_name: str | None = None) -> list[list[Frame]]:
+    """The ``train`` or ``val`` split: ``sequences`` drives from the split's seed range."""
+    base = SPLIT_SEEDS[split]
+    name = preset_name or ('val' if split == 'val' else 'train')
+    return [synthetic_sequence(name, base + i, frames, cache_dir) for i in range(sequences)]
+
+
+def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
+    """Write frames to one compressed npz (atomically)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays: dict[str, np.ndarray] = {}
+    for i, f in enumerate(frames):
+        gt = f.gt if f.gt is not None else Detections.empty()
+        arrays.update({f'{i}/points': f.points.astype(np.float16), f'{i}/pose': f.pose,
+                       f'{i}/stamp': np.int64(f.stamp_ns), f'{i}/boxes': gt.boxes,
+                       f'{i}/vel': gt.velocities, f'{i}/labels': gt.labels,
+                       f'{i}/num': (f.num_points if f.num_points is not None
+                                    else np.zeros(len(gt), np.uint32)),
+                       f'{i}/ids': (f.instance_ids if f.instance_ids is not None
+                                    else np.zeros(len(gt), np.uint32))})
+    arrays['meta'] = np.frombuffer(json.dumps(
+        {'n': len(frames), 'frame_id': frames[0].frame_id if frames else 'lidar',
+         'sequence_id': frames[0].sequence_id if frames else ''}).encode(), np.uint8)
+    tmp = path.with_suffix('.tmp.npz')
+    np.savez(tmp, **arrays)
+    os.replace(tmp, path)
+
+
+def load_sequence(path: Path) -> list[Frame]:
+    """Read frames written by :func:`save_sequence` (no pickle)."""
+    with np.load(path, allow_pickle=False) as z:
+        meta = json.loads(z['meta'].tobytes().decode())
+        out = []
+        for i in range(meta['n']):
+            gt = Detections(z[f'{i}/boxes'], z[f'{i}/vel'], np.ones(len(z[f'{i}/boxes'])),
+                            z[f'{i}/labels'])
+            out.append(Frame(z[f'{i}/points'].astype(np.float32), z[f'{i}/pose'],
+                             int(z[f'{i}/stamp']), meta['frame_id'], gt, z[f'{i}/num'],
+                             z[f'{i}/ids'], meta['sequence_id']))
+    return out
+
+
+def training_view(frame: Frame, min_points: int = 1) -> Frame:
+    """The frame with GT restricted to boxes that have at least ``min_points`` returns."""
+    if frame.gt is None or frame.num_points is None:
+        return frame
+    keep = frame.num_points >= min_points
+    from dataclasses import replace
+    return replace(frame, gt=frame.gt.select(keep), num_points=frame.num_points[keep],
+                   instance_ids=(frame.instance_ids[keep] if frame.instance_ids is not None
+                                 else None))
+
+
+class ClipSampler:
+    """Random clips of consecutive frames (length drawn from ``lengths``) from sequences."""
+
+    def __init__(self, sequences: Sequence[Sequence[Frame]], lengths: Sequence[int],
+                 seed: int) -> None:
+        self.sequences = [s for s in sequences if len(s) >= max(lengths)]
+        if not self.sequences:
+            raise ValueError(f'no sequence has {max(lengths)} frames')
+        self.lengths = list(lengths)
+        self.rng = np.random.default_rng(seed)
+
+    def batch(self, batch_size: int) -> list[list[Frame]]:
+        """``batch_size`` clips of one common length."""
+        L = int(self.rng.choice(self.lengths))
+        out = []
+        for _ in range(batch_size):
+            seq = self.sequences[int(self.rng.integers(len(self.sequences)))]
+            start = int(self.rng.integers(len(seq) - L + 1))
+            out.append([training_view(f) for f in seq[start:start + L]])
+        return out

@@ -1,0 +1,208 @@
+"""``suit-ros train``: train the detector (single-frame pretraining or SUIT fine-tuning).
+
+AdamW with a one-cycle schedule (weight decay 0.01, momentum cycled 0.85-0.95, as the paper),
+gradient clipping, clips of mixed length (memory passed frame to frame), clip-consistent
+augmentation, CSV log, resume, and torch.distributed when launched by ``torchrun``.
+"""
+from __future__ import annotations
+
+import argparse
+import csv
+from dataclasses import dataclass, replace
+import math
+import os
+from pathlib import Path
+import time
+from typing import Any
+
+import numpy as np
+import yaml
+
+from suit_ros.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """A training run (``params/train_*.yaml``)."""
+
+    model_config: str = 'params/model_cpu.yaml'
+    temporal: str = ''               # override the model config's temporal mode
+    init_from: str = ''              # stage 2: initialise shared weights from this checkpoint
+    train_sequences: int = 16
+    train_frames: int = 60
+    val_sequences: int = 4
+    val_frames: int = 40
+    cache_dir: str = 'data_cache'
+    batch_size: int = 2
+    clip_lengths: tuple[int, ...] = (2, 3, 4)
+    lr: float = 2e-3
+    weight_decay: float = 0.01
+    grad_clip: float = 35.0
+    steps: int = 1000
+    max_minutes: float = 0.0         # 0: no time limit
+    seed: int = 0
+    augment: bool = True
+    eval_at_end: bool = True
+    checkpoint_every: int = 200
+
+
+def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
+    """Load a training YAML strictly."""
+    from suit_ros.config import dataclass_from_dict
+    try:
+        with open(path, encoding='utf-8') as f:
+            data = yaml.safe_load(f) or {}
+    except FileNotFoundError as exc:
+        raise ConfigError(f'training config {path} does not exist') from exc
+    return dataclass_from_dict(TrainConfig, data, os.fspath(path))
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Add ``train`` options."""
+    parser.add_argument('--config', required=True, help='training YAML (params/train_*.yaml)')
+    parser.add_argument('--out', required=True, help='output directory')
+    parser.add_argument('--steps', type=int, help='override the number of steps')
+    parser.add_argument('--max-minutes', type=float, help='stop after this wall time')
+    parser.add_argument('--temporal', choices=['none', 'dense', 'sparse', 'sparse_velocity',
+                                               'suit'], help='override the temporal mode')
+    parser.add_argument('--init-from', help='initialise shared weights from a checkpoint')
+    parser.add_argument('--resume', action='store_true', help='resume from OUT/last.pt')
+    parser.add_argument('--seed', type=int)
+    parser.add_argument('--device', default='auto', choices=['auto', 'cpu', 'cuda'])
+    parser.add_argument('--threads', type=int, default=0, help='torch threads (0: default)')
+
+
+def _dist_info() -> tuple[int, int]:
+    return int(os.environ.get('RANK', '0')), int(os.environ.get('WORLD_SIZE', '1'))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Train; write ``model.safetensors``, ``last.pt`` and ``log.csv`` under ``--out``."""
+    tc = load_train_config(args.config)
+    overrides: dict[str, Any] = {}
+    for key in ('steps', 'max_minutes', 'temporal', 'init_from', 'seed'):
+        value = getattr(args, key, None)
+        if value is not None:
+            overrides[key] = value
+    tc = replace(tc, **overrides)
+    train(tc, Path(args.out), device=args.device, threads=args.threads, resume=args.resume)
+    return 0
+
+
+def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
+          resume: bool = False) -> dict[str, Any]:
+    """Run one training stage; return the final metrics."""
+    import torch
+    from tqdm import tqdm
+
+    from suit_ros.checkpoint import load_weights_into, save_checkpoint
+    from suit_ros.config import load_model_config
+    from suit_ros.data import augment
+    from suit_ros.data.sequences import ClipSampler, synthetic_split
+    from suit_ros.model.detector import SUITDetector
+
+    rank, world = _dist_info()
+    if world > 1:
+        import torch.distributed as dist
+        dist.init_process_group('nccl' if device == 'cuda' else 'gloo')
+    if threads:
+        torch.set_num_threads(threads)
+    dev = torch.device('cuda' if device == 'cuda' or (device == 'auto'
+                                                     and torch.cuda.is_available()) else 'cpu')
+    if dev.type == 'cuda' and world > 1:
+        dev = torch.device('cuda', rank % torch.cuda.device_count())
+    torch.manual_seed(tc.seed + rank)
+    mcfg = load_model_config(tc.model_config)
+    if tc.temporal:
+        mcfg = replace(mcfg, temporal=tc.temporal)
+    model = SUITDetector(mcfg).to(dev)
+    if tc.init_from:
+        fresh = load_weights_into(model, tc.init_from)
+        if rank == 0:
+            print(f'[train] initialised from {tc.init_from}; new: {len(fresh)} tensors')
+    module = model
+    if world > 1:
+        from torch.nn.parallel import DistributedDataParallel
+        model = DistributedDataParallel(model, find_unused_parameters=True)  # type: ignore
+    out.mkdir(parents=True, exist_ok=True)
+    data = synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir)
+    lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
+    batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
+    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank)
+    aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
+    opt = torch.optim.AdamW(module.parameters(), lr=tc.lr, weight_decay=tc.weight_decay,
+                            betas=(0.95, 0.99))
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=tc.lr, total_steps=tc.steps, pct_start=0.3, base_momentum=0.85,
+        max_momentum=0.95, div_factor=10.0, final_div_factor=100.0)
+    step = 0
+    last = out / 'last.pt'
+    if resume and last.is_file():
+        state = torch.load(last, map_location='cpu', weights_only=True)
+        module.load_state_dict(state['model'])
+        opt.load_state_dict(state['optimizer'])
+        sched.load_state_dict(state['scheduler'])
+        step = int(state['step'])
+        torch.set_rng_state(state['torch_rng'])
+        sampler.rng = np.random.default_rng([tc.seed, step, rank])
+        aug_rng = np.random.default_rng([tc.seed, step, rank, 1])
+        print(f'[train] resumed from {last} at step {step}')
+    log_path = out / 'log.csv'
+    log_file = open(log_path, 'a', newline='', encoding='utf-8') if rank == 0 else None
+    writer = csv.writer(log_file) if log_file else None
+    if writer and log_path.stat().st_size == 0:
+        writer.writerow(['step', 'time_s', 'lr', 'loss', 'hm_loss', 'loc_loss', 'geo_loss'])
+    start = time.monotonic()
+    bar = tqdm(total=tc.steps, initial=step, disable=rank != 0, dynamic_ncols=True,
+               desc=f'train[{mcfg.temporal}]')
+    model.train()
+    while step < tc.steps:
+        clips = sampler.batch(batch)
+        if tc.augment:
+            clips = [augment.apply_clip(c, augment.draw(aug_rng)) for c in clips]
+        losses = model(clips)
+        opt.zero_grad(set_to_none=True)
+        losses['loss'].backward()
+        torch.nn.utils.clip_grad_norm_(module.parameters(), tc.grad_clip)
+        opt.step()
+        sched.step()
+        step += 1
+        vals = {k: float(v.detach()) for k, v in losses.items()}
+        if not math.isfinite(vals['loss']):
+            raise RuntimeError(f'loss became {vals["loss"]} at step {step}; lower the lr')
+        if writer:
+            writer.writerow([step, round(time.monotonic() - start, 2), sched.get_last_lr()[0],
+                             vals['loss'], vals['hm_loss'], vals['loc_loss'], vals['geo_loss']])
+        bar.set_postfix(loss=f'{vals["loss"]:.3f}', hm=f'{vals["hm_loss"]:.3f}',
+                        loc=f'{vals["loc_loss"]:.3f}', geo=f'{vals["geo_loss"]:.3f}')
+        bar.update(1)
+        if rank == 0 and (step % tc.checkpoint_every == 0 or step == tc.steps):
+            torch.save({'model': module.state_dict(), 'optimizer': opt.state_dict(),
+                        'scheduler': sched.state_dict(), 'step': step,
+                        'torch_rng': torch.get_rng_state()}, last)
+            if log_file:
+                log_file.flush()
+        if tc.max_minutes and time.monotonic() - start > tc.max_minutes * 60:
+            print(f'\n[train] time budget reached at step {step}')
+            break
+    bar.close()
+    elapsed = time.monotonic() - start
+    metrics: dict[str, Any] = {'steps': step, 'train_minutes': round(elapsed / 60, 2),
+                               'device': str(dev), 'world_size': world}
+    if rank == 0:
+        if tc.eval_at_end:
+            from suit_ros.evaluate import evaluate_model
+            val = synthetic_split('val', tc.val_sequences, tc.val_frames, tc.cache_dir)
+            result = evaluate_model(module, val, dev)
+            metrics.update(result.summary())
+            print(result.table())
+        save_checkpoint(out / 'model.safetensors', module, mcfg, metrics,
+                        {'train_config': {k: (list(v) if isinstance(v, tuple) else v)
+                                          for k, v in tc.__dict__.items()}})
+        print(f'[train] wrote {out / "model.safetensors"} ({elapsed / 60:.1f} min)')
+    if log_file:
+        log_file.close()
+    if world > 1:
+        import torch.distributed as dist
+        dist.destroy_process_group()
+    return metrics
