@@ -1,0 +1,157 @@
+"""nav_msgs/Odometry -> 4x4 poses, stamps, and a time-bounded pose buffer with interpolation."""
+from __future__ import annotations
+
+import bisect
+import math
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .errors import MessageError, PoseLookupError
+
+
+def stamp_to_ns(stamp: Any) -> int:
+    """builtin_interfaces/Time -> integer nanoseconds."""
+    return int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec)
+
+
+def ns_to_stamp(ns: int, time_class: Any) -> Any:
+    """Integer nanoseconds -> a Time message of ``time_class``."""
+    sec, nsec = divmod(int(ns), 1_000_000_000)
+    return time_class(sec=sec, nanosec=nsec)
+
+
+def quaternion_to_matrix(x: float, y: float, z: float, w: float) -> NDArray[np.float64]:
+    """Unit quaternion -> 3x3 rotation (the quaternion is normalised; zero/non-finite raise)."""
+    q = np.array([x, y, z, w], np.float64)
+    n = float(np.linalg.norm(q))
+    if not np.isfinite(q).all() or n < 1e-6:
+        raise MessageError(f'orientation quaternion {q.tolist()} is not a valid rotation '
+                           '(non-finite or zero norm)')
+    x, y, z, w = q / n
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def matrix_to_quaternion(R: NDArray[np.float64]) -> NDArray[np.float64]:
+    """3x3 rotation -> quaternion ``(x, y, z, w)`` with ``w >= 0``."""
+    m = np.asarray(R, np.float64)
+    tr = m[0, 0] + m[1, 1] + m[2, 2]
+    if tr > 0:
+        s = math.sqrt(tr + 1.0) * 2
+        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
+    elif m[0, 0] > m[1, 1] and m[0, 0] > m[2, 2]:
+        s = math.sqrt(1.0 + m[0, 0] - m[1, 1] - m[2, 2]) * 2
+        q = [s / 4, (m[0, 1] + m[1, 0]) / s, (m[0, 2] + m[2, 0]) / s, (m[2, 1] - m[1, 2]) / s]
+    elif m[1, 1] > m[2, 2]:
+        s = math.sqrt(1.0 + m[1, 1] - m[0, 0] - m[2, 2]) * 2
+        q = [(m[0, 1] + m[1, 0]) / s, s / 4, (m[1, 2] + m[2, 1]) / s, (m[0, 2] - m[2, 0]) / s]
+    else:
+        s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
+        q = [(m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, s / 4, (m[1, 0] - m[0, 1]) / s]
+    out = np.array(q, np.float64)
+    out /= np.linalg.norm(out)
+    return out if out[3] >= 0 else -out
+
+
+def odometry_to_pose(msg: Any) -> tuple[NDArray[np.float64], int]:
+    """Odometry -> ``(T_frame_child (4, 4) float64, stamp_ns)``."""
+    p = msg.pose.pose.position
+    o = msg.pose.pose.orientation
+    t = np.array([p.x, p.y, p.z], np.float64)
+    if not np.isfinite(t).all():
+        raise MessageError(f'odometry position {t.tolist()} is not finite')
+    T = np.eye(4)
+    T[:3, :3] = quaternion_to_matrix(o.x, o.y, o.z, o.w)
+    T[:3, 3] = t
+    return T, stamp_to_ns(msg.header.stamp)
+
+
+def slerp(q0: NDArray[np.float64], q1: NDArray[np.float64], f: float) -> NDArray[np.float64]:
+    """Spherical linear interpolation of unit quaternions (shortest arc)."""
+    d = float(np.dot(q0, q1))
+    if d < 0:
+        q1, d = -q1, -d
+    if d > 0.9995:
+        q = q0 + f * (q1 - q0)
+        return np.asarray(q / np.linalg.norm(q), np.float64)
+    theta = math.acos(min(d, 1.0))
+    s = math.sin(theta)
+    return np.asarray((math.sin((1 - f) * theta) * q0 + math.sin(f * theta) * q1) / s,
+                      np.float64)
+
+
+class PoseBuffer:
+    """Recent poses by stamp; interpolates (linear position, slerp rotation) at any stamp.
+
+    Out-of-order arrivals are inserted in place, a duplicate stamp replaces the old pose, poses
+    older than ``max_age_ns`` before the newest are dropped. A lookup within ``tolerance_ns``
+    outside the buffered span returns the edge pose; further out raises PoseLookupError.
+    """
+
+    def __init__(self, max_age_ns: int = 10_000_000_000, tolerance_ns: int = 100_000_000) -> None:
+        self.max_age_ns = int(max_age_ns)
+        self.tolerance_ns = int(tolerance_ns)
+        self._stamps: list[int] = []
+        self._t: list[NDArray[np.float64]] = []
+        self._q: list[NDArray[np.float64]] = []
+
+    def __len__(self) -> int:
+        return len(self._stamps)
+
+    def clear(self) -> None:
+        """Drop every pose."""
+        self._stamps.clear()
+        self._t.clear()
+        self._q.clear()
+
+    def span(self) -> tuple[int, int] | None:
+        """``(first_ns, last_ns)`` or None when empty."""
+        return (self._stamps[0], self._stamps[-1]) if self._stamps else None
+
+    def add(self, stamp_ns: int, T: NDArray[np.float64]) -> None:
+        """Insert a pose ``T (4, 4)``."""
+        T = np.asarray(T, np.float64)
+        if T.shape != (4, 4) or not np.isfinite(T).all():
+            raise MessageError('pose must be a finite 4x4 matrix')
+        i = bisect.bisect_left(self._stamps, stamp_ns)
+        q = matrix_to_quaternion(T[:3, :3])
+        if i < len(self._stamps) and self._stamps[i] == stamp_ns:
+            self._t[i], self._q[i] = T[:3, 3].copy(), q
+        else:
+            self._stamps.insert(i, int(stamp_ns))
+            self._t.insert(i, T[:3, 3].copy())
+            self._q.insert(i, q)
+        cut = bisect.bisect_left(self._stamps, self._stamps[-1] - self.max_age_ns)
+        if cut:
+            del self._stamps[:cut], self._t[:cut], self._q[:cut]
+
+    def lookup(self, stamp_ns: int) -> NDArray[np.float64]:
+        """The pose at ``stamp_ns`` as a 4x4 float64 matrix."""
+        if not self._stamps:
+            raise PoseLookupError('no pose buffered yet')
+        first, last = self._stamps[0], self._stamps[-1]
+        if stamp_ns < first - self.tolerance_ns or stamp_ns > last + self.tolerance_ns:
+            raise PoseLookupError(
+                f'stamp {stamp_ns * 1e-9:.3f} s is outside the buffered poses '
+                f'[{first * 1e-9:.3f}, {last * 1e-9:.3f}] s by more than '
+                f'{self.tolerance_ns * 1e-9:.3f} s')
+        i = bisect.bisect_left(self._stamps, stamp_ns)
+        if i == 0:
+            t, q = self._t[0], self._q[0]
+        elif i >= len(self._stamps):
+            t, q = self._t[-1], self._q[-1]
+        elif self._stamps[i] == stamp_ns:
+            t, q = self._t[i], self._q[i]
+        else:
+            s0, s1 = self._stamps[i - 1], self._stamps[i]
+            f = (stamp_ns - s0) / (s1 - s0)
+            t = self._t[i - 1] + f * (self._t[i] - self._t[i - 1])
+            q = slerp(self._q[i - 1], self._q[i], f)
+        T = np.eye(4)
+        T[:3, :3] = quaternion_to_matrix(*q)
+        T[:3, 3] = t
+        return T
