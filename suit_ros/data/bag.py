@@ -1,0 +1,135 @@
+"""rosbag2 reading and writing with rosbags (sqlite3 and mcap), shared by every bag command."""
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from suit_ros.errors import BagError
+from suit_ros.structures import Detections, Frame
+
+STORAGES = ('mcap', 'sqlite3')
+
+
+def typestore() -> Any:
+    """The ROS 2 Jazzy typestore."""
+    from rosbags.typesys import Stores, get_typestore
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+class BagWriter:
+    """A rosbag2 writer that takes rosbags messages or raw CDR bytes."""
+
+    def __init__(self, writer: Any, store: Any) -> None:
+        self._writer = writer
+        self.store = store
+        self._connections: dict[str, Any] = {}
+
+    def connection(self, topic: str, msgtype: str) -> Any:
+        """The connection for ``topic`` (created on first use)."""
+        if topic not in self._connections:
+            self._connections[topic] = self._writer.add_connection(topic, msgtype,
+                                                                   typestore=self.store)
+        return self._connections[topic]
+
+    def write(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
+        """Serialise (unless ``msg`` is already CDR bytes) and write."""
+        conn = self.connection(topic, msgtype)
+        data = msg if isinstance(msg, (bytes, bytearray, memoryview)) else \
+            self.store.serialize_cdr(msg, msgtype)
+        self._writer.write(conn, int(stamp_ns), data)
+
+
+@contextmanager
+def open_writer(path: str | os.PathLike[str], storage: str = 'mcap') -> Iterator[BagWriter]:
+    """Open a new bag for writing (the path must not exist)."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    if storage not in STORAGES:
+        raise BagError(f'storage must be one of {STORAGES}, not {storage!r}')
+    path = Path(path)
+    if path.exists():
+        raise BagError(f'{path} already exists; choose a new output path or delete it')
+    plugin = StoragePlugin.MCAP if storage == 'mcap' else StoragePlugin.SQLITE3
+    writer = Writer(path, version=9, storage_plugin=plugin)
+    writer.open()
+    try:
+        yield BagWriter(writer, typestore())
+    finally:
+        writer.close()
+
+
+@contextmanager
+def open_reader(path: str | os.PathLike[str]) -> Iterator[Any]:
+    """Open a bag (either storage) with rosbags' AnyReader; clear errors for bad files."""
+    from rosbags.highlevel import AnyReader
+    path = Path(path)
+    if not path.exists():
+        raise BagError(f'bag {path} does not exist')
+    try:
+        reader = AnyReader([path], default_typestore=typestore())
+        reader.open()
+    except Exception as exc:   # rosbags raises several types for corrupt or foreign files
+        raise BagError(f'cannot open bag {path}: {exc}') from exc
+    try:
+        yield reader
+    finally:
+        reader.close()
+
+
+def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
+                    odom_topic: str = '/odom', gt_topic: str = '/gt/objects',
+                    intensity_scale: float = 255.0) -> Iterator[Frame]:
+    """Frames (points, pose, GT) from a bag with clouds, odometry and GT in the cloud's frame.
+
+    The extrinsic comes from ``/tf_static`` (base_link -> the cloud's frame) when present.
+    """
+    from suit_ros.msg_adapters.detections import pointcloud2_to_detections
+    from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_to_ns
+    from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
+    with open_reader(path) as reader:
+        topics = {c.topic for c in reader.connections}
+        for needed in (points_topic, odom_topic):
+            if needed not in topics:
+                raise BagError(f'{path} has no {needed} topic (topics: {sorted(topics)})')
+        buf = PoseBuffer(max_age_ns=10**12, tolerance_ns=150_000_000)
+        extr = np.eye(4)
+        gts: dict[int, dict[str, Any]] = {}
+        clouds = []
+        conns = [c for c in reader.connections
+                 if c.topic in (points_topic, odom_topic, gt_topic, '/tf_static')]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            if conn.topic == odom_topic:
+                T, s = odometry_to_pose(msg)
+                buf.add(s, T)
+            elif conn.topic == gt_topic:
+                gts[stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
+            elif conn.topic == '/tf_static':
+                for tf in msg.transforms:
+                    extr = _transform_to_matrix(tf.transform)
+            else:
+                clouds.append(msg)
+        for msg in clouds:
+            stamp = stamp_to_ns(msg.header.stamp)
+            xyzi = pointcloud2_to_xyzi(msg).points
+            pts = np.concatenate([xyzi, np.zeros((len(xyzi), 1), np.float32)], 1)
+            pts[:, 3] /= intensity_scale
+            g = gts.get(stamp)
+            gt = (Detections(g['boxes'], g['velocities'], g['scores'], g['labels'])
+                  if g is not None else None)
+            yield Frame(pts, buf.lookup(stamp) @ extr, stamp, str(msg.header.frame_id), gt,
+                        g.get('num_points') if g else None, g.get('instance_id') if g else None,
+                        str(path))
+
+
+def _transform_to_matrix(tr: Any) -> np.ndarray:
+    from suit_ros.msg_adapters.odometry import quaternion_to_matrix
+    T = np.eye(4)
+    q = tr.rotation
+    T[:3, :3] = quaternion_to_matrix(q.x, q.y, q.z, q.w)
+    T[:3, 3] = [tr.translation.x, tr.translation.y, tr.translation.z]
+    return T
