@@ -1,0 +1,92 @@
+"""``suit-ros play BAG``: publish a bag into the live graph at its recorded pace.
+
+Messages go out as their recorded CDR bytes (byte exact), optionally with ``/clock`` for
+``use_sim_time``. ``--rate`` scales the pace, ``--loop`` repeats, ``--topics`` selects.
+"""
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import time
+from typing import Any
+
+from suit_ros.errors import BagError
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Add ``play`` options."""
+    parser.add_argument('bag', help='bag directory (sqlite3 or mcap)')
+    parser.add_argument('--rate', type=float, default=1.0, help='playback speed factor')
+    parser.add_argument('--loop', action='store_true', help='repeat forever')
+    parser.add_argument('--topics', nargs='+', help='only these topics')
+    parser.add_argument('--clock', action='store_true', help='publish /clock (sim time)')
+    parser.add_argument('--start-delay', type=float, default=1.0,
+                        help='seconds to wait for subscribers before the first message')
+    parser.add_argument('--max-messages', type=int, default=0, help='stop after N (0: all)')
+
+
+def message_class(msgtype: str) -> Any:
+    """The rclpy message class of a ``pkg/msg/Name`` type string."""
+    pkg, kind, name = msgtype.split('/')
+    try:
+        return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
+    except (ImportError, AttributeError) as exc:
+        raise BagError(f'message type {msgtype} is not installed here ({exc})') from exc
+
+
+def run(args: argparse.Namespace) -> int:
+    """Play the bag."""
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from rosgraph_msgs.msg import Clock
+
+    from suit_ros.data.bag import open_reader
+    if args.rate <= 0:
+        raise BagError('--rate must be > 0')
+    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    with open_reader(args.bag) as reader:
+        conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
+        if not conns:
+            raise BagError(f'none of {args.topics} is in {args.bag}')
+        messages = [(c.topic, c.msgtype, t, bytes(raw))
+                    for c, t, raw in reader.messages(connections=conns)]
+    if not messages:
+        raise BagError(f'{args.bag} has no messages on the selected topics')
+    rclpy.init()
+    node = rclpy.create_node('suit_ros_player')
+    pubs = {}
+    for topic, msgtype in sorted({(m[0], m[1]) for m in messages}):
+        latched = topic == '/tf_static'
+        qos = QoSProfile(depth=10, durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
+                                               else DurabilityPolicy.VOLATILE))
+        pubs[topic] = node.create_publisher(message_class(msgtype), topic, qos)
+    clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
+    sent = 0
+    try:
+        time.sleep(args.start_delay)
+        while True:
+            t_bag0 = messages[0][2]
+            t_wall0 = time.monotonic()
+            for topic, _, t, data in messages:
+                due = t_wall0 + (t - t_bag0) * 1e-9 / args.rate
+                delay = due - time.monotonic()
+                if delay > 0:
+                    time.sleep(delay)
+                if clock_pub is not None:
+                    clock = Clock()
+                    clock.clock.sec, clock.clock.nanosec = divmod(t, 10**9)
+                    clock_pub.publish(clock)
+                pubs[topic].publish(data)
+                sent += 1
+                if args.max_messages and sent >= args.max_messages:
+                    return 0
+            if not args.loop:
+                break
+    except KeyboardInterrupt:
+        pass
+    finally:
+        print(f'play: published {sent} messages')
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
