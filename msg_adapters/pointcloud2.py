@@ -154,7 +154,8 @@ def pointcloud2_to_xyzi(msg: Any) -> XYZI:
             col = arr[k]
             if col.ndim > 1:   # count > 1: take the first element
                 col = col[:, 0]
-            pts[:, i] = col.astype(np.float32)
+            with np.errstate(over='ignore', invalid='ignore'):
+                pts[:, i] = col.astype(np.float32)   # out-of-range values become inf
     finite = np.isfinite(pts[:, :3]).all(axis=1)
     dropped = int(n - np.count_nonzero(finite))
     if dropped:
