@@ -57,10 +57,16 @@ def run(args: argparse.Namespace) -> int:
     node = rclpy.create_node('suit_ros_player')
     pubs = {}
     for topic, msgtype in sorted({(m[0], m[1]) for m in messages}):
+        try:
+            cls = message_class(msgtype)
+        except BagError as exc:
+            print(f'play: skipping {topic}: {exc}')
+            continue
         latched = topic == '/tf_static'
         qos = QoSProfile(depth=10, durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
                                                else DurabilityPolicy.VOLATILE))
-        pubs[topic] = node.create_publisher(message_class(msgtype), topic, qos)
+        pubs[topic] = node.create_publisher(cls, topic, qos)
+    messages = [m for m in messages if m[0] in pubs]
     clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
     sent = 0
     try:

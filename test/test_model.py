@@ -1,0 +1,275 @@
+"""The SUIT model: targets, decoding, significant sampling, GeoNet, ego transform, fusion."""
+from __future__ import annotations
+
+from dataclasses import replace
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from suit_ros.config import (BackboneConfig, ModelConfig, PillarConfig, SamplingConfig)
+from suit_ros.model.detector import SUITDetector
+from suit_ros.model.fusion import sparse_past_term
+from suit_ros.model.geonet import GeoNet
+from suit_ros.model.grid import BEVGrid
+from suit_ros.model.head import CenterHead, draw_gaussian, gaussian_radius
+from suit_ros.model.memory import SparseMemory, transform_sample_positions
+from suit_ros.model.pillars import PillarEncoder
+from suit_ros.model.sampling import relaxation_window, Samples, significant_sampling
+from suit_ros.model.streaming import StreamingDetector
+from suit_ros.ops.geometry import ego_transform, pose_from_xyz_rpy, se3_inverse
+from suit_ros.structures import Detections, Frame
+
+GRID = BEVGrid((-25.6, -25.6, -3.0, 25.6, 25.6, 3.0), 0.4, 2)
+
+
+def small_config(temporal='suit') -> ModelConfig:
+    return ModelConfig(temporal=temporal,
+                       pillars=PillarConfig(point_range=(-25.6, -25.6, -3.0, 25.6, 25.6, 3.0),
+                                            pillar_size=0.4, channels=16),
+                       backbone=BackboneConfig(num_filters=(16, 32, 32),
+                                               num_upsample_filters=(16, 16, 16)))
+
+
+def test_gaussian_radius_formula():
+    # CornerNet's rule as CenterPoint applies it: the larger root of each of the three
+    # quadratics, with the published "(b + sqrt(b^2 - 4ac)) / 2" normalisation (not / 2a)
+    for h, w in [(5.6, 2.4), (1.0, 1.0), (14.0, 3.5)]:
+        cands = []
+        for a, b, c in [(1, h + w, w * h * 0.9 / 1.1), (4, 2 * (h + w), 0.9 * w * h),
+                        (0.4, -0.2 * (h + w), -0.9 * w * h)]:
+            root = max(np.roots([a, -b, c]).real)            # the true quadratic root
+            cands.append(root * a)                           # == (b + sqrt(...)) / 2
+        assert gaussian_radius(h, w, 0.1) == pytest.approx(min(cands), rel=1e-9)
+    assert gaussian_radius(4.0, 2.0, 0.1) < 4.0
+
+
+def test_draw_gaussian_peak_and_clipping():
+    hm = torch.zeros(10, 10)
+    draw_gaussian(hm, 0, 9, 2)
+    assert hm[9, 0] == 1.0 and hm.max() == 1.0 and (hm > 0).sum() == 9   # 3x3 quarter left
+
+
+def test_pillarization_matches_numpy_loop():
+    torch.manual_seed(0)
+    enc = PillarEncoder(GRID, 5, 8).eval()
+    pts = torch.cat([torch.zeros(300, 1), torch.rand(300, 5) * torch.tensor([8, 8, 2, 1, 0])
+                     - torch.tensor([4, 4, 1, 0, 0])], 1)
+    pts = torch.cat([pts, torch.tensor([[0, 40.0, 0, 0, 0, 0]])])      # out of range: dropped
+    with torch.no_grad():
+        bev = enc(pts, 1)
+        kept, inverse, keys = enc.voxelize(pts)
+        assert len(kept) == 300
+        # independent per-pillar max of the point features
+        feats = torch.relu(enc.norm(enc.linear(_decorate(kept[:, 1:], inverse, keys))))
+    for u, key in enumerate(keys.tolist()):
+        iy, ix = (key // GRID.nx) % GRID.ny, key % GRID.nx
+        ref = feats[inverse == u].max(0).values
+        torch.testing.assert_close(bev[0, :, iy, ix], ref)
+    assert int((bev.abs().sum(1) > 0).sum()) <= len(keys)
+
+
+def _decorate(f, inverse, keys):
+    out = []
+    for i in range(len(f)):
+        members = f[inverse == inverse[i]]
+        mean = members[:, :3].mean(0)
+        key = int(keys[inverse[i]])
+        ix, iy = key % GRID.nx, (key // GRID.nx) % GRID.ny
+        cx = (ix + 0.5) * GRID.pillar_size + GRID.point_range[0]
+        cy = (iy + 0.5) * GRID.pillar_size + GRID.point_range[1]
+        out.append(torch.cat([f[i], f[i, :3] - mean, torch.tensor([f[i, 0] - cx,
+                                                                    f[i, 1] - cy])]))
+    return torch.stack(out)
+
+
+def test_targets_decode_round_trip():
+    head = CenterHead(8, 4, GRID)
+    boxes = torch.tensor([[3.3, -7.1, -0.9, 4.5, 1.9, 1.6, 0.7],
+                          [-10.2, 4.4, -0.8, 0.7, 0.6, 1.8, -2.5],
+                          [15.0, 15.0, -0.5, 11.0, 2.9, 3.3, 3.0]])
+    vel = torch.tensor([[5.0, -1.0], [0.5, 0.5], [0.0, 12.0]])
+    labels = torch.tensor([0, 2, 1])
+    tgt = head.build_targets([boxes], [vel], [labels])
+    assert tgt['mask'].sum() == 3
+    # predictions equal to the targets: logits +/- large, regression maps written at centres
+    preds = {'heatmap': torch.where(tgt['heatmap'] == 1, 10.0, -10.0)}
+    reg = torch.zeros(1, 10, GRID.H, GRID.W)
+    for k in range(3):
+        idx = tgt['index'][0, k]
+        reg[0, :, idx // GRID.W, idx % GRID.W] = tgt['reg'][0, k]
+    from suit_ros.model.head import REG_SLICES
+    for name, (a, b) in REG_SLICES.items():
+        preds[name] = reg[:, a:b]
+    out = head.decode(preds, k=10, score_threshold=0.5)[0]
+    order = torch.argsort(out['labels'])
+    torch.testing.assert_close(out['boxes'][order], boxes[[0, 2, 1]], atol=1e-4, rtol=0)
+    torch.testing.assert_close(out['velocities'][order], vel[[0, 2, 1]])
+    assert out['labels'][order].tolist() == [0, 1, 2]
+
+
+def peaks_heatmap(centres_cells, H=GRID.H, W=GRID.W):
+    hm = torch.zeros(1, 4, H, W)
+    for c, r in centres_cells:
+        draw_gaussian(hm[0, 0], c, r, 2)
+    return torch.logit(hm.clamp(1e-4, 1 - 1e-4))
+
+
+def test_significant_sampling_one_sample_per_object():
+    cells = [(10, 10), (30, 12), (40, 50), (12, 14)]                 # separated objects
+    logits = peaks_heatmap(cells)
+
+    def decode(b, c):   # a perfect regressor: every cell points at its object's centre
+        xy = GRID.cell_to_xy(c)
+        ctr = GRID.cell_to_xy(torch.tensor(cells))
+        nearest = torch.cdist(xy, ctr).argmin(1)
+        boxes = torch.cat([ctr[nearest], torch.zeros(len(c), 1),
+                           torch.tensor([[1.0, 1.0, 1.5, 0.0]]).expand(len(c), 4)], 1)
+        return boxes, torch.zeros(len(c), 2)
+    s = significant_sampling(logits, decode, SamplingConfig(alpha=0.1, top_k=200), GRID)
+    assert sorted(map(tuple, s.cells.tolist())) == sorted(cells)
+    coarse = (torch.sigmoid(logits).amax(1) >= 0.1).sum().item()
+    assert coarse > len(cells)                          # NMS did the reduction
+    few = significant_sampling(logits, decode, SamplingConfig(alpha=0.1, top_k=3), GRID)
+    assert len(few.cells) <= 3
+
+
+@pytest.mark.parametrize('relax,cell,count', [
+    ('square', (20, 20), 9), ('square', (0, 0), 4), ('circle', (20, 20), 5),
+    ('rectangle', (20, 20), 3)])
+def test_relaxation_windows(relax, cell, count):
+    xy = GRID.cell_to_xy(torch.tensor([cell]))[0]
+    box = torch.tensor([[xy[0], xy[1], 0.0, 2.0, 0.5, 1.5, 0.0]])     # 2.5 cells along x
+    s = Samples(torch.zeros(1, dtype=torch.long), torch.tensor([cell]), torch.ones(1), box,
+                torch.zeros(1, 2))
+    cfg = SamplingConfig(relaxation=relax, window=3, radius=1.0)
+    cells, mask = relaxation_window(s, cfg, GRID)
+    assert int(mask.sum()) == count
+    chosen = {tuple(c) for c in cells[0][mask[0]].tolist()}
+    assert cell in chosen
+    if relax == 'rectangle':
+        assert chosen == {(cell[0] - 1, cell[1]), cell, (cell[0] + 1, cell[1])}
+
+
+def test_ego_transform_static_object_lands_on_same_cell():
+    world_xy = np.array([8.3, -4.1])
+    p0 = pose_from_xyz_rpy((0, 0, 1.8), (0, 0, 0.0))
+    p1 = pose_from_xyz_rpy((2.0, 0.5, 1.8), (0, 0, 0.3))
+    in0 = (se3_inverse(p0) @ np.r_[world_xy, 0, 1])[:2]
+    in1 = (se3_inverse(p1) @ np.r_[world_xy, 0, 1])[:2]
+    mem = SparseMemory(torch.zeros(1, dtype=torch.long),
+                       torch.tensor(in0, dtype=torch.float32)[None, None], torch.zeros(1, 1, 4),
+                       torch.ones(1, 1), torch.ones(1, 1, dtype=torch.bool),
+                       torch.tensor([[in0[0], in0[1], -1.8, 1, 1, 1, 0]], dtype=torch.float32),
+                       torch.zeros(1, 2), [0], ['lidar'], p0[None], 1)
+    moved = transform_sample_positions(mem, ego_transform(p1, p0)[None])[0, 0]
+    np.testing.assert_allclose(moved.numpy(), in1, atol=1e-5)
+    assert torch.equal(torch.floor(GRID.xy_to_cell(moved)),
+                       torch.floor(GRID.xy_to_cell(torch.tensor(in1, dtype=torch.float32))))
+
+
+def test_geonet_target_bins():
+    g = GeoNet(8, 3, bins=7, velocity_step=5.0)
+    v = torch.tensor([[0.0, 0.0], [5.0, 0.0], [-10.0, 15.0], [40.0, -40.0], [2.4, -2.6]])
+    assert g.target_bins(v).tolist() == [24, 25, 43, 6, 17]
+    # a bin's displacement is its velocity times the real gap: 10 Hz vs 20 Hz
+    k = 25
+    assert g.bin_velocities[k].tolist() == [5.0, 0.0]
+    assert (g.bin_velocities[k] * 0.1).tolist() == pytest.approx([0.5, 0.0])
+    assert (g.bin_velocities[k] * 0.05).tolist() == pytest.approx([0.25, 0.0])
+    logits = g(torch.randn(5, 8, 3, 3))
+    assert logits.shape == (5, 49)
+
+
+@pytest.mark.parametrize('dt', [0.1, 0.05])
+def test_fusion_equation_11_single_sample(dt):
+    C = 4
+    proj = torch.nn.Linear(C, C, bias=False)
+    with torch.no_grad():
+        proj.weight.copy_(torch.eye(C) * 2.0)
+    f = torch.tensor([[[1.0, 2.0, 3.0, 4.0]]])
+    pos = torch.tensor([[[5.2, -3.3]]])
+    vel_bins = torch.tensor([[0.0, 0.0], [10.0, 0.0]])
+    disp = (vel_bins * dt)[None]                                    # (1, 2, 2)
+    q = torch.tensor([[0.25, 0.75]])
+    out = sparse_past_term(f, torch.tensor([[0.8]]), torch.ones(1, 1, dtype=torch.bool), pos,
+                           torch.zeros(1, dtype=torch.long), disp, q, proj, GRID, 1)
+    expect = torch.zeros(1, C, GRID.H, GRID.W)
+    for k in range(2):
+        c, r = torch.floor(GRID.xy_to_cell(pos[0, 0] + disp[0, k])).long().tolist()
+        expect[0, :, r, c] += 0.8 * q[0, k] * 2.0 * f[0, 0]
+    torch.testing.assert_close(out, expect)
+
+
+def frame(t, seed=0, n=3000):
+    rng = np.random.default_rng(seed)
+    pts = np.c_[rng.uniform(-25, 25, (n, 2)), rng.uniform(-2, 0, n), rng.uniform(0, 1, n),
+                np.zeros(n)].astype(np.float32)
+    pts[:200, :2] = rng.normal([5 + 0.5 * t, 3], 0.5, (200, 2))      # a moving blob
+    gt = Detections(np.array([[5 + 0.5 * t, 3, -1, 4.5, 1.9, 1.6, 0.0],
+                              [-8, -6, -1, 0.7, 0.7, 1.8, 0]]),
+                    np.array([[5.0, 0.0], [0.0, 0.0]]), np.ones(2), np.array([0, 2]))
+    return Frame(pts, pose_from_xyz_rpy((t * 1.0, 0, 1.8), (0, 0, 0.01 * t)),
+                 int(1e9 + t * 1e8), 'lidar', gt)
+
+
+@pytest.mark.parametrize('temporal', ['none', 'dense', 'sparse', 'sparse_velocity', 'suit'])
+def test_variants_train_and_stream(temporal):
+    torch.manual_seed(0)
+    model = SUITDetector(small_config(temporal))
+    losses = model.forward_sequence([[frame(0), frame(1), frame(2)]])
+    assert set(losses) == {'hm_loss', 'loc_loss', 'geo_loss', 'loss'}
+    assert torch.isfinite(losses['loss'])
+    losses['loss'].backward()
+    runner = StreamingDetector(model)
+    used = [runner.step(frame(t).points[:, :4], frame(t).pose, frame(t).stamp_ns,
+                        'lidar').used_memory for t in range(3)]
+    assert used == [False] + [temporal != 'none'] * 2
+
+
+def test_memory_size_constant_over_frames_and_reset():
+    torch.manual_seed(0)
+    runner = StreamingDetector(SUITDetector(small_config('suit')))
+    f = frame(0)
+    sizes = {}
+    for t in range(10):
+        r = runner.step(f.points, f.pose, int(1e9 + t * 1e8), 'lidar')
+        sizes[t + 1] = r.memory_bytes
+    assert sizes[2] == sizes[10] > 0
+    assert runner.memory.num_samples <= runner.cfg.sampling.top_k
+    runner.reset('test')
+    assert runner.memory_bytes == 0
+    assert not runner.step(f.points, f.pose, int(3e9), 'lidar').used_memory
+    # a frame_id change or a time jump never fuses stale memory
+    assert not runner.step(f.points, f.pose, int(3.1e9), 'other').used_memory
+    assert not runner.step(f.points, f.pose, int(9e9), 'other').used_memory
+    dense = StreamingDetector(SUITDetector(small_config('dense')))
+    for t in range(2):
+        d = dense.step(f.points, f.pose, int(1e9 + t * 1e8), 'lidar')
+    assert d.memory_bytes > sizes[10]
+
+
+def test_optimisation_reduces_every_loss():
+    torch.manual_seed(0)
+    model = SUITDetector(small_config('suit'))
+    batch = [[frame(t, seed=1) for t in range(3)]]
+    opt = torch.optim.Adam(model.parameters(), lr=3e-3)
+    first = {k: float(v) for k, v in model.forward_sequence(batch).items()}
+    for _ in range(25):
+        losses = model.forward_sequence(batch)
+        opt.zero_grad()
+        losses['loss'].backward()
+        opt.step()
+    last = {k: float(v) for k, v in model.forward_sequence(batch).items()}
+    for k in ('hm_loss', 'loc_loss', 'geo_loss'):
+        assert last[k] < first[k], (k, first[k], last[k])
+    assert math.isfinite(last['loss'])
+
+
+def test_config_validation():
+    from suit_ros.errors import ConfigError
+    with pytest.raises(ConfigError, match='temporal'):
+        ModelConfig(temporal='lstm')
+    with pytest.raises(ConfigError, match='alpha'):
+        replace(ModelConfig(), sampling=SamplingConfig(alpha=1.5))

@@ -1,0 +1,84 @@
+"""Geometry ops: rotated BEV IoU against shapely, NMS against brute force, SE(3) helpers."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from shapely.geometry import Polygon
+import torch
+
+from suit_ros.ops.geometry import (ego_transform, pose_from_xyz_rpy, se3_inverse,
+                                   transform_boxes)
+from suit_ros.ops.iou import bev_corners, bev_iou
+from suit_ros.ops.nms import batched_nms, circle_nms, rotated_nms
+
+
+def random_boxes(n, seed):
+    rng = np.random.default_rng(seed)
+    return torch.tensor(np.c_[rng.uniform(-4, 4, (n, 2)), np.zeros(n), rng.uniform(0.3, 5, (n, 2)),
+                              np.ones(n), rng.uniform(-4, 4, n)], dtype=torch.float32)
+
+
+def shapely_iou(a, b):
+    ca, cb = bev_corners(a.double()).numpy(), bev_corners(b.double()).numpy()
+    out = np.zeros((len(a), len(b)))
+    for i in range(len(a)):
+        for j in range(len(b)):
+            pa, pb = Polygon(ca[i]), Polygon(cb[j])
+            inter = pa.intersection(pb).area
+            out[i, j] = inter / (pa.area + pb.area - inter)
+    return out
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_bev_iou_matches_shapely(seed):
+    a, b = random_boxes(30, seed), random_boxes(25, seed + 10)
+    np.testing.assert_allclose(bev_iou(a, b).numpy(), shapely_iou(a, b), atol=1e-5)
+
+
+def test_bev_iou_special_cases():
+    box = torch.tensor([[0, 0, 0, 4, 2, 1, 0.3]])
+    far = torch.tensor([[50, 0, 0, 4, 2, 1, 0.0]])
+    assert bev_iou(box, box).item() == pytest.approx(1.0, abs=1e-6)
+    assert bev_iou(box, far).item() == 0.0
+    turned = box.clone()
+    turned[0, 6] += np.pi                                # same footprint
+    assert bev_iou(box, turned).item() == pytest.approx(1.0, abs=1e-5)
+    assert bev_iou(torch.zeros(0, 7), box).shape == (0, 1)
+
+
+def brute_nms(boxes, scores, thr):
+    order = np.argsort(-scores, kind='stable')
+    iou = shapely_iou(boxes, boxes)
+    keep = []
+    for i in order:
+        if all(iou[i, k] <= thr for k in keep):
+            keep.append(i)
+    return keep
+
+
+@pytest.mark.parametrize('seed', [3, 4])
+def test_rotated_nms_matches_brute_force(seed):
+    boxes = random_boxes(40, seed)
+    scores = torch.tensor(np.random.default_rng(seed).uniform(size=40), dtype=torch.float32)
+    assert rotated_nms(boxes, scores, 0.2).tolist() == brute_nms(boxes, scores.numpy(), 0.2)
+
+
+def test_circle_nms_and_class_awareness():
+    centers = torch.tensor([[0.0, 0.0], [0.5, 0.0], [3.0, 0.0], [3.2, 0.1]])
+    scores = torch.tensor([0.9, 0.8, 0.7, 0.95])
+    assert circle_nms(centers, scores, 1.0).tolist() == [3, 0]
+    boxes = torch.tensor([[0, 0, 0, 4, 2, 1, 0], [0.2, 0, 0, 4, 2, 1, 0]], dtype=torch.float32)
+    same = batched_nms(boxes, torch.tensor([0.9, 0.8]), torch.tensor([0, 0]), 'rotated', 0.2)
+    diff = batched_nms(boxes, torch.tensor([0.9, 0.8]), torch.tensor([0, 1]), 'rotated', 0.2)
+    assert same.tolist() == [0] and sorted(diff.tolist()) == [0, 1]
+
+
+def test_ego_transform_static_object():
+    world = np.array([[12.0, -3.0, 0.8, 4.5, 1.9, 1.6, 0.4]])
+    p0 = pose_from_xyz_rpy((1, 2, 1.8), (0, 0, 0.2))
+    p1 = pose_from_xyz_rpy((2.4, 2.3, 1.8), (0, 0, 0.25))
+    b0, _ = transform_boxes(se3_inverse(p0), world)
+    b1, _ = transform_boxes(se3_inverse(p1), world)
+    moved, _ = transform_boxes(ego_transform(p1, p0), b0)
+    np.testing.assert_allclose(moved, b1, atol=1e-5)
+    np.testing.assert_allclose(se3_inverse(p0) @ p0, np.eye(4), atol=1e-12)
