@@ -1,0 +1,85 @@
+"""Checkpoints: round trip, and every way a file can be wrong (never unpickled)."""
+from __future__ import annotations
+
+import os
+import pickle
+
+import pytest
+import torch
+
+from suit_ros.checkpoint import (load_checkpoint, load_weights_into, read_metadata,
+                                 save_checkpoint)
+from suit_ros.config import ModelConfig
+from suit_ros.errors import CheckpointError
+from suit_ros.model.detector import SUITDetector
+
+
+@pytest.fixture(scope='module')
+def ckpt(tmp_path_factory):
+    torch.manual_seed(0)
+    path = tmp_path_factory.mktemp('ckpt') / 'm.safetensors'
+    save_checkpoint(path, SUITDetector(ModelConfig()), ModelConfig(), {'mAP': 0.5})
+    return path
+
+
+def test_round_trip(ckpt):
+    model, cfg, meta = load_checkpoint(ckpt)
+    assert cfg == ModelConfig() and meta['metrics'] == {'mAP': 0.5}
+    assert meta['class_names'] == list(cfg.class_names) and meta['code_version']
+    ref = SUITDetector(ModelConfig())
+    torch.manual_seed(0)
+    ref = SUITDetector(ModelConfig())
+    for (k, a), (_, b) in zip(model.state_dict().items(), ref.state_dict().items()):
+        assert torch.equal(a, b), k
+    assert not model.training
+
+
+def test_config_and_class_mismatch(ckpt):
+    with pytest.raises(CheckpointError, match='differs in: temporal'):
+        load_checkpoint(ckpt, expect_config=ModelConfig(temporal='none'))
+    with pytest.raises(CheckpointError, match='classes'):
+        load_checkpoint(ckpt, expect_classes=('car',))
+
+
+class Exploit:
+    def __reduce__(self):
+        return (os.system, ('touch /tmp/suit_ros_pwned',))
+
+
+def test_pickle_is_refused_without_running_it(tmp_path):
+    p = tmp_path / 'evil.pt'
+    p.write_bytes(pickle.dumps(Exploit()))
+    if os.path.exists('/tmp/suit_ros_pwned'):
+        os.remove('/tmp/suit_ros_pwned')
+    with pytest.raises(CheckpointError, match='pickle'):
+        load_checkpoint(p)
+    torch.save({'x': torch.zeros(1)}, tmp_path / 'zip.pt')
+    with pytest.raises(CheckpointError, match='torch.save'):
+        load_checkpoint(tmp_path / 'zip.pt')
+    assert not os.path.exists('/tmp/suit_ros_pwned')
+
+
+def test_corrupt_truncated_foreign_missing(tmp_path, ckpt):
+    with pytest.raises(CheckpointError, match='does not exist'):
+        read_metadata(tmp_path / 'nope.safetensors')
+    data = ckpt.read_bytes()
+    (tmp_path / 'trunc.safetensors').write_bytes(data[:len(data) // 2])
+    with pytest.raises(CheckpointError):
+        load_checkpoint(tmp_path / 'trunc.safetensors')
+    (tmp_path / 'junk.safetensors').write_bytes(b'hello world, not a checkpoint at all')
+    with pytest.raises(CheckpointError):
+        load_checkpoint(tmp_path / 'junk.safetensors')
+    from safetensors.torch import save_file
+    save_file({'w': torch.zeros(3)}, str(tmp_path / 'foreign.safetensors'))
+    with pytest.raises(CheckpointError, match='not a suit_ros checkpoint'):
+        load_checkpoint(tmp_path / 'foreign.safetensors')
+
+
+def test_stage2_initialisation_from_single_frame(tmp_path):
+    single = SUITDetector(ModelConfig(temporal='none'))
+    path = save_checkpoint(tmp_path / 's.safetensors', single, ModelConfig(temporal='none'))
+    suit = SUITDetector(ModelConfig(temporal='suit'))
+    fresh = load_weights_into(suit, path)
+    assert fresh and all(k.startswith(('fusion.', 'geonet.')) for k in fresh)
+    for k, v in single.state_dict().items():
+        assert torch.equal(suit.state_dict()[k], v)
