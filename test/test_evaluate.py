@@ -1,0 +1,107 @@
+"""Our nuScenes-style metrics agree with nuscenes-devkit's own functions to 1e-6."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suit_ros.evaluate import DIST_THRESHOLDS, evaluate, TP_METRICS
+from suit_ros.structures import Detections
+
+NAMES = ('car', 'truck', 'pedestrian', 'cyclist')
+DEVKIT_NAMES = {'car': 'car', 'truck': 'truck', 'pedestrian': 'pedestrian',
+                'cyclist': 'bicycle'}
+
+
+def scene(rng, frames=12):
+    gts, dets = [], []
+    for _ in range(frames):
+        n = int(rng.integers(0, 12))
+        boxes = np.c_[rng.uniform(-30, 30, (n, 2)), rng.uniform(-1, 1, n),
+                      rng.uniform(0.5, 6, (n, 3)), rng.uniform(-np.pi, np.pi, n)]
+        gt = Detections(boxes, rng.normal(0, 3, (n, 2)), np.ones(n), rng.integers(0, 4, n))
+        keep = rng.random(n) < 0.8                                     # misses
+        noisy = boxes[keep] + np.c_[rng.normal(0, 0.8, (keep.sum(), 2)),
+                                    rng.normal(0, 0.2, (keep.sum(), 4)),
+                                    rng.normal(0, 0.4, keep.sum())]
+        noisy[:, 3:6] = np.abs(noisy[:, 3:6]) + 0.1
+        m = int(rng.integers(0, 5))                                     # false positives
+        fp = np.c_[rng.uniform(-30, 30, (m, 2)), np.zeros(m), rng.uniform(1, 4, (m, 3)),
+                   rng.uniform(-3, 3, m)]
+        boxes_d = np.concatenate([noisy, fp])
+        k = len(boxes_d)
+        lab = np.concatenate([gt.labels[keep], rng.integers(0, 4, m)])
+        lab = np.where(rng.random(k) < 0.05, rng.integers(0, 4, k), lab)   # wrong class
+        det = Detections(boxes_d, np.concatenate([gt.velocities[keep], rng.normal(0, 3, (m, 2))])
+                         + rng.normal(0, 0.5, (k, 2)), rng.uniform(0, 1, k), lab)
+        gts.append(gt)
+        dets.append(det)
+    return gts, dets
+
+
+def to_devkit(frames, is_gt):
+    from nuscenes.eval.common.data_classes import EvalBoxes
+    from nuscenes.eval.detection.data_classes import DetectionBox
+    boxes = EvalBoxes()
+    for i, f in enumerate(frames):
+        items = []
+        for b, v, s, lab in zip(f.boxes.astype(float), f.velocities.astype(float),
+                                f.scores.astype(float), f.labels):
+            yaw = float(b[6])
+            items.append(DetectionBox(
+                sample_token=f's{i}', translation=tuple(b[:3]), size=(b[4], b[3], b[5]),
+                rotation=(np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)), velocity=tuple(v),
+                ego_translation=tuple(b[:3]), num_pts=10,
+                detection_name=DEVKIT_NAMES[NAMES[lab]],
+                detection_score=-1.0 if is_gt else float(s), attribute_name=''))
+        boxes.add_boxes(f's{i}', items)
+    return boxes
+
+
+@pytest.mark.parametrize('seed', [0, 1, 2, 3])
+def test_matches_nuscenes_devkit(seed):
+    from nuscenes.eval.common.utils import center_distance
+    from nuscenes.eval.detection.algo import accumulate, calc_ap, calc_tp
+    rng = np.random.default_rng(seed)
+    gts, dets = scene(rng)
+    ours = evaluate(gts, dets, NAMES, ranges={c: 1e9 for c in NAMES})
+    gt_boxes, pred_boxes = to_devkit(gts, True), to_devkit(dets, False)
+    for c in NAMES:
+        for th in DIST_THRESHOLDS:
+            md = accumulate(gt_boxes, pred_boxes, DEVKIT_NAMES[c], center_distance, th)
+            assert ours.ap[c][th] == pytest.approx(calc_ap(md, 0.1, 0.1), abs=1e-6), (c, th)
+            if th == 2.0:
+                for k in TP_METRICS:
+                    ref = calc_tp(md, 0.1, k)
+                    assert ours.tp[c][k] == pytest.approx(ref, abs=1e-6), (c, k)
+
+
+def test_perfect_and_empty():
+    rng = np.random.default_rng(9)
+    gts, _ = scene(rng, 6)
+    perfect = [Detections(g.boxes, g.velocities, np.full(len(g), 0.9), g.labels) for g in gts]
+    r = evaluate(gts, perfect, NAMES)
+    present = [c for c in NAMES if r.num_gt[c]]
+    assert all(r.class_ap[c] == pytest.approx(1.0) for c in present)
+    assert r.mean_tp['mATE'] < 1e-5 or len(present) < len(NAMES)
+    empty = evaluate(gts, [Detections.empty() for _ in gts], NAMES)
+    assert empty.mean_ap == 0.0 and empty.nds == 0.0
+    assert 'NDS without the attribute term' in empty.table()
+    with pytest.raises(ValueError):
+        evaluate(gts, gts[:-1], NAMES)
+
+
+def test_range_and_num_points_filters():
+    gt = Detections(np.array([[10, 0, 0, 4, 2, 1.5, 0], [45, 0, 0, 0.7, 0.7, 1.7, 0],
+                              [5, 5, 0, 4, 2, 1.5, 0]]), np.zeros((3, 2)), np.ones(3),
+                    np.array([0, 2, 0]))
+    det = Detections(gt.boxes[:1], np.zeros((1, 2)), np.ones(1), np.array([0]))
+    r = evaluate([gt], [det], NAMES, num_points=[np.array([5, 5, 0], np.uint32)])
+    assert r.num_gt['car'] == 1 and r.num_gt['pedestrian'] == 0     # 45 m > 40 m; 0 points
+    assert r.class_ap['car'] == pytest.approx(1.0)
+
+
+def test_pr_plot(tmp_path):
+    gts, dets = scene(np.random.default_rng(4), 5)
+    r = evaluate(gts, dets, NAMES)
+    r.plot_pr(str(tmp_path / 'pr.png'))
+    assert (tmp_path / 'pr.png').stat().st_size > 5000
