@@ -176,13 +176,14 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         bar.set_postfix(loss=f'{vals["loss"]:.3f}', hm=f'{vals["hm_loss"]:.3f}',
                         loc=f'{vals["loc_loss"]:.3f}', geo=f'{vals["geo_loss"]:.3f}')
         bar.update(1)
-        if rank == 0 and (step % tc.checkpoint_every == 0 or step == tc.steps):
+        out_of_time = bool(tc.max_minutes) and time.monotonic() - start > tc.max_minutes * 60
+        if rank == 0 and (step % tc.checkpoint_every == 0 or step == tc.steps or out_of_time):
             torch.save({'model': module.state_dict(), 'optimizer': opt.state_dict(),
                         'scheduler': sched.state_dict(), 'step': step,
                         'torch_rng': torch.get_rng_state()}, last)
             if log_file:
                 log_file.flush()
-        if tc.max_minutes and time.monotonic() - start > tc.max_minutes * 60:
+        if out_of_time:
             print(f'\n[train] time budget reached at step {step}')
             break
     bar.close()
