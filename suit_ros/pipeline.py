@@ -148,14 +148,19 @@ class DetectionPipeline:
         if out.warning == '' and len(points) == 0:
             out.warning = 'empty cloud (no finite points in range)'
         t2 = time.perf_counter()
-        result = self.detector.step(points, pose, stamp_ns, frame_id)
+        model_timings: dict[str, float] = {}
+        if len(points):
+            result = self.detector.step(points, pose, stamp_ns, frame_id)
+            out.detections = result.detections
+            out.used_memory = result.used_memory
+            out.memory_samples = result.memory_samples
+            out.memory_bytes = result.memory_bytes
+            model_timings = result.timings
+        else:   # nothing to detect in: publish an empty result, keep the memory as it is
+            out.memory_bytes = self.detector.memory_bytes
         t3 = time.perf_counter()
-        out.detections = result.detections
-        out.used_memory = result.used_memory
-        out.memory_samples = result.memory_samples
-        out.memory_bytes = result.memory_bytes
         if self.classes is not None:
-            d = result.detections
+            d = out.detections
             out.detections_msg = detections_to_pointcloud2(
                 d.boxes, d.velocities, d.scores, d.labels, header, self.classes)
             out.markers_msg = detections_to_markerarray(
@@ -163,7 +168,7 @@ class DetectionPipeline:
                 self.classes)
         t4 = time.perf_counter()
         out.timings = {'convert': (t1 - t0) + (t2 - t1), 'model': t3 - t2, 'publish': t4 - t3}
-        out.timings.update({f'model.{k}': v for k, v in result.timings.items()})
+        out.timings.update({f'model.{k}': v for k, v in model_timings.items()})
         return out
 
     def _reset_reason(self, stamp_ns: int, frame_id: str) -> str | None:
