@@ -107,7 +107,8 @@ class DetectorNode(Node):
         self._apply_thresholds()
         self.get_logger().info(
             f'loaded {ckpt} (temporal={cfg.temporal}, classes={list(self.class_names)}, '
-            f'code {meta.get("code_version")}) on {dev}')
+            f'code {meta.get("code_version")}) on {dev}; suit_ros from '
+            f'{os.path.dirname(os.path.abspath(__file__))}')
 
         qos_points = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                                 reliability=QoSReliabilityPolicy.BEST_EFFORT)

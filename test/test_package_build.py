@@ -1,0 +1,92 @@
+"""The colcon install layout that `ros2 run` / `ros2 launch` rely on, and the CLI basics."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import subprocess
+import sys
+
+import pytest
+
+from rosgraph import Probe, start_node, stop
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope='module')
+def install(tmp_path_factory):
+    work = tmp_path_factory.mktemp('colcon')
+    colcon = Path(sys.executable).parent / 'colcon'
+    env = dict(os.environ)
+    env['PATH'] = f'{Path(sys.executable).parent}:{env["PATH"]}'
+    proc = subprocess.run([str(colcon), 'build', '--base-paths', str(REPO), '--build-base',
+                           str(work / 'build'), '--install-base', str(work / 'install'),
+                           '--packages-select', 'suit_ros'], cwd=work, env=env,
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    return work / 'install' / 'suit_ros'
+
+
+def site_packages(install: Path) -> Path:
+    return next((install / 'lib').glob('python3*/site-packages'))
+
+
+def test_install_layout(install):
+    for exe in ('detector', 'suit-ros'):
+        path = install / 'lib' / 'suit_ros' / exe
+        assert path.is_file() and os.access(path, os.X_OK), exe
+    assert (install / 'share/ament_index/resource_index/packages/suit_ros').is_file()
+    assert (install / 'share/suit_ros/package.xml').read_text().count('<name>suit_ros') == 1
+    installed = {p.name for p in (install / 'share/suit_ros/params').glob('*.yaml')}
+    assert installed == {p.name for p in (REPO / 'params').glob('*.yaml')}
+    assert (install / 'share/suit_ros/launch/detector.launch.py').is_file()
+    sp = site_packages(install)
+    assert (sp / 'suit_ros' / 'msg_adapters' / 'pointcloud2.py').is_file()
+    assert not (sp / 'msg_adapters').exists()                # no generic top-level package
+
+
+def test_installed_cli_runs(install):
+    env = dict(os.environ, PYTHONPATH=str(site_packages(install)))
+    out = subprocess.run([sys.executable, str(install / 'lib/suit_ros/suit-ros'), '--version'],
+                         env=env, capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0 and out.stdout.startswith('suit-ros 0.')
+
+
+def test_installed_detector_starts_and_publishes(install, tmp_path):
+    from diagnostic_msgs.msg import DiagnosticArray
+
+    from suit_ros.checkpoint import save_checkpoint
+    from suit_ros.config import ModelConfig
+    from suit_ros.model.detector import SUITDetector
+    ckpt = tmp_path / 'm.safetensors'
+    save_checkpoint(ckpt, SUITDetector(ModelConfig()), ModelConfig())
+    os.environ['PYTHONPATH'] = str(site_packages(install))
+    try:
+        proc = start_node(str(ckpt), cmd=[sys.executable,
+                                          str(install / 'lib/suit_ros/detector')])
+    finally:
+        del os.environ['PYTHONPATH']
+    probe = Probe()
+    seen = []
+    probe.node.create_subscription(DiagnosticArray, '/diagnostics', seen.append, 10)
+    try:
+        assert probe.spin_until(lambda: bool(seen) or proc.poll() is not None, 60.0)
+    finally:
+        probe.close()
+        out = stop(proc)
+    assert seen, out
+    assert str(install) in out           # the node ran from the install tree
+
+
+def test_cli_version_info_and_errors(capsys):
+    from suit_ros.cli import main
+    with pytest.raises(SystemExit):
+        main(['--version'])
+    assert 'suit-ros 0.1.0' in capsys.readouterr().out
+    assert main(['info']) == 0
+    text = capsys.readouterr().out
+    for key in ('python', 'numpy', 'torch', 'rclpy', 'rmw', 'torch threads', 'torch device'):
+        assert key in text
+    assert main([]) == 2
+    assert main(['train', '--config', '/nonexistent.yaml', '--out', '/tmp/x']) == 1
+    assert 'does not exist' in capsys.readouterr().err
