@@ -1,0 +1,210 @@
+"""``suit-ros bench``: latency, memory and scaling of the detector, measured in one run.
+
+Prints a table (``--json`` for machines, ``--markdown PATH`` for docs/bench.md): per-stage
+latency p50/p95 of the CPU default config, single-frame vs SUIT step, temporal memory of SUIT vs
+the dense variant after 2 and 10 frames, scaling with points per cloud and with objects in the
+scene, end-to-end node latency through DDS with the demo bag at 10 and 20 Hz, peak RSS.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import resource
+import time
+from typing import Any
+
+import numpy as np
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Add ``bench`` options."""
+    parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
+    parser.add_argument('--frames', type=int, default=30, help='frames per measurement')
+    parser.add_argument('--threads', type=int, default=2)
+    parser.add_argument('--device', default='cpu', choices=['cpu', 'cuda'])
+    parser.add_argument('--config', default='', help='model config for an untrained '
+                        'measurement instead of the checkpoint (e.g. params/model_paper.yaml)')
+    parser.add_argument('--skip-node', action='store_true', help='skip the DDS measurement')
+    parser.add_argument('--json', action='store_true', help='print JSON')
+    parser.add_argument('--markdown', help='also write the table to this file')
+
+
+def pct(values: list[float], q: float) -> float:
+    """Percentile in milliseconds."""
+    return float(np.percentile(np.asarray(values) * 1e3, q)) if values else float('nan')
+
+
+def _model(args: argparse.Namespace, temporal: str) -> Any:
+    from dataclasses import replace
+
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.config import load_model_config
+    from suit_ros.model.detector import SUITDetector
+    if args.config:
+        cfg = replace(load_model_config(args.config), temporal=temporal)
+        return SUITDetector(cfg).eval()
+    model, cfg, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
+    if cfg.temporal == temporal:
+        return model
+    other = SUITDetector(replace(cfg, temporal=temporal))
+    other.load_state_dict(model.state_dict(), strict=False)
+    return other.eval()
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run every measurement and print the table."""
+    import torch
+
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.scene import Simulation, to_frame
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.msg_adapters.classes import MessageClasses
+    from suit_ros.msg_adapters.detections import (
+        detections_to_markerarray,
+        detections_to_pointcloud2,
+    )
+    from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2, pointcloud2_to_xyzi
+    torch.set_num_threads(args.threads)
+    n = args.frames
+    sim = Simulation(preset('demo', frames=max(n, 12)), 7)
+    simframes = [sim.render(k) for k in range(n)]
+    frames = [to_frame(f, 7) for f in simframes]
+    C = MessageClasses.from_rclpy()
+    clouds = [array_to_pointcloud2(f.cloud, C.header(f.stamp_ns, 'lidar'), C)
+              for f in simframes]
+    res: dict[str, Any] = {'machine': machine(), 'threads': args.threads, 'device': args.device,
+                           'points_per_frame': int(np.mean([len(f.cloud) for f in simframes]))}
+    # --- per stage, SUIT (memory carried) and single frame
+    stage_times: dict[str, list[float]] = {k: [] for k in (
+        'convert', 'pillars', 'backbone', 'head_decode', 'sampling', 'fusion', 'output')}
+    steps: dict[str, list[float]] = {}
+    memory: dict[str, dict[int, int]] = {}
+    names = None
+    for temporal in ('none', 'suit', 'dense'):
+        runner = StreamingDetector(_model(args, temporal), args.device)
+        names = runner.cfg.class_names
+        steps[temporal] = []
+        memory[temporal] = {}
+        for i, (f, msg) in enumerate(zip(frames, clouds)):
+            t0 = time.perf_counter()
+            pts = pointcloud2_to_xyzi(msg).points
+            pts[:, 3] /= 255.0
+            t1 = time.perf_counter()
+            r = runner.step(pts, f.pose, f.stamp_ns, 'lidar')
+            t2 = time.perf_counter()
+            d = r.detections
+            detections_to_pointcloud2(d.boxes, d.velocities, d.scores, d.labels,
+                                      msg.header, C)
+            detections_to_markerarray(d.boxes, d.velocities, d.scores, d.labels, msg.header,
+                                      names, C)
+            t3 = time.perf_counter()
+            if i + 1 in (2, 10):
+                memory[temporal][i + 1] = r.memory_bytes
+            if i < 3:
+                continue                                  # warm-up
+            steps[temporal].append(t2 - t1)
+            if temporal == 'suit':
+                stage_times['convert'].append(t1 - t0)
+                stage_times['output'].append(t3 - t2)
+                for k in ('pillars', 'backbone', 'head_decode', 'sampling', 'fusion'):
+                    stage_times[k].append(r.timings[k])
+    res['stages_ms'] = {k: {'p50': pct(v, 50), 'p95': pct(v, 95)} for k, v in
+                        stage_times.items()}
+    res['step_ms'] = {k: {'p50': pct(v, 50), 'p95': pct(v, 95)} for k, v in steps.items()}
+    res['suit_over_single'] = res['step_ms']['suit']['p50'] / res['step_ms']['none']['p50']
+    res['memory_bytes'] = memory
+    res['memory_ratio_suit_dense'] = {k: memory['suit'].get(k, 0) / max(memory['dense'].get(k, 1),
+                                                                          1) for k in (2, 10)}
+    # --- scaling with points per cloud (resampled demo frame) and with objects
+    runner = StreamingDetector(_model(args, 'suit'), args.device)
+    base = np.concatenate([f.points for f in frames[:8]])
+    rng = np.random.default_rng(0)
+    scaling = {}
+    for count in (10_000, 30_000, 100_000, 300_000):
+        pts = base[rng.integers(0, len(base), count)]
+        pts[:, :2] += rng.normal(0, 0.05, (count, 2)).astype(np.float32)
+        times = []
+        for i in range(max(5, n // 3)):
+            r = runner.step(pts, frames[0].pose, frames[0].stamp_ns + i * 100_000_000, 'lidar')
+            times.append(r.timings['total'])
+        scaling[count] = pct(times[2:], 50)
+    res['scaling_points_ms'] = scaling
+    by_objects = []
+    for actors in (10, 40, 120):
+        cfg = preset('demo', frames=6, moving_vehicles=actors // 2, parked_vehicles=actors // 4,
+                     pedestrians=actors // 4, cyclists=2)
+        runner.reset('bench')
+        s = Simulation(cfg, 3)
+        times, objs = [], []
+        for k in range(6):
+            fr = to_frame(s.render(k), 3)
+            r = runner.step(fr.points, fr.pose, fr.stamp_ns, 'lidar')
+            times.append(r.timings['total'])
+            objs.append(int((fr.num_points > 0).sum()))
+        by_objects.append({'objects_with_points': float(np.mean(objs[2:])),
+                           'step_ms_p50': pct(times[2:], 50),
+                           'detections': len(r.detections)})
+    res['scaling_objects'] = by_objects
+    if not args.skip_node:
+        from suit_ros.bench_node import node_latency
+        res['node'] = {f'{hz}Hz': node_latency(args.checkpoint, rate=hz / 10.0)
+                       for hz in (10, 20)}
+    res['peak_rss_mb'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    text = table(res)
+    if args.json:
+        print(json.dumps(res, indent=2, default=str))
+    else:
+        print(text)
+    if args.markdown:
+        with open(args.markdown, 'w', encoding='utf-8') as f:
+            f.write('# Benchmarks\n\nRegenerated by `suit-ros bench --markdown docs/bench.md`.'
+                    '\n\n```\n' + text + '\n```\n')
+    return 0
+
+
+def machine() -> str:
+    """A one-line description of this machine."""
+    cpu = platform.processor() or platform.machine()
+    try:
+        with open('/proc/cpuinfo', encoding='utf-8') as f:
+            for line in f:
+                if line.startswith('model name'):
+                    cpu = line.split(':', 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    return f'{cpu}, {os.cpu_count()} CPUs, Python {platform.python_version()}'
+
+
+def table(r: dict[str, Any]) -> str:
+    """The human-readable table."""
+    lines = [f'machine: {r["machine"]}; torch threads {r["threads"]}; device {r["device"]}; '
+             f'demo scene ~{r["points_per_frame"]} points/frame', '',
+             f'{"stage (SUIT step, memory carried)":<36}{"p50 ms":>9}{"p95 ms":>9}']
+    for k, v in r['stages_ms'].items():
+        lines.append(f'{k:<36}{v["p50"]:>9.1f}{v["p95"]:>9.1f}')
+    lines += ['', f'{"model step":<36}{"p50 ms":>9}{"p95 ms":>9}']
+    for k, v in r['step_ms'].items():
+        lines.append(f'{k:<36}{v["p50"]:>9.1f}{v["p95"]:>9.1f}')
+    lines.append(f'SUIT / single-frame step (p50): {r["suit_over_single"]:.2f}x')
+    m = r['memory_bytes']
+    for k in (2, 10):
+        lines.append(f'temporal memory after {k:>2} frames: SUIT {m["suit"].get(k, 0):,} B, '
+                     f'dense {m["dense"].get(k, 0):,} B, ratio '
+                     f'{r["memory_ratio_suit_dense"][k] * 100:.2f}%')
+    lines += ['', 'scaling with points per cloud (SUIT step p50 ms): ' + ', '.join(
+        f'{k // 1000}k: {v:.1f}' for k, v in r['scaling_points_ms'].items())]
+    lines.append('scaling with objects in the scene: ' + ', '.join(
+        f'{o["objects_with_points"]:.0f} objects: {o["step_ms_p50"]:.1f} ms'
+        for o in r['scaling_objects']))
+    if 'node' in r:
+        for hz, v in r['node'].items():
+            lines.append(f'node through DDS at {hz}: latency p50 {v["latency_ms_p50"]:.1f} ms, '
+                         f'p95 {v["latency_ms_p95"]:.1f} ms, output {v["rate_hz"]:.1f} Hz, '
+                         f'{v["frames_out"]}/{v["frames_in"]} frames out, dropped '
+                         f'{v["dropped"]}, node overhead {v["overhead_pct"]:.1f}% of the model '
+                         'step')
+    lines.append(f'peak RSS: {r["peak_rss_mb"]:.0f} MB')
+    return '\n'.join(lines)

@@ -1,0 +1,87 @@
+"""End-to-end node latency through DDS: the demo bag played into a detector process."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+
+def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
+                 seed: int = 7, workdir: str = 'out/demo') -> dict[str, Any]:
+    """Play the demo bag at ``rate`` x 10 Hz into a fresh node; measure cloud-received ->
+    detections-received latency at a probe, the output rate, drops and the node's overhead."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile, QoSReliabilityPolicy
+    from sensor_msgs.msg import PointCloud2
+
+    from suit_ros.checkpoint import default_checkpoint_path
+    from suit_ros.data.sim import preset
+    from suit_ros.data.simulate_cli import write_bag
+    from suit_ros.demo import local_ros_env
+    env = local_ros_env()
+    os.environ.update(env)
+    bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f')
+    if not os.path.exists(bag):
+        os.makedirs(workdir, exist_ok=True)
+        write_bag(bag, preset('demo', frames=frames), seed, 'mcap')
+    ckpt = checkpoint or str(default_checkpoint_path())
+    node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
+                             f'checkpoint:={ckpt}', '-p', 'threads:=2', '-p',
+                             'qos_overrides./points.subscription.reliability:=reliable'],
+                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    ctx = Context()
+    rclpy.init(context=ctx)
+    probe = rclpy.create_node('suit_ros_bench_probe', context=ctx)
+    clouds: dict[int, float] = {}
+    dets: dict[int, float] = {}
+    diags: list[dict[str, str]] = []
+
+    def key(m: Any) -> int:
+        return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
+    probe.create_subscription(PointCloud2, '/points',
+                              lambda m: clouds.setdefault(key(m), time.monotonic()),
+                              QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE))
+    probe.create_subscription(PointCloud2, '/detector/detections',
+                              lambda m: dets.setdefault(key(m), time.monotonic()), 50)
+    probe.create_subscription(DiagnosticArray, '/diagnostics', lambda m: diags.append(
+        {kv.key: kv.value for kv in m.status[0].values}), 10)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(probe)
+    try:
+        end = time.monotonic() + 90
+        while not diags and time.monotonic() < end:
+            ex.spin_once(timeout_sec=0.1)
+        player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', bag,
+                                   '--rate', str(rate), '--start-delay', '1.0',
+                                   '--topics', '/points', '/odom'],
+                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        t0 = time.monotonic()
+        while player.poll() is None and time.monotonic() < end + 120:
+            ex.spin_once(timeout_sec=0.02)
+        t_play = time.monotonic() - t0
+        settle = time.monotonic() + 2.5
+        while time.monotonic() < settle:
+            ex.spin_once(timeout_sec=0.05)
+    finally:
+        ex.shutdown()
+        probe.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+        node.terminate()
+        node.wait(10)
+    lat = [dets[s] - clouds[s] for s in dets if s in clouds]
+    last = diags[-1] if diags else {}
+    model = float(last.get('model_ms_p50', 'nan'))
+    overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50'))
+    return {'frames_in': len(clouds), 'frames_out': len(dets),
+            'dropped': int(last.get('dropped_frames', -1)),
+            'rate_hz': len(dets) / max(t_play - 1.0, 1e-9),
+            'latency_ms_p50': float(np.median(lat)) * 1e3 if lat else float('nan'),
+            'latency_ms_p95': float(np.percentile(lat, 95)) * 1e3 if lat else float('nan'),
+            'model_ms_p50': model, 'overhead_pct': 100.0 * overhead / model if model else 0.0}
