@@ -1,0 +1,77 @@
+"""``suit-ros eval``: nuScenes-style metrics for a bag with detections and GT, or for a model
+on a synthetic split."""
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from suit_ros.errors import BagError, DatasetError
+
+
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Add ``eval`` options."""
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument('--bag', help='a bag with detections and GT (e.g. detect-bag --copy-inputs)')
+    src.add_argument('--synthetic', choices=['val', 'demo'],
+                     help='run --checkpoint over a synthetic split')
+    parser.add_argument('--det-topic', default='/detector/detections')
+    parser.add_argument('--gt-topic', default='/gt/objects')
+    parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
+    parser.add_argument('--history', type=int, help='frames of history (default: all)')
+    parser.add_argument('--cache-dir', default='data_cache')
+    parser.add_argument('--json-out', help='write the metrics as JSON here')
+    parser.add_argument('--plot', help='write precision-recall curves (PNG) here')
+
+
+def _from_bag(args: argparse.Namespace) -> Any:
+    from suit_ros.data.bag import open_reader
+    from suit_ros.evaluate import evaluate
+    from suit_ros.msg_adapters.detections import pointcloud2_to_detections
+    from suit_ros.msg_adapters.odometry import stamp_to_ns
+    from suit_ros.structures import Detections
+    found: dict[str, dict[int, Any]] = {args.det_topic: {}, args.gt_topic: {}}
+    with open_reader(args.bag) as reader:
+        topics = {c.topic for c in reader.connections}
+        for t in found:
+            if t not in topics:
+                raise BagError(f'{args.bag} has no {t} topic (topics: {sorted(topics)}); run '
+                               '`suit-ros detect-bag IN OUT --copy-inputs` on a bag with GT')
+        conns = [c for c in reader.connections if c.topic in found]
+        for conn, _, raw in reader.messages(connections=conns):
+            msg = reader.deserialize(raw, conn.msgtype)
+            found[conn.topic][stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
+    det, gt = found[args.det_topic], found[args.gt_topic]
+    stamps = sorted(set(det) & set(gt))
+    if not stamps:
+        raise BagError(f'no frame of {args.bag} has both detections and GT at the same stamp')
+
+    def d(x: dict[str, Any]) -> Detections:
+        return Detections(x['boxes'], x['velocities'], x['scores'], x['labels'])
+    return evaluate([d(gt[s]) for s in stamps], [d(det[s]) for s in stamps],
+                    num_points=[gt[s].get('num_points') for s in stamps])
+
+
+def run(args: argparse.Namespace) -> int:
+    """Evaluate and report."""
+    if args.bag:
+        result = _from_bag(args)
+    else:
+        from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+        from suit_ros.data.sequences import SPLIT_SEEDS, VAL_SEQUENCES, synthetic_sequence
+        from suit_ros.evaluate import evaluate_model
+        model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
+        if args.synthetic == 'val':
+            seqs = [synthetic_sequence('val', SPLIT_SEEDS['val'] + i, 40, args.cache_dir)
+                    for i in range(VAL_SEQUENCES)]
+        else:
+            seqs = [synthetic_sequence('demo', SPLIT_SEEDS['demo'], 100, args.cache_dir)]
+        if not seqs or not seqs[0]:
+            raise DatasetError('the synthetic split is empty')
+        result = evaluate_model(model, seqs, history=args.history)
+    print(result.table())
+    if args.json_out:
+        from suit_ros.evaluate import dump_json
+        dump_json(result, args.json_out)
+    if args.plot:
+        result.plot_pr(args.plot)
+    return 0
