@@ -26,6 +26,9 @@ class TrainConfig:
     """A training run (``params/train_*.yaml``)."""
 
     model_config: str = 'params/model_cpu.yaml'
+    dataset: str = 'synthetic'       # synthetic | bags | nuscenes
+    dataset_paths: tuple[str, ...] = ()   # bags, or the nuScenes root (first entry)
+    nuscenes_version: str = 'v1.0-mini'
     temporal: str = ''               # override the model config's temporal mode
     init_from: str = ''              # stage 2: initialise shared weights from this checkpoint
     train_sequences: int = 16
@@ -125,7 +128,18 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         from torch.nn.parallel import DistributedDataParallel
         model = DistributedDataParallel(model, find_unused_parameters=True)  # type: ignore
     out.mkdir(parents=True, exist_ok=True)
-    data = synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir)
+    if tc.dataset == 'synthetic':
+        data = synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir)
+    elif tc.dataset == 'bags':
+        from suit_ros.data.sequences import bag_sequences
+        data = bag_sequences(tc.dataset_paths)
+    elif tc.dataset == 'nuscenes':
+        from suit_ros.data.sequences import nuscenes_sequences
+        if not tc.dataset_paths:
+            raise ConfigError('dataset nuscenes needs dataset_paths: [ROOT]')
+        data = nuscenes_sequences(tc.dataset_paths[0], tc.nuscenes_version)
+    else:
+        raise ConfigError(f'dataset must be synthetic, bags or nuscenes, not {tc.dataset!r}')
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank)

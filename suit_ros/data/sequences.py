@@ -123,3 +123,22 @@ class ClipSampler:
             start = int(self.rng.integers(len(seq) - L + 1))
             out.append([training_view(f) for f in seq[start:start + L]])
         return out
+
+
+def bag_sequences(paths: Sequence[str | os.PathLike[str]]) -> list[list[Frame]]:
+    """Sequences from rosbag2 bags that carry ``/points``, ``/odom`` and ``/gt/objects``."""
+    from suit_ros.data.bag import read_bag_frames
+    out = []
+    for p in paths:
+        frames = [f for f in read_bag_frames(p) if f.gt is not None]
+        if frames:
+            out.append(frames)
+    return out
+
+
+def nuscenes_sequences(root: str | os.PathLike[str], version: str = 'v1.0-mini',
+                       sweeps: int = 10) -> list[list[Frame]]:
+    """Every scene of a nuScenes-format dataset as a sequence of keyframes (with sweeps)."""
+    from suit_ros.data.nuscenes import NuScenesReader
+    reader = NuScenesReader(root, version, sweeps)
+    return [list(reader.sequence(s)) for s in reader.scenes()]

@@ -1,0 +1,157 @@
+"""The nuScenes-format reader against nuscenes-devkit reading the same tiny on-disk dataset."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from suit_ros.data.nuscenes import map_category, NuScenesReader
+from suit_ros.errors import DatasetError
+
+VERSION = 'v1.0-mini'
+
+
+def quat_wxyz(yaw, pitch=0.0, roll=0.0):
+    x, y, z, w = Rotation.from_euler('zyx', [yaw, pitch, roll]).as_quat()
+    return [w, x, y, z]
+
+
+def build_dataset(root, rng):
+    tables = {k: [] for k in ('category', 'attribute', 'visibility', 'instance', 'sensor',
+                              'calibrated_sensor', 'ego_pose', 'log', 'scene', 'sample',
+                              'sample_data', 'sample_annotation', 'map')}
+    tables['sensor'].append({'token': 'sens_lidar', 'channel': 'LIDAR_TOP',
+                             'modality': 'lidar'})
+    tables['calibrated_sensor'].append({'token': 'cal_lidar', 'sensor_token': 'sens_lidar',
+                                        'translation': [0.94, 0.0, 1.84],
+                                        'rotation': quat_wxyz(-1.57, 0.01, -0.005),
+                                        'camera_intrinsic': []})
+    cats = ['vehicle.car', 'human.pedestrian.adult', 'vehicle.bus.rigid', 'movable_object.barrier',
+            'vehicle.bicycle']
+    for c in cats:
+        tables['category'].append({'token': f'cat_{c}', 'name': c, 'description': ''})
+    tables['visibility'].append({'token': '4', 'level': 'v80-100', 'description': ''})
+    tables['log'].append({'token': 'log0', 'logfile': '', 'vehicle': 'v', 'date_captured': '',
+                          'location': 'singapore-onenorth'})
+    tables['map'].append({'token': 'map0', 'log_tokens': ['log0'], 'category': 'semantic_prior',
+                          'filename': ''})
+    (root / 'samples/LIDAR_TOP').mkdir(parents=True)
+    (root / 'sweeps/LIDAR_TOP').mkdir(parents=True)
+    for s in range(2):
+        samples = [f's{s}_{k}' for k in range(3)]
+        tables['scene'].append({'token': f'scene{s}', 'log_token': 'log0', 'nbr_samples': 3,
+                                'first_sample_token': samples[0],
+                                'last_sample_token': samples[-1], 'name': f'scene-{s:04d}',
+                                'description': ''})
+        prev_sd = ''
+        sd_records = []
+        for k, tok in enumerate(samples):
+            t_key = 1_600_000_000_000_000 + s * 100_000_000 + k * 500_000
+            tables['sample'].append({'token': tok, 'timestamp': t_key, 'scene_token': f'scene{s}',
+                                     'prev': samples[k - 1] if k else '',
+                                     'next': samples[k + 1] if k < 2 else ''})
+            for j in (2, 1, 0):          # two sweeps, then the keyframe
+                t = t_key - j * 50_000
+                sd_tok = f'sd_{tok}_{j}'
+                ep = f'ep_{sd_tok}'
+                tables['ego_pose'].append({'token': ep, 'timestamp': t,
+                                           'translation': [100 + 5 * k + 0.1 * j * rng.random(),
+                                                           200 + s, 0.1 * rng.random()],
+                                           'rotation': quat_wxyz(0.3 + 0.05 * k - 0.01 * j)})
+                key = j == 0
+                folder = 'samples' if key else 'sweeps'
+                fname = f'{folder}/LIDAR_TOP/{sd_tok}.pcd.bin'
+                pts = np.c_[rng.uniform(-30, 30, (400, 3)), rng.uniform(0, 255, 400),
+                            rng.integers(0, 32, 400)].astype(np.float32)
+                pts[:5, :2] = 0.3                              # close points (removed)
+                pts.tofile(root / fname)
+                rec = {'token': sd_tok, 'sample_token': tok, 'ego_pose_token': ep,
+                       'calibrated_sensor_token': 'cal_lidar', 'timestamp': t,
+                       'fileformat': 'pcd', 'is_key_frame': key, 'height': 0, 'width': 0,
+                       'filename': fname, 'prev': prev_sd, 'next': ''}
+                if sd_records:
+                    sd_records[-1]['next'] = sd_tok
+                sd_records.append(rec)
+                prev_sd = sd_tok
+        tables['sample_data'] += sd_records
+        for i, cat in enumerate(cats):
+            inst = f'inst{s}_{i}'
+            ann_tokens = [f'ann_{inst}_{k}' for k in range(3)]
+            n_ann = 3 if i != 1 else 1                          # an isolated annotation
+            tables['instance'].append({'token': inst, 'category_token': f'cat_{cat}',
+                                       'nbr_annotations': n_ann,
+                                       'first_annotation_token': ann_tokens[0],
+                                       'last_annotation_token': ann_tokens[n_ann - 1]})
+            for k in range(n_ann):
+                tables['sample_annotation'].append({
+                    'token': ann_tokens[k], 'sample_token': f's{s}_{k}', 'instance_token': inst,
+                    'visibility_token': '4', 'attribute_tokens': [],
+                    'translation': [110 + 3 * i + 1.5 * k, 195 + 2 * i, 1.0],
+                    'size': [1.9, 4.5, 1.6], 'rotation': quat_wxyz(0.1 * i + 0.02 * k),
+                    'prev': ann_tokens[k - 1] if k else '',
+                    'next': ann_tokens[k + 1] if k < n_ann - 1 else '',
+                    'num_lidar_pts': 10 + i, 'num_radar_pts': 0})
+    (root / VERSION).mkdir()
+    for name, rows in tables.items():
+        (root / VERSION / f'{name}.json').write_text(json.dumps(rows))
+
+
+@pytest.fixture(scope='module')
+def dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp('nuscenes')
+    build_dataset(root, np.random.default_rng(0))
+    return root
+
+
+def test_reader_agrees_with_devkit(dataset):
+    from nuscenes.nuscenes import NuScenes
+    from nuscenes.utils.data_classes import LidarPointCloud
+    nusc = NuScenes(VERSION, str(dataset), verbose=False)
+    reader = NuScenesReader(dataset, VERSION, sweeps=3)
+    frames = {f.stamp_ns: f for scene in reader.scenes() for f in reader.sequence(scene)}
+    assert len(frames) == 6
+    for sample in nusc.sample:
+        sd_tok = sample['data']['LIDAR_TOP']
+        pc, times = LidarPointCloud.from_file_multisweep(nusc, sample, 'LIDAR_TOP', 'LIDAR_TOP',
+                                                         nsweeps=3)
+        f = frames[nusc.get('sample_data', sd_tok)['timestamp'] * 1000]
+        np.testing.assert_allclose(f.points[:, :3], pc.points[:3].T, atol=1e-3)
+        np.testing.assert_allclose(f.points[:, 4], times[0], atol=1e-6)
+        np.testing.assert_allclose(f.points[:, 3], pc.points[3] / 255.0, atol=1e-6)
+        _, boxes, _ = nusc.get_sample_data(sd_tok)
+        ours = {}
+        for b in boxes:
+            cls = map_category(b.name)
+            if cls is None:
+                continue
+            ann = nusc.get('sample_annotation', b.token)
+            v = nusc.box_velocity(b.token)
+            ego = nusc.get('ego_pose', nusc.get('sample_data', sd_tok)['ego_pose_token'])
+            cal = nusc.get('calibrated_sensor',
+                           nusc.get('sample_data', sd_tok)['calibrated_sensor_token'])
+            from pyquaternion import Quaternion
+            v_l = Quaternion(cal['rotation']).inverse.rotate(
+                Quaternion(ego['rotation']).inverse.rotate(np.nan_to_num(v)))
+            yaw = b.orientation.yaw_pitch_roll[0]
+            ours[ann['num_lidar_pts']] = (b.center, b.wlh, yaw, v_l[:2])
+        assert len(ours) == len(f.gt)
+        for k, num in enumerate(f.num_points):
+            center, wlh, yaw, vel = ours[int(num)]
+            np.testing.assert_allclose(f.gt.boxes[k, :3], center, atol=1e-4)
+            np.testing.assert_allclose(f.gt.boxes[k, 3:6], [wlh[1], wlh[0], wlh[2]], atol=1e-5)
+            assert np.cos(f.gt.boxes[k, 6] - yaw) == pytest.approx(1.0, abs=1e-5)
+            np.testing.assert_allclose(f.gt.velocities[k], vel, atol=1e-4)
+
+
+def test_class_mapping_and_errors(tmp_path, dataset):
+    assert map_category('vehicle.bus.bendy') == 'truck'
+    assert map_category('human.pedestrian.construction_worker') == 'pedestrian'
+    assert map_category('vehicle.motorcycle') == 'cyclist'
+    assert map_category('movable_object.trafficcone') is None
+    with pytest.raises(DatasetError, match='does not exist'):
+        NuScenesReader(tmp_path, VERSION)
+    reader = NuScenesReader(dataset, VERSION, sweeps=1)
+    first = next(reader.sequence(reader.scenes()[0]))
+    assert (first.points[:, 4] == 0).all() and set(first.gt.labels.tolist()) <= {0, 1, 2, 3}
