@@ -1,12 +1,13 @@
 """Helpers for tests over real DDS: processes, a private rclpy context, bounded spinning."""
 from __future__ import annotations
 
+from collections.abc import Callable
 import os
 from pathlib import Path
 import subprocess
 import sys
 import time
-from typing import Any, Callable
+from typing import Any
 
 REPO = Path(__file__).resolve().parents[1]
 

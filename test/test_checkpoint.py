@@ -7,8 +7,7 @@ import pickle
 import pytest
 import torch
 
-from suit_ros.checkpoint import (load_checkpoint, load_weights_into, read_metadata,
-                                 save_checkpoint)
+from suit_ros.checkpoint import load_checkpoint, load_weights_into, read_metadata, save_checkpoint
 from suit_ros.config import ModelConfig
 from suit_ros.errors import CheckpointError
 from suit_ros.model.detector import SUITDetector

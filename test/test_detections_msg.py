@@ -3,12 +3,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from rosbags.typesys import get_typestore, Stores
+from rosbags.typesys import Stores, get_typestore
 
 from suit_ros.msg_adapters.classes import MessageClasses
-from suit_ros.msg_adapters.detections import (ARROW, CUBE, DELETEALL, detections_to_markerarray,
-                                              detections_to_pointcloud2,
-                                              pointcloud2_to_detections, TEXT_VIEW_FACING)
+from suit_ros.msg_adapters.detections import (
+    ARROW,
+    CUBE,
+    DELETEALL,
+    TEXT_VIEW_FACING,
+    detections_to_markerarray,
+    detections_to_pointcloud2,
+    pointcloud2_to_detections,
+)
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 BOTH = [MessageClasses.from_rclpy(), MessageClasses.from_rosbags(STORE)]

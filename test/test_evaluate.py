@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from suit_ros.evaluate import DIST_THRESHOLDS, evaluate, TP_METRICS
+from suit_ros.evaluate import DIST_THRESHOLDS, TP_METRICS, evaluate
 from suit_ros.structures import Detections
 
 NAMES = ('car', 'truck', 'pedestrian', 'cyclist')
@@ -63,7 +63,7 @@ def test_matches_nuscenes_devkit(seed):
     from nuscenes.eval.detection.algo import accumulate, calc_ap, calc_tp
     rng = np.random.default_rng(seed)
     gts, dets = scene(rng)
-    ours = evaluate(gts, dets, NAMES, ranges={c: 1e9 for c in NAMES})
+    ours = evaluate(gts, dets, NAMES, ranges=dict.fromkeys(NAMES, 1000000000.0))
     gt_boxes, pred_boxes = to_devkit(gts, True), to_devkit(dets, False)
     for c in NAMES:
         for th in DIST_THRESHOLDS:

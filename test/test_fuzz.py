@@ -8,7 +8,8 @@ from __future__ import annotations
 import array
 from collections import Counter
 
-from hypothesis import given, HealthCheck, settings, strategies as st
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 import numpy as np
 import pytest
 

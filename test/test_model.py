@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 
-from suit_ros.config import (BackboneConfig, ModelConfig, PillarConfig, SamplingConfig)
+from suit_ros.config import BackboneConfig, ModelConfig, PillarConfig, SamplingConfig
 from suit_ros.model.detector import SUITDetector
 from suit_ros.model.fusion import sparse_past_term
 from suit_ros.model.geonet import GeoNet
@@ -16,7 +16,7 @@ from suit_ros.model.grid import BEVGrid
 from suit_ros.model.head import CenterHead, draw_gaussian, gaussian_radius
 from suit_ros.model.memory import SparseMemory, transform_sample_positions
 from suit_ros.model.pillars import PillarEncoder
-from suit_ros.model.sampling import relaxation_window, Samples, significant_sampling
+from suit_ros.model.sampling import Samples, relaxation_window, significant_sampling
 from suit_ros.model.streaming import StreamingDetector
 from suit_ros.ops.geometry import ego_transform, pose_from_xyz_rpy, se3_inverse
 from suit_ros.structures import Detections, Frame

@@ -7,8 +7,7 @@ import sys
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
-
-from rosgraph import diag_values, Probe, ros_env, start_node, stop
+from rosgraph import Probe, diag_values, ros_env, start_node, stop
 
 pytestmark = pytest.mark.ros
 
@@ -135,11 +134,11 @@ def test_bad_inputs_over_the_wire(node_and_recorder):
     for name, msg in cases:
         n_before = len(rec.dets)
         rec.pub.publish(msg)
-        assert rec.p.spin_until(lambda: len(rec.dets) > n_before, 30.0), name
+        assert rec.p.spin_until(lambda n=n_before: len(rec.dets) > n, 30.0), name
         out = rec.dets[-1]
         assert stamp_ns(out) == stamp_ns(msg) and out.header.frame_id == 'lidar', name
         n_diag = len(rec.diags)
-        rec.p.spin_until(lambda: len(rec.diags) > n_diag + 1, 5.0)
+        rec.p.spin_until(lambda n=n_diag: len(rec.diags) > n + 1, 5.0)
         seen[name] = (out, rec.diags[-1])
     assert seen['empty'][0].width == 0 and 'empty cloud' in seen['empty'][1]['last_warning']
     assert seen['nan'][0].width == 0 and seen['nan'][1]['points_nonfinite'] == '2000'

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from suit_ros.data.nuscenes import map_category, NuScenesReader
+from suit_ros.data.nuscenes import NuScenesReader, map_category
 from suit_ros.errors import DatasetError
 
 VERSION = 'v1.0-mini'

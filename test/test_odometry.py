@@ -7,14 +7,19 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
-from suit_ros.msg_adapters.odometry import (matrix_to_quaternion, odometry_to_pose, PoseBuffer,
-                                            quaternion_to_matrix, stamp_to_ns)
+from suit_ros.msg_adapters.odometry import (
+    PoseBuffer,
+    matrix_to_quaternion,
+    odometry_to_pose,
+    quaternion_to_matrix,
+    stamp_to_ns,
+)
 
 
 def odom(C, stamp_ns, xyz, quat):
     m = C.Odometry() if C.kind == 'rclpy' else None
     if m is None:
-        from rosbags.typesys import get_typestore, Stores
+        from rosbags.typesys import Stores, get_typestore
         t = get_typestore(Stores.ROS2_JAZZY).types
         cov = np.zeros(36)
         return C.Odometry(
@@ -36,7 +41,7 @@ def odom(C, stamp_ns, xyz, quat):
 
 @pytest.mark.parametrize('kind', ['rclpy', 'rosbags'])
 def test_odometry_to_pose(kind):
-    from rosbags.typesys import get_typestore, Stores
+    from rosbags.typesys import Stores, get_typestore
     C = (MessageClasses.from_rclpy() if kind == 'rclpy'
          else MessageClasses.from_rosbags(get_typestore(Stores.ROS2_JAZZY)))
     q = Rotation.from_euler('zyx', [0.7, 0.1, -0.05]).as_quat()

@@ -6,8 +6,7 @@ import pytest
 from shapely.geometry import Polygon
 import torch
 
-from suit_ros.ops.geometry import (ego_transform, pose_from_xyz_rpy, se3_inverse,
-                                   transform_boxes)
+from suit_ros.ops.geometry import ego_transform, pose_from_xyz_rpy, se3_inverse, transform_boxes
 from suit_ros.ops.iou import bev_corners, bev_iou
 from suit_ros.ops.nms import batched_nms, circle_nms, rotated_nms
 

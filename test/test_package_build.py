@@ -7,7 +7,6 @@ import subprocess
 import sys
 
 import pytest
-
 from rosgraph import Probe, start_node, stop
 
 REPO = Path(__file__).resolve().parents[1]

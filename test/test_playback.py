@@ -6,7 +6,6 @@ import sys
 
 import numpy as np
 import pytest
-
 from rosgraph import Probe, ros_env, start_node, stop
 
 pytestmark = pytest.mark.ros

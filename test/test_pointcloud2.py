@@ -4,15 +4,20 @@ from __future__ import annotations
 import array
 import struct
 
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 import numpy as np
 import pytest
-from rosbags.typesys import get_typestore, Stores
+from rosbags.typesys import Stores, get_typestore
 
 from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.errors import PointCloudError
-from suit_ros.msg_adapters.pointcloud2 import (array_to_pointcloud2, DATATYPES,
-                                               pointcloud2_to_array, pointcloud2_to_xyzi)
+from suit_ros.msg_adapters.pointcloud2 import (
+    DATATYPES,
+    array_to_pointcloud2,
+    pointcloud2_to_array,
+    pointcloud2_to_xyzi,
+)
 
 STORE = get_typestore(Stores.ROS2_JAZZY)
 RCLPY = MessageClasses.from_rclpy()

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from suit_ros.data.sim import preset
-from suit_ros.data.sim.lidar import cast, GROUND, RangeImage, ray_directions
-from suit_ros.data.sim.scene import points_in_boxes, Simulation
+from suit_ros.data.sim.lidar import GROUND, RangeImage, cast, ray_directions
+from suit_ros.data.sim.scene import Simulation, points_in_boxes
 from suit_ros.ops.geometry import se3_inverse, transform_points
 
 CFG = preset('test', frames=6)
@@ -115,9 +115,9 @@ def test_gt_velocity_equals_finite_difference(sim):
 
 @pytest.mark.parametrize('storage', ['mcap', 'sqlite3'])
 def test_bag_reads_back_and_is_deterministic(tmp_path, storage):
+    from nav_msgs.msg import Odometry
     from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import PointCloud2
-    from nav_msgs.msg import Odometry
 
     from suit_ros.data.bag import open_reader
     from suit_ros.data.simulate_cli import write_bag

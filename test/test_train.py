@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from suit_ros.data.augment import apply_clip, Augmentation
+from suit_ros.data.augment import Augmentation, apply_clip
 from suit_ros.ops.geometry import ego_transform, pose_from_xyz_rpy, se3_inverse, transform_boxes
 from suit_ros.structures import Detections, Frame
-from suit_ros.train import load_train_config, TrainConfig
+from suit_ros.train import TrainConfig, load_train_config
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -61,8 +61,8 @@ def tiny(tmp_path, **kw) -> TrainConfig:
 
 def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monkeypatch):
     from suit_ros.checkpoint import load_checkpoint
-    from suit_ros.train import train
     import suit_ros.data.sequences as seqs
+    from suit_ros.train import train
     orig = seqs.synthetic_sequence
     monkeypatch.setattr(seqs, 'synthetic_sequence',
                         lambda name, seed, frames, cache_dir=None: orig('test', seed, frames,
