@@ -60,6 +60,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
             ex.spin_once(timeout_sec=0.1)
         player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', bag,
                                    '--rate', str(rate), '--start-delay', '1.0',
+                                   '--wait-subscribers', '20',
                                    '--topics', '/points', '/odom'],
                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         t0 = time.monotonic()

@@ -110,7 +110,8 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
                 raise SuitRosError('the detector node did not come up in time')
         print(f'[demo] playing {bag} at rate {args.rate} ...', flush=True)
         player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
-                                   '--rate', str(args.rate), '--start-delay', '1.0'],
+                                   '--rate', str(args.rate), '--start-delay', '1.0',
+                                   '--wait-subscribers', '20'],
                                   env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                   text=True)
         t_play = time.monotonic()

@@ -24,6 +24,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--start-delay', type=float, default=1.0,
                         help='seconds to wait for subscribers before the first message')
     parser.add_argument('--max-messages', type=int, default=0, help='stop after N (0: all)')
+    parser.add_argument('--wait-subscribers', type=float, default=0.0, metavar='SECONDS',
+                        help='first wait up to this long until every topic has a subscriber')
 
 
 def message_class(msgtype: str) -> Any:
@@ -70,6 +72,10 @@ def run(args: argparse.Namespace) -> int:
     clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
     sent = 0
     try:
+        end = time.monotonic() + args.wait_subscribers
+        while time.monotonic() < end and any(p.get_subscription_count() == 0
+                                             for p in pubs.values()):
+            time.sleep(0.05)
         time.sleep(args.start_delay)
         while True:
             t_bag0 = messages[0][2]

@@ -76,7 +76,8 @@ def stamp_ns(msg):
 def test_plays_bag_and_publishes_stamped_detections(node_and_recorder, bag):
     proc, rec = node_and_recorder
     player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
-                               '--rate', '0.5', '--start-delay', '0.5'], env=ros_env(),
+                               '--rate', '0.5', '--start-delay', '0.5',
+                               '--wait-subscribers', '20'], env=ros_env(),
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     rec.p.spin_until(lambda: player.poll() is not None, 60.0)
     rec.p.spin_until(lambda: len(rec.dets) >= 12, 10.0)

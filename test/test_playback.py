@@ -71,7 +71,8 @@ def test_detect_bag_matches_live_node(bag, checkpoint, tmp_path):
     try:
         probe.spin_for(6.0)
         player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
-                                   '--rate', '0.25', '--start-delay', '1.0'], env=ros_env(),
+                                   '--rate', '0.25', '--start-delay', '1.0',
+                                   '--wait-subscribers', '20'], env=ros_env(),
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         probe.spin_until(lambda: player.poll() is not None, 90.0)
         probe.spin_until(lambda: len(live) >= len(offline), 10.0)
@@ -104,7 +105,8 @@ def test_play_is_byte_exact_with_clock(bag):
     probe.node.create_subscription(Clock, '/clock', clocks.append, 500)
     try:
         player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
-                                   '--clock', '--topics', '/points', '--start-delay', '2'],
+                                   '--clock', '--topics', '/points', '--start-delay', '1',
+                                   '--wait-subscribers', '20'],
                                   env=ros_env(), stdout=subprocess.PIPE,
                                   stderr=subprocess.STDOUT, text=True)
         probe.spin_until(lambda: player.poll() is not None, 60.0)
