@@ -41,35 +41,13 @@ def moving_view(frames_gt, frames_det, npts, speed=1.0):
 def evaluate_variant(ckpt: Path, val, history=None):
     """Metrics for one checkpoint (and the moving-object AP)."""
     from suit_ros.checkpoint import load_checkpoint
-    from suit_ros.evaluate import evaluate
-    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.evaluate import evaluate, run_model
     model, cfg, _ = load_checkpoint(ckpt, 'cpu')
-    runner = StreamingDetector(model, 'cpu')
-    gts, dets, npts, lat, mem = [], [], [], [], []
-    mem_after = {}
-    for seq in val:
-        runner.reset('sequence')
-        for t, f in enumerate(seq):
-            if history is not None:
-                runner.reset('window')
-                for past in seq[max(0, t - history + 1):t]:
-                    runner.step(past.points, past.pose, past.stamp_ns, past.frame_id)
-            r = runner.step(f.points, f.pose, f.stamp_ns, f.frame_id)
-            lat.append(r.timings['total'])
-            mem.append(r.memory_bytes)
-            if history is None and t + 1 in (2, 10):
-                mem_after.setdefault(t + 1, []).append(r.memory_bytes)
-            gts.append(f.gt)
-            dets.append(r.detections)
-            npts.append(f.num_points)
-    res = evaluate(gts, dets, cfg.class_names, num_points=npts)
-    mg, md, mn = moving_view(gts, dets, npts)
-    moving = evaluate(mg, md, cfg.class_names, num_points=mn)
-    out = res.summary()
-    out['moving_mAP'] = round(moving.mean_ap, 4)
-    out['latency_p50_ms'] = round(float(np.median(lat)) * 1e3, 1)
-    out['memory_bytes_p50'] = int(np.median(mem))
-    for k, v in mem_after.items():
+    run = run_model(model, val, 'cpu', history)
+    out = run.evaluate(cfg.class_names).summary()
+    mg, md, mn = moving_view(run.gt, run.det, run.num_points)
+    out['moving_mAP'] = round(evaluate(mg, md, cfg.class_names, num_points=mn).mean_ap, 4)
+    for k, v in run.memory_after.items():
         out[f'memory_bytes_after_{k}'] = int(np.median(v))
     return out
 

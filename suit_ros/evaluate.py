@@ -262,9 +262,28 @@ def evaluate(gt: Sequence[Detections], det: Sequence[Detections],
     return EvalResult(names, ap, tp, curves, num_gt, len(gt))
 
 
-def evaluate_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None,
-                   history: int | None = None) -> EvalResult:
-    """Run a SUITDetector over sequences (memory carried within each) and evaluate.
+@dataclass
+class ModelRun:
+    """Per-frame outputs of a model run over sequences (the inputs of :func:`evaluate`)."""
+
+    gt: list[Detections]
+    det: list[Detections]
+    num_points: list[Any]
+    latency_s: list[float]
+    memory_bytes: list[int]
+    memory_after: dict[int, list[int]]
+
+    def evaluate(self, class_names: Sequence[str]) -> EvalResult:
+        """Metrics of the run, with latency p50 and memory p50 in ``extra``."""
+        result = evaluate(self.gt, self.det, class_names, num_points=self.num_points)
+        result.extra.update({'latency_p50_ms': round(float(np.median(self.latency_s)) * 1e3, 1),
+                             'memory_bytes_p50': int(np.median(self.memory_bytes))})
+        return result
+
+
+def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None,
+              history: int | None = None) -> ModelRun:
+    """Run a SUITDetector over sequences (memory carried within each, reset between them).
 
     :param history: None: stream each sequence with the memory carried throughout; ``h``: each
         frame is detected after a fresh run over its last ``h`` frames (h frames of history).
@@ -272,8 +291,7 @@ def evaluate_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any =
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
     runner = StreamingDetector(model, device)
-    gts, dets, npts, latency = [], [], [], []
-    memory_bytes = []
+    out = ModelRun([], [], [], [], [], {})
     for seq in sequences:
         runner.reset('new sequence')
         for t, frame in enumerate(seq):
@@ -282,16 +300,21 @@ def evaluate_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any =
                 for past in seq[max(0, t - history + 1):t]:
                     runner.step(past.points, past.pose, past.stamp_ns, past.frame_id)
             res = runner.step(frame.points, frame.pose, frame.stamp_ns, frame.frame_id)
-            latency.append(res.timings['total'])
-            memory_bytes.append(res.memory_bytes)
-            dets.append(res.detections)
-            gts.append(frame.gt)
-            npts.append(frame.num_points)
-    result = evaluate(gts, dets, model.cfg.class_names, num_points=npts)
-    result.extra.update({'latency_p50_ms': round(float(np.median(latency)) * 1e3, 1),
-                         'memory_bytes_p50': int(np.median(memory_bytes))})
+            out.latency_s.append(res.timings['total'])
+            out.memory_bytes.append(res.memory_bytes)
+            if history is None and t + 1 in (2, 10):
+                out.memory_after.setdefault(t + 1, []).append(res.memory_bytes)
+            out.det.append(res.detections)
+            out.gt.append(frame.gt)
+            out.num_points.append(frame.num_points)
     model.train(was_training)
-    return result
+    return out
+
+
+def evaluate_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None,
+                   history: int | None = None) -> EvalResult:
+    """Run a model over sequences (see :func:`run_model`) and evaluate it."""
+    return run_model(model, sequences, device, history).evaluate(model.cfg.class_names)
 
 
 def dump_json(result: EvalResult, path: str) -> None:

@@ -84,3 +84,24 @@ def diag_values(msg: Any) -> dict[str, str]:
         if st.name == 'suit_ros: detector':
             return {kv.key: kv.value for kv in st.values}
     return {}
+
+
+def synthetic_bag(directory: Path, frames: int, seed: int, storage: str = 'mcap') -> Path:
+    """A small synthetic bag (16 beams) for integration tests."""
+    from suit_ros.data.sim import preset
+    from suit_ros.data.simulate_cli import write_bag
+    path = directory / 'bag'
+    write_bag(path, preset('test', frames=frames), seed, storage)
+    return path
+
+
+def node_checkpoint(directory: Path) -> str:
+    """The shipped checkpoint, or (before one is trained) an untrained real model."""
+    from suit_ros.checkpoint import default_checkpoint_path, save_checkpoint
+    if default_checkpoint_path().exists():
+        return str(default_checkpoint_path())
+    from suit_ros.config import ModelConfig
+    from suit_ros.model.detector import SUITDetector
+    path = directory / 'untrained.safetensors'
+    save_checkpoint(path, SUITDetector(ModelConfig()), ModelConfig())
+    return str(path)

@@ -7,30 +7,19 @@ import sys
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
-from rosgraph import Probe, diag_values, ros_env, start_node, stop
+from rosgraph import Probe, diag_values, node_checkpoint, ros_env, start_node, stop, synthetic_bag
 
 pytestmark = pytest.mark.ros
 
 
 @pytest.fixture(scope='module')
 def bag(tmp_path_factory):
-    from suit_ros.data.sim import preset
-    from suit_ros.data.simulate_cli import write_bag
-    path = tmp_path_factory.mktemp('bag') / 'test'
-    write_bag(path, preset('test', frames=12), 21, 'mcap')
-    return path
+    return synthetic_bag(tmp_path_factory.mktemp('bag'), 12, 21, 'mcap')
 
 
 @pytest.fixture(scope='module')
 def checkpoint(tmp_path_factory):
-    from suit_ros.checkpoint import default_checkpoint_path, save_checkpoint
-    if default_checkpoint_path().exists():
-        return str(default_checkpoint_path())
-    from suit_ros.config import ModelConfig
-    from suit_ros.model.detector import SUITDetector
-    path = tmp_path_factory.mktemp('ckpt') / 'untrained.safetensors'
-    save_checkpoint(path, SUITDetector(ModelConfig()), ModelConfig())
-    return str(path)
+    return node_checkpoint(tmp_path_factory.mktemp('ckpt'))
 
 
 class Recorder:
