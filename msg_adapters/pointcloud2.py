@@ -144,6 +144,8 @@ def pointcloud2_to_xyzi(msg: Any) -> XYZI:
         if inten_name is None:
             pts = np.zeros((n, 4), np.float32)
             pts[:, :3] = table[:, cols]
+        elif cols == [cols[0], cols[0] + 1, cols[0] + 2, cols[0] + 3]:
+            pts = np.ascontiguousarray(table[:, cols[0]:cols[0] + 4])   # one strided copy
         else:
             pts = np.ascontiguousarray(table[:, cols])
         dtype_check_fields(msg, point_step)
@@ -156,11 +158,15 @@ def pointcloud2_to_xyzi(msg: Any) -> XYZI:
                 col = col[:, 0]
             with np.errstate(over='ignore', invalid='ignore'):
                 pts[:, i] = col.astype(np.float32)   # out-of-range values become inf
-    finite = np.isfinite(pts[:, :3]).all(axis=1)
+    # x + y + z is non-finite iff a coordinate is (or the sum overflows float32, ~1e38 m)
+    with np.errstate(over='ignore', invalid='ignore'):
+        total = pts[:, 0] + pts[:, 1]
+        total += pts[:, 2]
+    finite = np.isfinite(total)
     dropped = int(n - np.count_nonzero(finite))
     if dropped:
         pts = pts[finite]
-    if inten_name is not None:
+    if inten_name is not None and not np.isfinite(pts[:, 3].sum(dtype=np.float64)):
         np.nan_to_num(pts[:, 3], copy=False, nan=0.0, posinf=0.0, neginf=0.0)
     return XYZI(pts, inten_name is not None, n, dropped)
 
