@@ -53,19 +53,26 @@ class EvalResult:
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
+    def evaluated(self) -> tuple[str, ...]:
+        """Classes with GT in the evaluated frames; the others are shown as n/a and left out
+        of mAP, the mTP errors and NDS (the devkit would count them as AP 0)."""
+        present = tuple(c for c in self.class_names if self.num_gt[c] > 0)
+        return present or self.class_names
+
+    @property
     def class_ap(self) -> dict[str, float]:
         """Mean AP over the distance thresholds, per class."""
         return {c: float(np.mean(list(self.ap[c].values()))) for c in self.class_names}
 
     @property
     def mean_ap(self) -> float:
-        """mAP."""
-        return float(np.mean(list(self.class_ap.values())))
+        """mAP over the evaluated classes."""
+        return float(np.mean([self.class_ap[c] for c in self.evaluated]))
 
     @property
     def mean_tp(self) -> dict[str, float]:
-        """mATE, mASE, mAOE, mAVE (means over classes)."""
-        return {TP_NAMES[k]: float(np.nanmean([self.tp[c][k] for c in self.class_names]))
+        """mATE, mASE, mAOE, mAVE (means over the evaluated classes)."""
+        return {TP_NAMES[k]: float(np.nanmean([self.tp[c][k] for c in self.evaluated]))
                 for k in TP_METRICS}
 
     @property
@@ -94,6 +101,9 @@ class EvalResult:
         lines = [f'{"class":<12}{"AP":>7}' + ''.join(f'{f"AP@{d}":>8}' for d in DIST_THRESHOLDS)
                  + ''.join(f'{TP_NAMES[k][1:]:>7}' for k in TP_METRICS) + f'{"GT":>7}']
         for c in self.class_names:
+            if c not in self.evaluated:
+                lines.append(f'{c:<12}{"n/a (no GT in these frames)":>34}')
+                continue
             lines.append(f'{c:<12}{self.class_ap[c]:>7.3f}'
                          + ''.join(f'{self.ap[c][d]:>8.3f}' for d in DIST_THRESHOLDS)
                          + ''.join(f'{self.tp[c][k]:>7.3f}' for k in TP_METRICS)

@@ -83,6 +83,10 @@ def test_perfect_and_empty():
     present = [c for c in NAMES if r.num_gt[c]]
     assert all(r.class_ap[c] == pytest.approx(1.0) for c in present)
     assert r.mean_tp['mATE'] < 1e-5 or len(present) < len(NAMES)
+    only_cars = [g.select(g.labels == 0) for g in gts]
+    r = evaluate(only_cars, only_cars, NAMES)
+    assert r.evaluated == ('car',) and r.mean_ap == pytest.approx(1.0)
+    assert 'n/a' in r.table()
     empty = evaluate(gts, [Detections.empty() for _ in gts], NAMES)
     assert empty.mean_ap == 0.0 and empty.nds == 0.0
     assert 'NDS without the attribute term' in empty.table()
