@@ -14,6 +14,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     src.add_argument('--bag', help='a bag with detections and GT (e.g. detect-bag --copy-inputs)')
     src.add_argument('--synthetic', choices=['val', 'demo'],
                      help='run --checkpoint over a synthetic split')
+    src.add_argument('--nuscenes', metavar='ROOT',
+                     help='run --checkpoint over nuScenes-format data (tables + samples/sweeps)')
+    parser.add_argument('--version', default='v1.0-mini', help='nuScenes table version')
+    parser.add_argument('--sweeps', type=int, default=10, help='nuScenes sweeps per keyframe')
     parser.add_argument('--det-topic', default='/detector/detections')
     parser.add_argument('--gt-topic', default='/gt/objects')
     parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
@@ -60,7 +64,10 @@ def run(args: argparse.Namespace) -> int:
         from suit_ros.data.sequences import SPLIT_SEEDS, VAL_SEQUENCES, synthetic_sequence
         from suit_ros.evaluate import evaluate_model
         model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
-        if args.synthetic == 'val':
+        if args.nuscenes:
+            from suit_ros.data.sequences import nuscenes_sequences
+            seqs = nuscenes_sequences(args.nuscenes, args.version, args.sweeps)
+        elif args.synthetic == 'val':
             seqs = [synthetic_sequence('val', SPLIT_SEEDS['val'] + i, 40, args.cache_dir)
                     for i in range(VAL_SEQUENCES)]
         else:

@@ -155,3 +155,11 @@ def test_class_mapping_and_errors(tmp_path, dataset):
     reader = NuScenesReader(dataset, VERSION, sweeps=1)
     first = next(reader.sequence(reader.scenes()[0]))
     assert (first.points[:, 4] == 0).all() and set(first.gt.labels.tolist()) <= {0, 1, 2, 3}
+
+
+def test_eval_cli_on_nuscenes_format(dataset, tmp_path, capsys):
+    from suit_ros.cli import main
+    assert main(['eval', '--nuscenes', str(dataset), '--version', VERSION, '--sweeps', '2',
+                 '--json-out', str(tmp_path / 'm.json')]) == 0
+    out = capsys.readouterr().out
+    assert 'mAP' in out and json.loads((tmp_path / 'm.json').read_text())['summary']['frames'] == 6

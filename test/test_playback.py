@@ -46,6 +46,10 @@ def test_detect_bag_matches_live_node(bag, checkpoint, tmp_path):
     with open_reader(tmp_path / 'out') as r:
         topics = {c.topic for c in r.connections}
     assert {'/points', '/odom', '/gt/objects', '/detector/markers'} <= topics
+    # the output bag evaluates against its own GT
+    assert main(['eval', '--bag', str(tmp_path / 'out'), '--plot', str(tmp_path / 'pr.png'),
+                 '--json-out', str(tmp_path / 'm.json')]) == 0
+    assert (tmp_path / 'pr.png').stat().st_size > 5000
     # the live node, fed slowly enough that nothing drops, publishes the same detections
     from sensor_msgs.msg import PointCloud2
 
