@@ -234,10 +234,13 @@ class DetectorNode(Node):
                 self.get_logger().error(f'frame failed: {type(exc).__name__}: {exc}')
 
     def _process(self, msg: PointCloud2) -> None:
-        out = self.pipeline.process(msg)
+        # building ~3 markers per box costs more than the rest of the output: skip it when
+        # nobody subscribes to ~/markers
+        out = self.pipeline.process(msg, markers=self.pub_markers.get_subscription_count() > 0)
         t0 = time.perf_counter()
         self.pub_det.publish(out.detections_msg)
-        self.pub_markers.publish(out.markers_msg)
+        if out.markers_msg is not None:
+            self.pub_markers.publish(out.markers_msg)
         publish = time.perf_counter() - t0
         now = self.get_clock().now().nanoseconds
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec

@@ -109,8 +109,11 @@ class DetectionPipeline:
         self.reset('extrinsic changed')
 
     # ------------------------------------------------------------------ the step
-    def process(self, cloud: Any) -> PipelineOutput:
-        """Detect in one PointCloud2; never raises for bad input."""
+    def process(self, cloud: Any, markers: bool = True) -> PipelineOutput:
+        """Detect in one PointCloud2; never raises for bad input.
+
+        :param markers: build the MarkerArray too (the node skips it when nobody listens).
+        """
         p = self.params
         t0 = time.perf_counter()
         header = cloud.header
@@ -163,9 +166,10 @@ class DetectionPipeline:
             d = out.detections
             out.detections_msg = detections_to_pointcloud2(
                 d.boxes, d.velocities, d.scores, d.labels, header, self.classes)
-            out.markers_msg = detections_to_markerarray(
-                d.boxes, d.velocities, d.scores, d.labels, header, self.class_names,
-                self.classes)
+            if markers:
+                out.markers_msg = detections_to_markerarray(
+                    d.boxes, d.velocities, d.scores, d.labels, header, self.class_names,
+                    self.classes)
         t4 = time.perf_counter()
         out.timings = {'convert': (t1 - t0) + (t2 - t1), 'model': t3 - t2, 'publish': t4 - t3}
         out.timings.update({f'model.{k}': v for k, v in model_timings.items()})
