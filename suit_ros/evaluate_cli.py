@@ -28,7 +28,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def _from_bag(args: argparse.Namespace) -> Any:
-    from suit_ros.data.bag import open_reader
+    from suit_ros.data.bag import messages, open_reader
     from suit_ros.evaluate import evaluate
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
     from suit_ros.msg_adapters.odometry import stamp_to_ns
@@ -41,7 +41,7 @@ def _from_bag(args: argparse.Namespace) -> Any:
                 raise BagError(f'{args.bag} has no {t} topic (topics: {sorted(topics)}); run '
                                '`suit-ros detect-bag IN OUT --copy-inputs` on a bag with GT')
         conns = [c for c in reader.connections if c.topic in found]
-        for conn, _, raw in reader.messages(connections=conns):
+        for conn, _, raw in messages(reader, conns):
             msg = reader.deserialize(raw, conn.msgtype)
             found[conn.topic][stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
     det, gt = found[args.det_topic], found[args.gt_topic]

@@ -73,7 +73,7 @@ def build_pipeline(checkpoint: str, device: str, params: dict[str, Any], classes
 
 def run(args: argparse.Namespace) -> int:
     """Process the bag; print a summary."""
-    from suit_ros.data.bag import open_reader, open_writer
+    from suit_ros.data.bag import messages, open_reader, open_writer
     from suit_ros.evaluate import evaluate
     from suit_ros.msg_adapters.classes import MessageClasses
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
@@ -98,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
             model_ms = []
             frames = 0
             warnings = 0
-            for conn, log_ns, raw in reader.messages():
+            for conn, log_ns, raw in messages(reader):
                 if args.copy_inputs:
                     bag.write(conn.topic, conn.msgtype, log_ns, bytes(raw))
                 if conn.topic == args.odom_topic:

@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     from rclpy.qos import DurabilityPolicy, QoSProfile
     from rosgraph_msgs.msg import Clock
 
-    from suit_ros.data.bag import open_reader
+    from suit_ros.data.bag import messages, open_reader
     if args.rate <= 0:
         raise BagError('--rate must be > 0')
     os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
@@ -52,7 +52,7 @@ def run(args: argparse.Namespace) -> int:
         if not conns:
             raise BagError(f'none of {args.topics} is in {args.bag}')
         messages = [(c.topic, c.msgtype, t, bytes(raw))
-                    for c, t, raw in reader.messages(connections=conns)]
+                    for c, t, raw in messages(reader, conns)]
     if not messages:
         raise BagError(f'{args.bag} has no messages on the selected topics')
     rclpy.init()

@@ -42,6 +42,7 @@ def test_install_layout(install):
     sp = site_packages(install)
     assert (sp / 'suit_ros' / 'msg_adapters' / 'pointcloud2.py').is_file()
     assert not (sp / 'msg_adapters').exists()                # no generic top-level package
+    assert (sp / 'suit_ros' / 'checkpoints' / 'suit_default.safetensors').is_file()
 
 
 def test_installed_cli_runs(install):

@@ -125,15 +125,27 @@ def test_bag_tools_fail_clearly(argv, match, capsys):
     assert match in capsys.readouterr().err
 
 
-def test_corrupt_bags_are_rejected(bag, tmp_path, capsys):
+def test_corrupt_bags_and_checkpoints_are_rejected(bag, tmp_path, capsys):
     import shutil
 
     from suit_ros.cli import main
+    from suit_ros.data.sim import preset
+    from suit_ros.data.simulate_cli import write_bag
     broken = tmp_path / 'broken'
     shutil.copytree(bag, broken)
     db = next(broken.glob('*.db3'))
-    db.write_bytes(db.read_bytes()[:2000])                           # truncated storage
+    db.write_bytes(db.read_bytes()[:2000])                           # truncated sqlite3
     assert main(['detect-bag', str(broken), str(tmp_path / 'o'), '--checkpoint', 'x']) == 1
     assert 'error' in capsys.readouterr().err
     (broken / 'metadata.yaml').write_text('not: [valid')
     assert main(['play', str(broken)]) == 1
+    write_bag(tmp_path / 'm', preset('test', frames=2), 1, 'mcap')    # truncated mcap
+    mcap = next((tmp_path / 'm').glob('*.mcap'))
+    mcap.write_bytes(mcap.read_bytes()[:3000])
+    assert main(['detect-bag', str(tmp_path / 'm'), str(tmp_path / 'o2')]) == 1
+    assert 'error' in capsys.readouterr().err
+    junk = tmp_path / 'junk.safetensors'
+    junk.write_bytes(b'not a checkpoint' * 10)
+    assert main(['detect-bag', str(bag), str(tmp_path / 'o3'), '--checkpoint', str(junk)]) == 1
+    err = capsys.readouterr().err
+    assert 'junk.safetensors' in err and 'error' in err

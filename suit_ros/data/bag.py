@@ -80,6 +80,24 @@ def open_reader(path: str | os.PathLike[str]) -> Iterator[Any]:
         reader.close()
 
 
+def messages(reader: Any, connections: Any = None) -> Iterator[tuple[Any, int, bytes]]:
+    """``reader.messages()`` with storage errors (truncated, corrupt) raised as BagError."""
+    from suit_ros.errors import SuitRosError
+    it = reader.messages(connections=connections) if connections is not None \
+        else reader.messages()
+    while True:
+        try:
+            item = next(it)
+        except StopIteration:
+            return
+        except SuitRosError:
+            raise
+        except Exception as exc:   # rosbags / mcap / sqlite raise many types for bad data
+            raise BagError(f'cannot read the bag: {type(exc).__name__}: {exc}; the file may '
+                           'be truncated or corrupt') from exc
+        yield item
+
+
 def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
                     odom_topic: str = '/odom', gt_topic: str = '/gt/objects',
                     intensity_scale: float = 255.0) -> Iterator[Frame]:
@@ -101,7 +119,7 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
         clouds = []
         conns = [c for c in reader.connections
                  if c.topic in (points_topic, odom_topic, gt_topic, '/tf_static')]
-        for conn, _, raw in reader.messages(connections=conns):
+        for conn, _, raw in messages(reader, conns):
             msg = reader.deserialize(raw, conn.msgtype)
             if conn.topic == odom_topic:
                 T, s = odometry_to_pose(msg)
