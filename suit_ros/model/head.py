@@ -9,7 +9,6 @@ import math
 
 import torch
 from torch import Tensor, nn
-import torch.nn.functional as F
 
 from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.nms import batched_nms
@@ -199,7 +198,3 @@ class CenterHead(nn.Module):
                         'labels': lab[kept], 'cells': cells[kept]})
         return out
 
-
-def heatmap_peaks(heat: Tensor) -> Tensor:
-    """Zero every heatmap value that is not a 3x3 local maximum (``(B, K, H, W)``)."""
-    return heat * (F.max_pool2d(heat, 3, stride=1, padding=1) == heat)

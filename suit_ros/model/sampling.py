@@ -16,7 +16,7 @@ from torch import Tensor
 from suit_ros.config import SamplingConfig
 from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.iou import bev_iou
-from suit_ros.ops.nms import _greedy
+from suit_ros.ops.nms import greedy_suppression
 
 
 @dataclass
@@ -60,7 +60,7 @@ def refined_nms(boxes: Tensor, scores: Tensor, batch_index: Tensor, iou_threshol
     dist = torch.cdist(b[:, :2].float(), b[:, :2].float())
     suppress = ((bev_iou(b, b) > iou_threshold) | (dist < min_distance)) & same
     suppress.fill_diagonal_(False)
-    return _greedy(suppress, order)
+    return greedy_suppression(suppress, order)
 
 
 def relaxation_window(samples: Samples, cfg: SamplingConfig, grid: BEVGrid

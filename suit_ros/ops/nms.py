@@ -13,7 +13,7 @@ from torch import Tensor
 from suit_ros.ops.iou import bev_iou
 
 
-def _greedy(suppress: Tensor, order: Tensor) -> Tensor:
+def greedy_suppression(suppress: Tensor, order: Tensor) -> Tensor:
     """Greedy NMS over a boolean ``(N, N)`` suppression matrix given in score order."""
     sup = suppress.cpu().numpy()
     removed = np.zeros(sup.shape[0], dtype=bool)
@@ -43,7 +43,7 @@ def circle_nms(centers: Tensor, scores: Tensor, radius: float | Tensor) -> Tenso
     d2 = torch.cdist(c.double(), c.double()).pow(2)
     suppress = d2 <= (r[:, None].double() ** 2)
     suppress.fill_diagonal_(False)
-    return _greedy(suppress, order)
+    return greedy_suppression(suppress, order)
 
 
 def rotated_nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
@@ -54,7 +54,7 @@ def rotated_nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
     b = boxes[order]
     suppress = bev_iou(b, b) > iou_threshold
     suppress.fill_diagonal_(False)
-    return _greedy(suppress, order)
+    return greedy_suppression(suppress, order)
 
 
 def batched_nms(boxes: Tensor, scores: Tensor, labels: Tensor, kind: str = 'rotated',
@@ -81,4 +81,4 @@ def batched_nms(boxes: Tensor, scores: Tensor, labels: Tensor, kind: str = 'rota
     else:
         raise ValueError(f"unknown NMS kind {kind!r}: use 'rotated' or 'circle'")
     suppress.fill_diagonal_(False)
-    return _greedy(suppress, order)
+    return greedy_suppression(suppress, order)

@@ -127,7 +127,6 @@ class Simulation:
         rr = r[order_b, order_c]
         xyz = self.dirs[order_b, order_c] * rr[:, None]
         surface = image.hit[order_b, order_c]
-        mat = np.where(surface == GROUND, 0, 0)
         actor_mat = np.array([a.material for a in self.actors], np.int64)
         mat = np.where(surface == GROUND, 0,
                        np.where(surface < S, self.static_materials[np.clip(surface, 0, S - 1)],
