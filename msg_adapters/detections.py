@@ -6,14 +6,14 @@ vy score`` and ``label`` (UINT8, index into the class names); GT adds ``num_poin
 """
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from .builders import message_factory
 from .classes import MessageClasses
-from .errors import PointCloudError
+from .errors import MessageError, PointCloudError
 from .pointcloud2 import array_to_pointcloud2, pointcloud2_to_array
 
 FLOAT_FIELDS = ('x', 'y', 'z', 'length', 'width', 'height', 'yaw', 'vx', 'vy', 'score')
@@ -89,50 +89,82 @@ def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
     return out
 
 
+def _marker_inputs(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[Any],
+                   labels: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                  NDArray[np.float64], NDArray[np.int64]]:
+    """Boxes ``(N, 7)``, velocities ``(N, 2)``, scores ``(N,)``, labels ``(N,)``, checked."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    n = len(b)
+    v = np.asarray(velocities, np.float64)
+    s = np.asarray(scores, np.float64).reshape(-1)
+    lab = np.asarray(labels, np.int64).reshape(-1)
+    if v.size != 2 * n or len(s) != n or len(lab) != n:
+        raise MessageError(f'{n} boxes need (N, 2) velocities, N scores and N labels; got '
+                           f'{v.shape}, {s.shape}, {lab.shape}')
+    return b, v.reshape(n, 2), s, lab
+
+
 def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
                               scores: NDArray[Any], labels: NDArray[Any], header: Any,
                               class_names: tuple[str, ...] | list[str],
                               classes: MessageClasses, min_arrow_speed: float = 0.2) -> Any:
     """A MarkerArray: DELETEALL, then per box a CUBE, a TEXT label and a velocity ARROW.
 
-    Namespaces are ``<class>/box``, ``<class>/label``, ``<class>/velocity``; ids are unique per
-    namespace; every marker carries ``header``.
+    The cube is oriented by the yaw and coloured by class (:data:`PALETTE`), the text reads
+    ``'<class> <score:.2f>'`` above the box, the arrow (only when the speed is at least
+    ``min_arrow_speed`` m/s) starts at the top of the box, points along the velocity and is as
+    long as the speed in m/s. Namespaces are ``<class>/box``, ``<class>/label`` and
+    ``<class>/velocity``, ids the box index (unique per namespace), ``lifetime`` 0 (the next
+    array's DELETEALL clears them); every marker carries ``header``.
+
+    Sub-messages that are equal between markers (the header, colours, lifetime, the text's
+    orientation and scale) are shared objects: treat the result as read-only.
+
+    :param boxes: ``(N, 7)`` x, y, z, length, width, height, yaw in ``header.frame_id``.
+    :param velocities: ``(N, 2)`` vx, vy in m/s.
+    :param scores: ``(N,)``; ``labels``: ``(N,)`` indices into ``class_names``.
+    :param classes: which message classes to build (rclpy or rosbags).
     """
     C = classes
-    b = np.asarray(boxes, np.float64).reshape(-1, 7)
-    v = np.asarray(velocities, np.float64).reshape(-1, 2)
-    s = np.asarray(scores, np.float64).reshape(-1)
-    lab = np.asarray(labels, np.int64).reshape(-1)
-    markers = [C.Marker(header=header, ns='', id=0, action=DELETEALL)]
-    zero = C.Duration(sec=0, nanosec=0)
-    half = b[:, 6] * 0.5
-    qz, qw = np.sin(half), np.cos(half)
+    f = message_factory(classes)
+    b, v, s, lab = _marker_inputs(boxes, velocities, scores, labels)
+    lifetime = C.Duration(sec=0, nanosec=0)
+    ident = f.quaternion(0.0, 0.0, 0.0, 1.0)
+    clear = f.color(0.0, 0.0, 0.0, 0.0)
+    markers = [f.marker(header, '', 0, CUBE, DELETEALL, f.pose(f.point(0.0, 0.0, 0.0), ident),
+                        f.vector3(0.0, 0.0, 0.0), clear, lifetime)]
+    if not len(b):
+        return C.MarkerArray(markers=markers)
+    white = f.color(1.0, 1.0, 1.0, 1.0)
+    text_scale = f.vector3(0.0, 0.0, 0.8)
+    half_yaw = b[:, 6] * 0.5
+    heading_half = np.arctan2(v[:, 1], v[:, 0]) * 0.5
     speed = np.hypot(v[:, 0], v[:, 1])
-    ident = C.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
-    white = C.ColorRGBA(r=1.0, g=1.0, b=1.0, a=1.0)
-    for i in range(len(b)):
-        k = int(lab[i])
-        name = class_names[k] if 0 <= k < len(class_names) else f'class{k}'
-        r, g, bl = PALETTE[k % len(PALETTE)]
-        x, y, z, length, width, height = (float(t) for t in b[i, :6])
-        pose = C.Pose(position=C.Point(x=x, y=y, z=z),
-                      orientation=C.Quaternion(x=0.0, y=0.0, z=float(qz[i]), w=float(qw[i])))
-        markers.append(C.Marker(
-            header=header, ns=f'{name}/box', id=i, type=CUBE, action=ADD, pose=pose,
-            scale=C.Vector3(x=length, y=width, z=height),
-            color=C.ColorRGBA(r=r, g=g, b=bl, a=0.45), lifetime=zero))
-        markers.append(C.Marker(
-            header=header, ns=f'{name}/label', id=i, type=TEXT_VIEW_FACING, action=ADD,
-            pose=C.Pose(position=C.Point(x=x, y=y, z=z + height / 2 + 0.5), orientation=ident),
-            scale=C.Vector3(x=0.0, y=0.0, z=0.8), color=white,
-            text=f'{name} {s[i]:.2f}', lifetime=zero))
-        if speed[i] >= min_arrow_speed:
-            heading = math.atan2(v[i, 1], v[i, 0])
-            markers.append(C.Marker(
-                header=header, ns=f'{name}/velocity', id=i, type=ARROW, action=ADD,
-                pose=C.Pose(position=C.Point(x=x, y=y, z=z + height / 2),
-                            orientation=C.Quaternion(x=0.0, y=0.0, z=math.sin(heading / 2),
-                                                     w=math.cos(heading / 2))),
-                scale=C.Vector3(x=float(speed[i]), y=0.2, z=0.2),
-                color=C.ColorRGBA(r=r, g=g, b=bl, a=1.0), lifetime=zero))
+    top = b[:, 2] + b[:, 5] * 0.5
+    columns = (b[:, 0], b[:, 1], b[:, 2], b[:, 3], b[:, 4], b[:, 5], np.sin(half_yaw),
+               np.cos(half_yaw), top, top + 0.5, speed, np.sin(heading_half),
+               np.cos(heading_half))
+    rows = zip(*(c.tolist() for c in columns), lab.tolist(), s.tolist())
+    styles: dict[int, tuple[str, str, str, str, Any, Any]] = {}
+    for i, (x, y, z, length, width, height, qz, qw, z_top, z_text, speed_i, hz, hw, k,
+            score) in enumerate(rows):
+        style = styles.get(k)
+        if style is None:
+            name = class_names[k] if 0 <= k < len(class_names) else f'class{k}'
+            r, g, bl = PALETTE[k % len(PALETTE)]
+            style = styles[k] = (name, f'{name}/box', f'{name}/label', f'{name}/velocity',
+                                 f.color(r, g, bl, 0.45), f.color(r, g, bl, 1.0))
+        name, ns_box, ns_label, ns_velocity, box_color, arrow_color = style
+        markers.append(f.marker(
+            header, ns_box, i, CUBE, ADD,
+            f.pose(f.point(x, y, z), f.quaternion(0.0, 0.0, qz, qw)),
+            f.vector3(length, width, height), box_color, lifetime))
+        markers.append(f.marker(
+            header, ns_label, i, TEXT_VIEW_FACING, ADD, f.pose(f.point(x, y, z_text), ident),
+            text_scale, white, lifetime, f'{name} {score:.2f}'))
+        if speed_i >= min_arrow_speed:
+            markers.append(f.marker(
+                header, ns_velocity, i, ARROW, ADD,
+                f.pose(f.point(x, y, z_top), f.quaternion(0.0, 0.0, hz, hw)),
+                f.vector3(speed_i, 0.2, 0.2), arrow_color, lifetime))
     return C.MarkerArray(markers=markers)

@@ -77,6 +77,7 @@ def dtype_from_fields(fields: Any, point_step: int, is_bigendian: bool) -> np.dt
 
 
 def _buffer(msg: Any) -> NDArray[np.uint8]:
+    """The message's bytes as a uint8 array, zero-copy (array.array, ndarray, bytes)."""
     data = msg.data
     if isinstance(data, np.ndarray):
         return data.view(np.uint8).reshape(-1)
@@ -84,25 +85,32 @@ def _buffer(msg: Any) -> NDArray[np.uint8]:
 
 
 def _check_layout(msg: Any, buf: NDArray[np.uint8]) -> tuple[int, int, int, int]:
+    """``(height, width, point_step, row_step)`` after checking them against the data size."""
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
+    if height < 0 or width < 0:
+        raise PointCloudError(f'height {height} / width {width} must not be negative')
     if height * width == 0:
         return height, width, point_step, row_step
     if point_step <= 0:
         raise PointCloudError(f'point_step is {point_step}; it must be > 0')
     if row_step < width * point_step:
         raise PointCloudError(f'row_step {row_step} is shorter than width * point_step '
-                              f'({width} * {point_step})')
-    need = row_step * (height - 1) + width * point_step
-    if buf.size < need:
+                              f'({width} * {point_step} = {width * point_step})')
+    if buf.size < row_step * height:
         raise PointCloudError(f'data has {buf.size} bytes but height {height} x row_step '
                               f'{row_step} needs {row_step * height}: the cloud is truncated')
     return height, width, point_step, row_step
 
 
 def pointcloud2_to_array(msg: Any) -> NDArray[Any]:
-    """Read-only structured view of a cloud: shape ``(width,)``, or ``(height, width)`` when
-    organized (``height > 1``)."""
+    """Read-only structured view of a cloud (no copy; the message is not modified).
+
+    :param msg: a sensor_msgs/PointCloud2 (rclpy or rosbags).
+    :return: shape ``(width,)``, or ``(height, width)`` when organized (``height > 1``); the
+        dtype has the message's fields at their offsets, itemsize ``point_step``.
+    :raises PointCloudError: for an invalid field table or data shorter than the layout.
+    """
     dtype = dtype_from_fields(msg.fields, int(msg.point_step), bool(msg.is_bigendian))
     buf = _buffer(msg)
     height, width, point_step, row_step = _check_layout(msg, buf)
@@ -115,65 +123,111 @@ def pointcloud2_to_array(msg: Any) -> NDArray[Any]:
     return arr if height > 1 else arr[0]
 
 
-def _field_offsets(msg: Any) -> dict[str, tuple[int, int, int]]:
-    return {str(f.name): (int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields}
+def _grid(buffer: Any, dtype: str, offset: int, height: int, width: int, row_stride: int,
+          item_stride: int) -> NDArray[Any]:
+    """A ``(height, width)`` strided view of ``dtype`` items in ``buffer`` (no copy)."""
+    view: NDArray[Any] = np.ndarray((height, width), dtype=dtype, buffer=buffer, offset=offset,
+                                    strides=(row_stride, item_stride))
+    return view
+
+
+def _finite_rows(x: NDArray[Any], y: NDArray[Any], z: NDArray[Any]) -> NDArray[np.bool_]:
+    """True where x, y and z are all finite (same shape as the inputs).
+
+    ``x + y + z`` is non-finite iff a coordinate is, or the sum overflows float32 (coordinates
+    beyond ~1e38 m, which no sensor produces).
+    """
+    with np.errstate(over='ignore', invalid='ignore'):
+        total = np.add(x, y, dtype=np.float32)
+        total += z
+    finite: NDArray[np.bool_] = np.isfinite(total)
+    return finite
+
+
+def _xyzi_float32(buf: NDArray[np.uint8], offsets: list[int], height: int, width: int,
+                  point_step: int, row_step: int, bigendian: bool
+                  ) -> tuple[NDArray[np.float32], int]:
+    """FLOAT32 fields at ``offsets`` (x, y, z[, intensity]) -> ``((N', 4) float32, dropped)``.
+
+    The finite mask is computed on strided views of the message, then the kept points are
+    copied once into a new array: when the fields are adjacent (as every driver writes them)
+    each point's 12 or 16 bytes move as one opaque item, otherwise one column at a time.
+    """
+    order = '>' if bigendian else '<'
+    x, y, z = (_grid(buf, order + 'f4', o, height, width, row_step, point_step)
+               for o in offsets[:3])
+    finite = _finite_rows(x, y, z)
+    kept = int(np.count_nonzero(finite))
+    k = len(offsets)
+    out: NDArray[np.float32]
+    if offsets == [offsets[0] + 4 * i for i in range(k)]:
+        block = _grid(buf, f'V{4 * k}', offsets[0], height, width, row_step, point_step)
+        if k == 4:
+            out = block[finite].view(np.float32).reshape(kept, 4)
+        else:
+            out = np.zeros((kept, 4), np.float32)
+            _grid(out, 'V12', 0, 1, kept, 16 * kept, 16)[0] = block[finite]
+        if bigendian:
+            out.byteswap(inplace=True)         # our own copy: the message stays as it was
+    else:
+        out = np.zeros((kept, 4), np.float32)
+        for i, offset in enumerate(offsets):
+            column = x if i == 0 else y if i == 1 else z if i == 2 else _grid(
+                buf, order + 'f4', offset, height, width, row_step, point_step)
+            out[:, i] = column[finite]
+    return out, height * width - kept
+
+
+def _convert_fields(msg: Any, names: list[str]) -> tuple[NDArray[np.float32], int]:
+    """Fields of any numeric datatype (``count > 1``: the first element) -> like
+    :func:`_xyzi_float32`."""
+    arr = pointcloud2_to_array(msg).reshape(-1)
+    pts = np.zeros((len(arr), 4), np.float32)
+    for i, name in enumerate(names):
+        col = arr[name]
+        if col.ndim > 1:
+            col = col[:, 0]
+        with np.errstate(over='ignore', invalid='ignore'):
+            pts[:, i] = col                   # float64 beyond float32's range becomes inf
+    finite = _finite_rows(pts[:, 0], pts[:, 1], pts[:, 2])
+    kept = int(np.count_nonzero(finite))
+    if kept < len(pts):
+        pts = pts.view('V16')[finite, 0].view(np.float32).reshape(kept, 4)
+    return pts, len(arr) - kept
 
 
 def pointcloud2_to_xyzi(msg: Any) -> XYZI:
-    """The detector's input: ``(N, 4)`` float32 x, y, z, intensity, non-finite points dropped."""
-    fields = _field_offsets(msg)
+    """The detector's input: ``(N, 4)`` float32 x, y, z, intensity, non-finite points dropped.
+
+    Intensity comes from a field named ``intensity``, ``i`` or ``reflectivity`` (0 and
+    ``has_intensity=False`` when there is none; a non-finite intensity becomes 0). Fields of any
+    numeric datatype are converted; the common FLOAT32 layout takes a fast path.
+
+    :param msg: a sensor_msgs/PointCloud2 (rclpy or rosbags); never modified.
+    :return: :class:`XYZI` with ``points (N, 4)`` float32 C-contiguous.
+    :raises PointCloudError: missing x/y/z, an invalid field table, or truncated data.
+    """
+    fields = {str(f.name): (int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields}
     missing = [n for n in ('x', 'y', 'z') if n not in fields]
     if missing:
         raise PointCloudError(f'cloud has no {"/".join(missing)} field(s); fields are '
-                              f'{sorted(fields)}')
-    inten_name = next((n for n in INTENSITY_NAMES if n in fields), None)
-    names = ['x', 'y', 'z'] + ([inten_name] if inten_name else [])
+                              f'{sorted(fields)}: x, y and z are required')
+    intensity = next((n for n in INTENSITY_NAMES if n in fields), None)
+    names = ['x', 'y', 'z'] + ([intensity] if intensity else [])
     buf = _buffer(msg)
     height, width, point_step, row_step = _check_layout(msg, buf)
+    dtype_from_fields(msg.fields, point_step, bool(msg.is_bigendian))     # validates the table
     n = height * width
-    offs = [fields[k][0] for k in names]
-    fast = (not msg.is_bigendian and point_step % 4 == 0 and row_step == width * point_step
-            and all(fields[k][1] == FLOAT32 and fields[k][2] == 1 for k in names)
-            and all(o % 4 == 0 for o in offs))
     if n == 0:
-        pts = np.zeros((0, 4), np.float32)
-    elif fast:
-        words = np.frombuffer(buf, dtype='<f4', count=n * point_step // 4)
-        table = words.reshape(n, point_step // 4)
-        cols = [o // 4 for o in offs]
-        if inten_name is None:
-            pts = np.zeros((n, 4), np.float32)
-            pts[:, :3] = table[:, cols]
-        elif cols == [cols[0], cols[0] + 1, cols[0] + 2, cols[0] + 3]:
-            pts = np.ascontiguousarray(table[:, cols[0]:cols[0] + 4])   # one strided copy
-        else:
-            pts = np.ascontiguousarray(table[:, cols])
-        dtype_check_fields(msg, point_step)
+        return XYZI(np.zeros((0, 4), np.float32), intensity is not None, 0, 0)
+    if all(fields[k][1] == FLOAT32 and fields[k][2] == 1 for k in names):
+        pts, dropped = _xyzi_float32(buf, [fields[k][0] for k in names], height, width,
+                                     point_step, row_step, bool(msg.is_bigendian))
     else:
-        arr = pointcloud2_to_array(msg).reshape(-1)
-        pts = np.zeros((n, 4), np.float32)
-        for i, k in enumerate(names):
-            col = arr[k]
-            if col.ndim > 1:   # count > 1: take the first element
-                col = col[:, 0]
-            with np.errstate(over='ignore', invalid='ignore'):
-                pts[:, i] = col.astype(np.float32)   # out-of-range values become inf
-    # x + y + z is non-finite iff a coordinate is (or the sum overflows float32, ~1e38 m)
-    with np.errstate(over='ignore', invalid='ignore'):
-        total = pts[:, 0] + pts[:, 1]
-        total += pts[:, 2]
-    finite = np.isfinite(total)
-    dropped = int(n - np.count_nonzero(finite))
-    if dropped:
-        pts = pts[finite]
-    if inten_name is not None and not np.isfinite(pts[:, 3].sum(dtype=np.float64)):
+        pts, dropped = _convert_fields(msg, names)
+    if intensity is not None and not np.isfinite(pts[:, 3].sum(dtype=np.float64)):
         np.nan_to_num(pts[:, 3], copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-    return XYZI(pts, inten_name is not None, n, dropped)
-
-
-def dtype_check_fields(msg: Any, point_step: int) -> None:
-    """Validate the field table (overruns, overlaps, datatypes) without building a view."""
-    dtype_from_fields(msg.fields, point_step, bool(msg.is_bigendian))
+    return XYZI(pts, intensity is not None, n, dropped)
 
 
 def fields_from_dtype(dtype: np.dtype[Any], classes: MessageClasses) -> list[Any]:
@@ -199,9 +253,21 @@ def fields_from_dtype(dtype: np.dtype[Any], classes: MessageClasses) -> list[Any
 
 def array_to_pointcloud2(points: NDArray[Any], header: Any, classes: MessageClasses,
                          is_dense: bool | None = None) -> Any:
-    """Build a PointCloud2 from a structured array ``(N,)`` or organized ``(H, W)``."""
+    """Build a PointCloud2 from a structured array (the inverse of pointcloud2_to_array).
+
+    :param points: structured array ``(N,)`` or organized ``(H, W)``; any byte order (the
+        message is little-endian), padding and offsets kept, ``point_step`` = itemsize.
+    :param header: the std_msgs/Header to put on the message (of ``classes``).
+    :param classes: which message classes to build (rclpy or rosbags).
+    :param is_dense: default: True iff every float x/y/z value is finite.
+    :return: a PointCloud2 owning a copy of the data (``array.array('B')`` for rclpy, a uint8
+        ndarray for rosbags).
+    """
     if points.dtype.fields is None:
-        raise PointCloudError('array_to_pointcloud2 needs a structured array')
+        raise PointCloudError('array_to_pointcloud2 needs a structured array, got dtype '
+                              f'{points.dtype}')
+    if points.ndim not in (1, 2):
+        raise PointCloudError(f'points must be (N,) or (H, W), got shape {points.shape}')
     le = points.dtype.newbyteorder('<')
     arr = np.ascontiguousarray(points.astype(le, copy=False))
     height, width = (arr.shape[0], arr.shape[1]) if arr.ndim == 2 else (1, arr.shape[0])
@@ -211,13 +277,19 @@ def array_to_pointcloud2(points: NDArray[Any], header: Any, classes: MessageClas
         for name in ('x', 'y', 'z'):
             if name in (le.names or ()) and le[name].kind == 'f':
                 is_dense = is_dense and bool(np.isfinite(arr[name]).all())
-    raw = arr.tobytes()
-    data: Any
-    if classes.kind == 'rclpy':
-        data = array.array('B')
-        data.frombytes(raw)
+    raw = arr.reshape(-1).view(np.uint8)       # (N * point_step,) bytes, no copy
+    common = {'header': header, 'height': height, 'width': width, 'fields': fields,
+              'is_bigendian': False, 'point_step': le.itemsize,
+              'row_step': le.itemsize * width, 'is_dense': is_dense}
+    if classes.kind != 'rclpy':
+        # own the bytes: a caller changing ``points`` later must not change the message
+        data = raw.copy() if np.may_share_memory(raw, points) else raw
+        return classes.PointCloud2(data=data, **common)
+    msg = classes.PointCloud2(**common)
+    buffer = array.array('B')
+    buffer.frombytes(raw.data)                  # one memcpy
+    if '_data' in getattr(type(msg), '__slots__', ()):
+        msg._data = buffer                      # the generated setter would copy it again
     else:
-        data = np.frombuffer(raw, dtype=np.uint8)
-    return classes.PointCloud2(header=header, height=height, width=width, fields=fields,
-                               is_bigendian=False, point_step=le.itemsize,
-                               row_step=le.itemsize * width, data=data, is_dense=is_dense)
+        msg.data = buffer
+    return msg
