@@ -73,6 +73,8 @@ def _rosbags_marker_factory(t: Any) -> Any:
     vec, color, dur = (t['geometry_msgs/msg/Vector3'], t['std_msgs/msg/ColorRGBA'],
                        t['builtin_interfaces/msg/Duration'])
     empty = np.zeros(0, np.uint8)
+    no_header = t['std_msgs/msg/Header'](stamp=t['builtin_interfaces/msg/Time'](sec=0, nanosec=0),
+                                         frame_id='')
 
     def make(**kw: Any) -> Any:
         args = {'ns': '', 'id': 0, 'type': 0, 'action': 0,
@@ -84,8 +86,8 @@ def _rosbags_marker_factory(t: Any) -> Any:
                 'mesh_resource': '', 'mesh_file': mesh(filename='', data=empty),
                 'mesh_use_embedded_materials': False}
         args.update(kw)
-        if 'texture' not in args:
-            args['texture'] = image(header=args['header'], format='', data=empty)
+        if 'texture' not in args:           # as rclpy's default: no texture, an empty header
+            args['texture'] = image(header=no_header, format='', data=empty)
         return marker(**args)
 
     return make

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .builders import message_factory
+from .builders import MessageFactory, message_factory
 from .classes import MessageClasses
 from .errors import MessageError, PointCloudError
 from .pointcloud2 import array_to_pointcloud2, pointcloud2_to_array
@@ -107,7 +107,8 @@ def _marker_inputs(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArra
 def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
                               scores: NDArray[Any], labels: NDArray[Any], header: Any,
                               class_names: tuple[str, ...] | list[str],
-                              classes: MessageClasses, min_arrow_speed: float = 0.2) -> Any:
+                              classes: MessageClasses, min_arrow_speed: float = 0.2,
+                              factory: MessageFactory | None = None) -> Any:
     """A MarkerArray: DELETEALL, then per box a CUBE, a TEXT label and a velocity ARROW.
 
     The cube is oriented by the yaw and coloured by class (:data:`PALETTE`), the text reads
@@ -124,9 +125,10 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
     :param velocities: ``(N, 2)`` vx, vy in m/s.
     :param scores: ``(N,)``; ``labels``: ``(N,)`` indices into ``class_names``.
     :param classes: which message classes to build (rclpy or rosbags).
+    :param factory: how to build them; default :func:`message_factory` ``(classes)``.
     """
     C = classes
-    f = message_factory(classes)
+    f = factory or message_factory(classes)
     b, v, s, lab = _marker_inputs(boxes, velocities, scores, labels)
     lifetime = C.Duration(sec=0, nanosec=0)
     ident = f.quaternion(0.0, 0.0, 0.0, 1.0)

@@ -71,17 +71,21 @@ def odometry_to_pose(msg: Any) -> tuple[NDArray[np.float64], int]:
 
 
 def slerp(q0: NDArray[np.float64], q1: NDArray[np.float64], f: float) -> NDArray[np.float64]:
-    """Spherical linear interpolation of unit quaternions (shortest arc)."""
-    d = float(np.dot(q0, q1))
-    if d < 0:
-        q1, d = -q1, -d
-    if d > 0.9995:
+    """Spherical linear interpolation of unit quaternions ``(x, y, z, w)`` (shortest arc).
+
+    :param f: 0 gives ``q0``, 1 gives ``q1`` (or ``-q1``, the same rotation).
+    """
+    if float(np.dot(q0, q1)) < 0:
+        q1 = -q1
+    # the angle between the two 4-vectors, accurate also when they are nearly equal (acos of
+    # the dot product loses half the digits there)
+    omega = 2.0 * math.atan2(float(np.linalg.norm(q1 - q0)), float(np.linalg.norm(q1 + q0)))
+    if omega < 1e-9:
         q = q0 + f * (q1 - q0)
-        return np.asarray(q / np.linalg.norm(q), np.float64)
-    theta = math.acos(min(d, 1.0))
-    s = math.sin(theta)
-    return np.asarray((math.sin((1 - f) * theta) * q0 + math.sin(f * theta) * q1) / s,
-                      np.float64)
+    else:
+        s = math.sin(omega)
+        q = (math.sin((1 - f) * omega) / s) * q0 + (math.sin(f * omega) / s) * q1
+    return np.asarray(q / np.linalg.norm(q), np.float64)
 
 
 class PoseBuffer:

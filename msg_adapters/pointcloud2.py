@@ -132,15 +132,10 @@ def _grid(buffer: Any, dtype: str, offset: int, height: int, width: int, row_str
 
 
 def _finite_rows(x: NDArray[Any], y: NDArray[Any], z: NDArray[Any]) -> NDArray[np.bool_]:
-    """True where x, y and z are all finite (same shape as the inputs).
-
-    ``x + y + z`` is non-finite iff a coordinate is, or the sum overflows float32 (coordinates
-    beyond ~1e38 m, which no sensor produces).
-    """
-    with np.errstate(over='ignore', invalid='ignore'):
-        total = np.add(x, y, dtype=np.float32)
-        total += z
-    finite: NDArray[np.bool_] = np.isfinite(total)
+    """True where x, y and z are all finite (same shape as the inputs)."""
+    finite: NDArray[np.bool_] = np.isfinite(x)
+    finite &= np.isfinite(y)
+    finite &= np.isfinite(z)
     return finite
 
 

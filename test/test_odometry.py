@@ -10,8 +10,10 @@ from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
 from suit_ros.msg_adapters.odometry import (
     PoseBuffer,
     matrix_to_quaternion,
+    ns_to_stamp,
     odometry_to_pose,
     quaternion_to_matrix,
+    slerp,
     stamp_to_ns,
 )
 
@@ -58,11 +60,44 @@ def test_bad_quaternion(q):
 
 
 def test_matrix_quaternion_round_trip():
-    rng = np.random.default_rng(0)
-    for q in Rotation.random(50, random_state=1).as_quat():
+    rots = Rotation.random(50, random_state=1)
+    # include the branches for rotations by ~180 degrees (trace <= 0)
+    rots = Rotation.concatenate([rots, Rotation.from_rotvec(np.pi * np.eye(3)),
+                                 Rotation.from_rotvec([[0, 0, 3.1], [2.0, 2.0, 0.5]])])
+    for q in rots.as_quat():
         q = q if q[3] >= 0 else -q
         np.testing.assert_allclose(matrix_to_quaternion(quaternion_to_matrix(*q)), q, atol=1e-9)
-    del rng
+        np.testing.assert_allclose(quaternion_to_matrix(*q), Rotation.from_quat(q).as_matrix(),
+                                   atol=1e-12)
+
+
+def test_non_normalised_quaternion_and_bad_position():
+    C = MessageClasses.from_rclpy()
+    q = 3.0 * Rotation.from_euler('z', 0.4).as_quat()
+    T, _ = odometry_to_pose(odom(C, 5, (0.0, 0.0, 0.0), q))
+    np.testing.assert_allclose(T[:3, :3], Rotation.from_euler('z', 0.4).as_matrix(), atol=1e-12)
+    with pytest.raises(MessageError, match='position'):
+        odometry_to_pose(odom(C, 5, (np.inf, 0.0, 0.0), (0, 0, 0, 1)))
+
+
+def test_stamps():
+    C = MessageClasses.from_rclpy()
+    for ns in (0, 1, 999_999_999, 1_000_000_000, 1_700_000_123_456_789):
+        t = ns_to_stamp(ns, C.Time)
+        assert 0 <= t.nanosec < 10**9 and stamp_to_ns(t) == ns
+    assert stamp_to_ns(C.header(42_000_000_001, 'x').stamp) == 42_000_000_001
+
+
+def test_slerp_close_and_opposite_sign_quaternions():
+    """Nearly equal rotations (50 Hz odometry) and q / -q pairs (shortest arc)."""
+    for angle in (1e-7, 1e-4, 0.03, 1.5):
+        r0 = Rotation.from_rotvec([0.1, 0.2, 0.3])
+        r1 = Rotation.from_rotvec([0.1, 0.2, 0.3 + angle])
+        q0, q1 = r0.as_quat(), -r1.as_quat()
+        s = Slerp([0, 1], Rotation.concatenate([r0, r1]))
+        for f in (0.0, 0.25, 0.5, 1.0):
+            got = Rotation.from_quat(slerp(q0, q1, f))
+            assert (got.inv() * s([f])[0]).magnitude() < 1e-12
 
 
 def make_pose(t, yaw):
@@ -90,17 +125,22 @@ def test_interpolation_against_scipy():
         np.testing.assert_allclose(T[:3, 3], expect, atol=1e-9)
 
 
-def test_lookup_outside_span_and_tolerance():
+def test_lookup_outside_span_and_tolerance_both_sides():
     buf = PoseBuffer(max_age_ns=10**10, tolerance_ns=100_000_000)
     with pytest.raises(PoseLookupError, match='no pose'):
         buf.lookup(0)
     buf.add(1_000_000_000, make_pose([1, 0, 0], 0.0))
     buf.add(2_000_000_000, make_pose([2, 0, 0], 0.5))
-    np.testing.assert_allclose(buf.lookup(2_050_000_000)[:3, 3], [2, 0, 0])   # edge hold
-    with pytest.raises(PoseLookupError, match='outside the buffered poses'):
+    np.testing.assert_allclose(buf.lookup(2_050_000_000), make_pose([2, 0, 0], 0.5))   # hold
+    np.testing.assert_allclose(buf.lookup(2_100_000_000), make_pose([2, 0, 0], 0.5))   # edge
+    np.testing.assert_allclose(buf.lookup(900_000_000), make_pose([1, 0, 0], 0.0))
+    with pytest.raises(PoseLookupError, match=r'2\.200 s is outside the buffered poses '
+                                              r'\[1\.000, 2\.000\] s'):
         buf.lookup(2_200_000_000)
-    with pytest.raises(PoseLookupError):
+    with pytest.raises(PoseLookupError, match='0.800 s'):
         buf.lookup(800_000_000)
+    buf.clear()
+    assert len(buf) == 0 and buf.span() is None
 
 
 def test_duplicates_replace_and_old_poses_evicted():
@@ -108,8 +148,16 @@ def test_duplicates_replace_and_old_poses_evicted():
     buf.add(0, make_pose([0, 0, 0], 0))
     buf.add(0, make_pose([5, 0, 0], 0))
     assert len(buf) == 1 and buf.lookup(0)[0, 3] == 5
-    buf.add(3_000_000_000, make_pose([1, 0, 0], 0))
-    assert buf.span() == (3_000_000_000, 3_000_000_000)
+    for k in range(1, 8):
+        buf.add(k * 400_000_000, make_pose([k, 0, 0], 0))
+    # newest 2.8 s: everything before 1.8 s is gone, the rest kept in order
+    assert buf.span() == (2_000_000_000, 2_800_000_000) and len(buf) == 3
+    buf.add(1_000_000_000, make_pose([9, 0, 0], 0))       # late and too old: dropped at once
+    assert buf.span() == (2_000_000_000, 2_800_000_000)
+    buf.add(2_200_000_000, make_pose([7, 0, 0], 0))       # late but recent: inserted in order
+    np.testing.assert_allclose(buf.lookup(2_100_000_000)[0, 3], 6.0)
+    buf.add(3_000_000_000 + 10**9, make_pose([1, 0, 0], 0))
+    assert buf.span() == (4_000_000_000, 4_000_000_000)
 
 
 def test_nan_pose_rejected():
@@ -118,3 +166,16 @@ def test_nan_pose_rejected():
     with pytest.raises(MessageError):
         buf.add(0, bad)
     assert stamp_to_ns(MessageClasses.from_rclpy().Time(sec=3, nanosec=7)) == 3_000_000_007
+
+
+def test_odometry_through_cdr_gives_the_same_pose():
+    from rclpy.serialization import serialize_message
+    from rosbags.typesys import Stores, get_typestore
+    store = get_typestore(Stores.ROS2_JAZZY)
+    q = Rotation.from_euler('zyx', [-2.0, 0.3, 0.2]).as_quat()
+    m = odom(MessageClasses.from_rclpy(), 7_000_000_001, (4.0, -5.0, 0.5), q)
+    other = store.deserialize_cdr(serialize_message(m), 'nav_msgs/msg/Odometry')
+    T0, s0 = odometry_to_pose(m)
+    T1, s1 = odometry_to_pose(other)
+    assert s0 == s1 == 7_000_000_001
+    np.testing.assert_array_equal(T0, T1)

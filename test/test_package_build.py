@@ -40,16 +40,30 @@ def test_install_layout(install):
     assert installed == {p.name for p in (REPO / 'params').glob('*.yaml')}
     assert (install / 'share/suit_ros/launch/detector.launch.py').is_file()
     sp = site_packages(install)
-    assert (sp / 'suit_ros' / 'msg_adapters' / 'pointcloud2.py').is_file()
+    adapters = sp / 'suit_ros' / 'msg_adapters'
+    assert adapters.is_dir() and not adapters.is_symlink()
+    assert {p.name for p in adapters.glob('*.py')} == {p.name for p in
+                                                       (REPO / 'msg_adapters').glob('*.py')}
+    assert (adapters / 'py.typed').is_file()
     assert not (sp / 'msg_adapters').exists()                # no generic top-level package
     assert (sp / 'suit_ros' / 'checkpoints' / 'suit_default.safetensors').is_file()
 
 
 def test_installed_cli_runs(install):
+    from suit_ros import __version__
+    exe = install / 'lib/suit_ros/suit-ros'
+    shebang = exe.read_text().splitlines()[0]
+    assert Path(shebang[2:]).parent == Path(sys.executable).parent        # the venv's python
     env = dict(os.environ, PYTHONPATH=str(site_packages(install)))
-    out = subprocess.run([sys.executable, str(install / 'lib/suit_ros/suit-ros'), '--version'],
-                         env=env, capture_output=True, text=True, timeout=60)
-    assert out.returncode == 0 and out.stdout.startswith('suit-ros 0.')
+    out = subprocess.run([str(exe), '--version'], env=env, cwd=install, capture_output=True,
+                         text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == f'suit-ros {__version__}'
+    where = subprocess.run(
+        [sys.executable, '-c', 'import suit_ros.msg_adapters.pointcloud2 as m; print(m.__file__)'],
+        env=env, cwd=install, capture_output=True, text=True, timeout=60)
+    assert where.stdout.strip() == str(site_packages(install) / 'suit_ros/msg_adapters/'
+                                       'pointcloud2.py')      # the install, not the checkout
 
 
 def test_installed_detector_starts_and_publishes(install, tmp_path):
