@@ -187,7 +187,7 @@ def _convert_fields(msg: Any, names: list[str]) -> tuple[NDArray[np.float32], in
     finite = _finite_rows(pts[:, 0], pts[:, 1], pts[:, 2])
     kept = int(np.count_nonzero(finite))
     if kept < len(pts):
-        pts = pts.view('V16')[finite, 0].view(np.float32).reshape(kept, 4)
+        pts = pts.view('V16').reshape(-1)[finite].view(np.float32).reshape(kept, 4)
     return pts, len(arr) - kept
 
 

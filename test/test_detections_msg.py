@@ -172,3 +172,26 @@ def test_fast_factories_build_what_the_constructors_build():
         else:
             assert (bytes(STORE.serialize_cdr(fast, MARKER_ARRAY))
                     == bytes(STORE.serialize_cdr(ref, MARKER_ARRAY)))
+
+
+def test_checked_fields_use_the_constructors():
+    """With ROS_PYTHON_CHECK_FIELDS=1 rclpy checks every field; the factory then goes through
+    the generated constructors, and the markers still pass those checks."""
+    import os
+    import subprocess
+    import sys
+    code = ('import numpy as np\n'
+            'from suit_ros.msg_adapters.builders import MessageFactory, message_factory\n'
+            'from suit_ros.msg_adapters.classes import MessageClasses\n'
+            'from suit_ros.msg_adapters.detections import detections_to_markerarray\n'
+            'C = MessageClasses.from_rclpy()\n'
+            'assert type(message_factory(C)) is MessageFactory\n'
+            'b = np.array([[1.0, 2, 0, 4, 2, 1.5, 0.3]])\n'
+            "m = detections_to_markerarray(b, [[1.0, 0.0]], [0.9], [0], C.header(1, 'l'),\n"
+            "                              ('car',), C)\n"
+            'print(len(m.markers), m.markers[2].text)\n')
+    env = dict(os.environ, ROS_PYTHON_CHECK_FIELDS='1')
+    out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
+                         timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == '4 car 0.90'

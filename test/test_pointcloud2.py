@@ -163,6 +163,7 @@ def test_xyzi_same_result_for_every_layout_and_type():
         (['<f4'] * 4, [12, 0, 24, 4], 28),      # scattered, out of order
         (['<f4'] * 4, [1, 5, 9, 13], 19),       # unaligned, odd point_step
         (['>f4'] * 4, [0, 4, 8, 12], 18),       # big-endian
+        (['>f4'] * 4, [8, 20, 0, 14], 24),      # big-endian, scattered
         (['<f8'] * 4, [0, 8, 16, 24], 32),      # converted
         (['<f8', '<f8', '<f8', '<u2'], [0, 8, 16, 24], 26),
     ]
