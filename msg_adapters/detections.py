@@ -40,24 +40,43 @@ def detection_dtype(with_gt: bool) -> np.dtype[Any]:
     return np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': size})
 
 
+def _box_inputs(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[Any],
+                   labels: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[np.float64],
+                                                  NDArray[np.float64], NDArray[np.int64]]:
+    """Boxes ``(N, 7)``, velocities ``(N, 2)``, scores ``(N,)``, labels ``(N,)``, checked."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    n = len(b)
+    v = np.asarray(velocities, np.float64)
+    s = np.asarray(scores, np.float64).reshape(-1)
+    lab = np.asarray(labels, np.int64).reshape(-1)
+    if v.size != 2 * n or len(s) != n or len(lab) != n:
+        raise MessageError(f'{n} boxes need (N, 2) velocities, N scores and N labels; got '
+                           f'{v.shape}, {s.shape}, {lab.shape}')
+    return b, v.reshape(n, 2), s, lab
+
+
 def detections_to_array(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[Any],
                         labels: NDArray[Any], extra_fields: dict[str, NDArray[Any]] | None = None
                         ) -> NDArray[Any]:
-    """The structured array behind the detections cloud."""
-    b = np.asarray(boxes, np.float32).reshape(-1, 7)
+    """The structured array behind the detections cloud (see :func:`detection_dtype`)."""
+    b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
     n = len(b)
     arr = np.zeros(n, detection_dtype(bool(extra_fields)))
     for i, name in enumerate(FLOAT_FIELDS[:7]):
         arr[name] = b[:, i]
-    v = np.asarray(velocities, np.float32).reshape(n, 2)
-    arr['vx'], arr['vy'] = v[:, 0], v[:, 1]
-    arr['score'] = np.asarray(scores, np.float32).reshape(n)
-    lab = np.asarray(labels).reshape(n)
+    arr['vx'], arr['vy'], arr['score'] = v[:, 0], v[:, 1], s
     if n and (lab.min() < 0 or lab.max() > 255):
         raise PointCloudError('labels must be within 0..255 to fit the UINT8 label field')
     arr['label'] = lab.astype(np.uint8)
-    for name in GT_FIELDS if extra_fields else ():
-        arr[name] = np.asarray(extra_fields[name] if extra_fields else 0, np.uint32)
+    if extra_fields:
+        missing = [k for k in GT_FIELDS if k not in extra_fields]
+        if missing:
+            raise MessageError(f'extra_fields needs {list(GT_FIELDS)}; {missing} missing')
+        for name in GT_FIELDS:
+            values = np.asarray(extra_fields[name]).reshape(-1)
+            if len(values) != n:
+                raise MessageError(f'extra field {name!r} has {len(values)} values for {n} boxes')
+            arr[name] = values.astype(np.uint32)
     return arr
 
 
@@ -89,21 +108,6 @@ def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
     return out
 
 
-def _marker_inputs(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[Any],
-                   labels: NDArray[Any]) -> tuple[NDArray[np.float64], NDArray[np.float64],
-                                                  NDArray[np.float64], NDArray[np.int64]]:
-    """Boxes ``(N, 7)``, velocities ``(N, 2)``, scores ``(N,)``, labels ``(N,)``, checked."""
-    b = np.asarray(boxes, np.float64).reshape(-1, 7)
-    n = len(b)
-    v = np.asarray(velocities, np.float64)
-    s = np.asarray(scores, np.float64).reshape(-1)
-    lab = np.asarray(labels, np.int64).reshape(-1)
-    if v.size != 2 * n or len(s) != n or len(lab) != n:
-        raise MessageError(f'{n} boxes need (N, 2) velocities, N scores and N labels; got '
-                           f'{v.shape}, {s.shape}, {lab.shape}')
-    return b, v.reshape(n, 2), s, lab
-
-
 def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
                               scores: NDArray[Any], labels: NDArray[Any], header: Any,
                               class_names: tuple[str, ...] | list[str],
@@ -129,7 +133,7 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
     """
     C = classes
     f = factory or message_factory(classes)
-    b, v, s, lab = _marker_inputs(boxes, velocities, scores, labels)
+    b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
     lifetime = C.Duration(sec=0, nanosec=0)
     ident = f.quaternion(0.0, 0.0, 0.0, 1.0)
     clear = f.color(0.0, 0.0, 0.0, 0.0)

@@ -195,3 +195,15 @@ def test_checked_fields_use_the_constructors():
                          timeout=60)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == '4 car 0.90'
+
+
+def test_cloud_shape_errors():
+    boxes, vel, scores, labels = random_boxes(4)
+    h = RCLPY.header(0, 'l')
+    with pytest.raises(MessageError, match='velocities'):
+        detections_to_pointcloud2(boxes, vel[:3], scores, labels, h, RCLPY)
+    with pytest.raises(MessageError, match="'instance_id' has 2 values for 4 boxes"):
+        detections_to_pointcloud2(boxes, vel, scores, labels, h, RCLPY,
+                                  {'num_points': np.zeros(4), 'instance_id': np.zeros(2)})
+    with pytest.raises(MessageError, match='missing'):
+        detections_to_pointcloud2(boxes, vel, scores, labels, h, RCLPY, {'num_points': [1]})
