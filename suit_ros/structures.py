@@ -1,7 +1,7 @@
 """Plain-numpy data structures shared by the model, the data sources, the node and evaluation."""
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -48,10 +48,18 @@ class Detections:
 class Frame:
     """One LiDAR frame with everything the model, training and evaluation need.
 
+    A *sensor frame* (what data sources yield) holds one sweep in the LiDAR frame; a *model
+    frame* (what :class:`~suit_ros.model.detector.SUITDetector` trains on) holds the accumulated
+    sweeps in the ground-referenced vehicle frame (base_link at the stamp), made by
+    :func:`suit_ros.model.sweeps.model_frame`.
+
     :param points: ``(N, 5)`` float32 ``x, y, z, intensity (0..1), time_lag (s, >= 0)`` in the
-        LiDAR frame.
-    :param pose: ``(4, 4)`` float64 ``T_odom_lidar`` at ``stamp_ns``.
-    :param gt: ground-truth boxes in the LiDAR frame at the stamp, or None at inference.
+        LiDAR frame (sensor frame) or base_link (model frame).
+    :param pose: ``(4, 4)`` float64 ``T_odom_lidar`` at ``stamp_ns`` (sensor frame) or
+        ``T_odom_base`` (model frame).
+    :param gt: ground-truth boxes in the points' frame at the stamp, or None at inference.
+    :param T_base_lidar: ``(4, 4)`` float64 LiDAR mounting extrinsic (identity in a model
+        frame, or when the points are already in base_link).
     """
 
     points: NDArray[np.float32]
@@ -62,3 +70,4 @@ class Frame:
     num_points: NDArray[np.uint32] | None = None
     instance_ids: NDArray[np.uint32] | None = None
     sequence_id: str = ''
+    T_base_lidar: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
