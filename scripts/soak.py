@@ -34,6 +34,7 @@ def main() -> int:
 
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     from suit_ros.data.sequences import synthetic_sequence
+    from suit_ros.evaluate import step_inputs
     from suit_ros.model.streaming import StreamingDetector
     torch.set_num_threads(args.threads)
     model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
@@ -47,7 +48,8 @@ def main() -> int:
         if i % len(drive) == 0:
             runner.reset('drive looped')
         stamp = f.stamp_ns + (i // len(drive)) * len(drive) * period
-        r = runner.step(f.points, f.pose, stamp, f.frame_id)
+        pts, _, T_odom_base, T_base_lidar = step_inputs(f)
+        r = runner.step(pts, stamp, T_odom_base, T_base_lidar)
         lat.append(r.timings['total'])
         if i % 500 == 0 or i == args.frames - 1:
             rss.append((i, rss_mb()))

@@ -59,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
 
     from suit_ros.data.sim import preset
     from suit_ros.data.sim.scene import Simulation, to_frame
+    from suit_ros.evaluate import step_inputs
     from suit_ros.model.streaming import StreamingDetector
     from suit_ros.msg_adapters.classes import MessageClasses
     from suit_ros.msg_adapters.detections import (
@@ -78,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                            'points_per_frame': int(np.mean([len(f.cloud) for f in simframes]))}
     # --- per stage, SUIT (memory carried) and single frame
     stage_times: dict[str, list[float]] = {k: [] for k in (
-        'convert', 'pillars', 'backbone', 'head_decode', 'sampling', 'fusion', 'output')}
+        'convert', 'sweeps', 'encode', 'head_decode', 'sampling', 'fusion', 'output')}
     steps: dict[str, list[float]] = {}
     memory: dict[str, dict[int, int]] = {}
     names = None
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
             pts = pointcloud2_to_xyzi(msg).points
             pts[:, 3] /= 255.0
             t1 = time.perf_counter()
-            r = runner.step(pts, f.pose, f.stamp_ns, 'lidar')
+            r = runner.step(pts, *step_inputs(f)[1:])
             t2 = time.perf_counter()
             d = r.detections
             detections_to_pointcloud2(d.boxes, d.velocities, d.scores, d.labels,
@@ -108,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
             if temporal == 'suit':
                 stage_times['convert'].append(t1 - t0)
                 stage_times['output'].append(t3 - t2)
-                for k in ('pillars', 'backbone', 'head_decode', 'sampling', 'fusion'):
+                for k in ('sweeps', 'encode', 'head_decode', 'sampling', 'fusion'):
                     stage_times[k].append(r.timings[k])
     res['stages_ms'] = {k: {'p50': pct(v, 50), 'p95': pct(v, 95)} for k, v in
                         stage_times.items()}
@@ -127,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
         pts[:, :2] += rng.normal(0, 0.05, (count, 2)).astype(np.float32)
         times = []
         for i in range(max(5, n // 3)):
-            r = runner.step(pts, frames[0].pose, frames[0].stamp_ns + i * 100_000_000, 'lidar')
+            r = runner.step(pts, frames[0].stamp_ns + i * 100_000_000,
+                            *step_inputs(frames[0])[2:])
             times.append(r.timings['total'])
         scaling[count] = pct(times[2:], 50)
     res['scaling_points_ms'] = scaling
@@ -140,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
         times, objs = [], []
         for k in range(6):
             fr = to_frame(s.render(k), 3)
-            r = runner.step(fr.points, fr.pose, fr.stamp_ns, 'lidar')
+            r = runner.step(*step_inputs(fr))
             times.append(r.timings['total'])
             objs.append(int((fr.num_points > 0).sum()))
         by_objects.append({'objects_with_points': float(np.mean(objs[2:])),

@@ -50,12 +50,13 @@ class HeadConfig:
     code_weights: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.2)
     loc_weight: float = 0.25
     max_objects: int = 500
-    top_k: int = 100
+    top_k: int = 500              # heatmap peaks kept before the score threshold and NMS
     score_threshold: float = 0.1
     nms: str = 'rotated'          # 'rotated' (BEV IoU) or 'circle'
     nms_iou_threshold: float = 0.2
     circle_nms_radius: tuple[float, ...] = (2.0, 3.0, 0.5, 0.75)   # metres, per class
     max_detections: int = 200
+    yaw_velocity_min_speed: float = 1.0   # m/s: faster boxes face their velocity (0: off)
 
 
 @dataclass(frozen=True)
@@ -96,7 +97,7 @@ class ModelConfig:
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     geonet: GeoNetConfig = field(default_factory=GeoNetConfig)
     geo_loss_weight: float = 1.0
-    max_time_gap: float = 0.5     # s: memory older than this is not fused
+    sweeps: int = 1               # LiDAR sweeps per input (current + previous), model frame
 
     def __post_init__(self) -> None:
         validate(self)
@@ -167,8 +168,12 @@ def validate(cfg: ModelConfig) -> None:
         raise bad('geonet.bins must be odd and >= 1')
     if cfg.geonet.velocity_step <= 0:
         raise bad('geonet.velocity_step must be > 0')
-    if cfg.max_time_gap <= 0:
-        raise bad('max_time_gap must be > 0')
+    if not 1 <= cfg.sweeps <= 20:
+        raise bad('sweeps must be within 1..20')
+    if cfg.head.top_k < 1:
+        raise bad('head.top_k must be >= 1')
+    if cfg.head.yaw_velocity_min_speed < 0:
+        raise bad('head.yaw_velocity_min_speed must be >= 0')
 
 
 def _plain(value: Any) -> Any:

@@ -9,7 +9,7 @@ devkit computes them. NDS here has no attribute term: NDS = (5 mAP + sum of the 
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import json
 from typing import Any
@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros import CLASS_NAMES
-from suit_ros.structures import Detections
+from suit_ros.structures import Detections, Frame
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
 TP_DIST = 2.0
@@ -282,6 +282,7 @@ class ModelRun:
     latency_s: list[float]
     memory_bytes: list[int]
     memory_after: dict[int, list[int]]
+    drive: list[int] = field(default_factory=list)
 
     def evaluate(self, class_names: Sequence[str]) -> EvalResult:
         """Metrics of the run, with latency p50 and memory p50 in ``extra``."""
@@ -292,24 +293,33 @@ class ModelRun:
 
 
 def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None,
-              history: int | None = None) -> ModelRun:
-    """Run a SUITDetector over sequences (memory carried within each, reset between them).
+              history: int | None = None, drop_memory: bool = False,
+              transform: Callable[[Frame], Frame] | None = None) -> ModelRun:
+    """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
+    each, reset between them).
 
     :param history: None: stream each sequence with the memory carried throughout; ``h``: each
         frame is detected after a fresh run over its last ``h`` frames (h frames of history).
+    :param drop_memory: forget the feature memory before every frame (the sweeps are kept):
+        what the temporal path is worth.
+    :param transform: applied to every input frame (e.g. intensity removed).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
     runner = StreamingDetector(model, device)
     out = ModelRun([], [], [], [], [], {})
-    for seq in sequences:
+    for drive, seq in enumerate(sequences):
         runner.reset('new sequence')
+        if transform is not None:
+            seq = [transform(f) for f in seq]
         for t, frame in enumerate(seq):
+            if drop_memory:
+                runner.reset('drop memory', sweeps=False)
             if history is not None:
                 runner.reset('window')
                 for past in seq[max(0, t - history + 1):t]:
-                    runner.step(past.points, past.pose, past.stamp_ns, past.frame_id)
-            res = runner.step(frame.points, frame.pose, frame.stamp_ns, frame.frame_id)
+                    runner.step(*step_inputs(past))
+            res = runner.step(*step_inputs(frame))
             out.latency_s.append(res.timings['total'])
             out.memory_bytes.append(res.memory_bytes)
             if history is None and t + 1 in (2, 10):
@@ -317,8 +327,18 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.det.append(res.detections)
             out.gt.append(frame.gt)
             out.num_points.append(frame.num_points)
+            out.drive.append(drive)
     model.train(was_training)
     return out
+
+
+def step_inputs(frame: Frame) -> tuple[NDArray[np.float32], int, NDArray[np.float64],
+                                        NDArray[np.float64]]:
+    """A sensor frame as the streaming step's arguments: points, stamp, ``T_odom_base``,
+    ``T_base_lidar``."""
+    from suit_ros.ops.geometry import se3_inverse
+    T_bl = np.asarray(frame.T_base_lidar, np.float64)
+    return frame.points, frame.stamp_ns, np.asarray(frame.pose) @ se3_inverse(T_bl), T_bl
 
 
 def evaluate_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None,

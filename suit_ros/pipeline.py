@@ -153,7 +153,7 @@ class DetectionPipeline:
         t2 = time.perf_counter()
         model_timings: dict[str, float] = {}
         if len(points):
-            result = self.detector.step(points, pose, stamp_ns, frame_id)
+            result = self.detector.step(points, stamp_ns, pose, self.T_base_lidar)
             out.detections = result.detections
             out.used_memory = result.used_memory
             out.memory_samples = result.memory_samples
@@ -198,4 +198,4 @@ class DetectionPipeline:
             T_odom_base = self.poses.lookup(stamp_ns)
         except PoseLookupError as exc:
             return None, f'none: {exc}', age
-        return T_odom_base @ self.T_base_lidar, 'odometry', age
+        return T_odom_base, 'odometry', age

@@ -45,6 +45,8 @@ class TrainConfig:
     max_minutes: float = 0.0         # 0: no time limit
     seed: int = 0
     augment: bool = True
+    flip_probability: float = 0.0    # 0: keep the front/back cue of box-shaped actors
+    intensity_dropout: float = 0.2   # clips trained without intensity
     eval_at_end: bool = True
     checkpoint_every: int = 200
 
@@ -142,7 +144,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         raise ConfigError(f'dataset must be synthetic, bags or nuscenes, not {tc.dataset!r}')
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
-    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank)
+    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank,
+                          1 if tc.dataset == 'nuscenes' else mcfg.sweeps)
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
     opt = torch.optim.AdamW(module.parameters(), lr=tc.lr, weight_decay=tc.weight_decay,
                             betas=(0.95, 0.99))
@@ -173,7 +176,9 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     while step < tc.steps:
         clips = sampler.batch(batch)
         if tc.augment:
-            clips = [augment.apply_clip(c, augment.draw(aug_rng)) for c in clips]
+            clips = [augment.apply_clip(c, augment.draw(
+                aug_rng, flip_probability=tc.flip_probability,
+                intensity_dropout=tc.intensity_dropout)) for c in clips]
         losses = model(clips)
         opt.zero_grad(set_to_none=True)
         losses['loss'].backward()
@@ -195,6 +200,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
             torch.save({'model': module.state_dict(), 'optimizer': opt.state_dict(),
                         'scheduler': sched.state_dict(), 'step': step,
                         'torch_rng': torch.get_rng_state()}, last)
+            save_checkpoint(out / 'snapshot.safetensors', module, mcfg, {'steps': step},
+                            {'snapshot': True})
             if log_file:
                 log_file.flush()
         if out_of_time:

@@ -162,7 +162,7 @@ def test_ego_transform_static_object_lands_on_same_cell():
                        torch.tensor(in0, dtype=torch.float32)[None, None], torch.zeros(1, 1, 4),
                        torch.ones(1, 1), torch.ones(1, 1, dtype=torch.bool),
                        torch.tensor([[in0[0], in0[1], -1.8, 1, 1, 1, 0]], dtype=torch.float32),
-                       torch.zeros(1, 2), [0], ['lidar'], p0[None], 1)
+                       torch.zeros(1, 2), [0], p0[None], 1)
     moved = transform_sample_positions(mem, ego_transform(p1, p0)[None])[0, 0]
     np.testing.assert_allclose(moved.numpy(), in1, atol=1e-5)
     assert torch.equal(torch.floor(GRID.xy_to_cell(moved)),
@@ -223,8 +223,8 @@ def test_variants_train_and_stream(temporal):
     assert torch.isfinite(losses['loss'])
     losses['loss'].backward()
     runner = StreamingDetector(model)
-    used = [runner.step(frame(t).points[:, :4], frame(t).pose, frame(t).stamp_ns,
-                        'lidar').used_memory for t in range(3)]
+    used = [runner.step(frame(t).points[:, :4], frame(t).stamp_ns,
+                        frame(t).pose).used_memory for t in range(3)]
     assert used == [False] + [temporal != 'none'] * 2
 
 
@@ -234,19 +234,20 @@ def test_memory_size_constant_over_frames_and_reset():
     f = frame(0)
     sizes = {}
     for t in range(10):
-        r = runner.step(f.points, f.pose, int(1e9 + t * 1e8), 'lidar')
+        r = runner.step(f.points, int(1e9 + t * 1e8), f.pose)
         sizes[t + 1] = r.memory_bytes
     assert sizes[2] == sizes[10] > 0
     assert runner.memory.num_samples <= runner.cfg.sampling.top_k
     runner.reset('test')
     assert runner.memory_bytes == 0
-    assert not runner.step(f.points, f.pose, int(3e9), 'lidar').used_memory
-    # a frame_id change or a time jump never fuses stale memory
-    assert not runner.step(f.points, f.pose, int(3.1e9), 'other').used_memory
-    assert not runner.step(f.points, f.pose, int(9e9), 'other').used_memory
+    assert not runner.step(f.points, int(3e9), f.pose).used_memory
+    # time going backwards or a missing pose never fuses the memory
+    assert not runner.step(f.points, int(2e9), f.pose).used_memory
+    assert not runner.step(f.points, int(2.1e9), None).used_memory
+    assert runner.memory is None and len(runner.sweeps) == 0
     dense = StreamingDetector(SUITDetector(small_config('dense')))
     for t in range(2):
-        d = dense.step(f.points, f.pose, int(1e9 + t * 1e8), 'lidar')
+        d = dense.step(f.points, int(1e9 + t * 1e8), f.pose)
     assert d.memory_bytes > sizes[10]
 
 

@@ -5,6 +5,10 @@ about z, scaling) of the LiDAR frame. Points and GT boxes become ``A p``; yaw tu
 rotation (and changes sign under the flip); sizes and velocities scale with ``s``; each pose
 becomes ``T' = (R R_aug^T, s t)`` so that the ego transform between any two frames of the clip is
 ``A T_rel A^-1``: static objects still map onto each other through the augmented poses.
+
+The flip is off by default: with box-shaped actors the side of the road a car drives on is the
+only front/back cue, and a mirror erases it. Intensity dropout (the whole clip without
+intensity, as from a driver that publishes none) teaches the model to work from geometry alone.
 """
 from __future__ import annotations
 
@@ -23,6 +27,7 @@ class Augmentation:
     flip: bool
     angle: float
     scale: float
+    drop_intensity: bool = False
 
     @property
     def matrix(self) -> NDArray[np.float64]:
@@ -35,10 +40,12 @@ class Augmentation:
 
 
 def draw(rng: np.random.Generator, max_angle: float = np.pi / 4,
-         scale_range: tuple[float, float] = (0.95, 1.05)) -> Augmentation:
-    """A random augmentation (flip with probability 0.5)."""
-    return Augmentation(bool(rng.random() < 0.5), float(rng.uniform(-max_angle, max_angle)),
-                        float(rng.uniform(*scale_range)))
+         scale_range: tuple[float, float] = (0.95, 1.05), flip_probability: float = 0.0,
+         intensity_dropout: float = 0.0) -> Augmentation:
+    """A random augmentation."""
+    return Augmentation(bool(rng.random() < flip_probability),
+                        float(rng.uniform(-max_angle, max_angle)),
+                        float(rng.uniform(*scale_range)), bool(rng.random() < intensity_dropout))
 
 
 def apply(frame: Frame, aug: Augmentation) -> Frame:
@@ -47,6 +54,8 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
     s = aug.scale
     pts = frame.points.copy()
     pts[:, :3] = (pts[:, :3].astype(np.float64) @ R.T * s).astype(np.float32)
+    if aug.drop_intensity:
+        pts[:, 3] = 0.0
     pose = frame.pose.copy()
     pose[:3, :3] = frame.pose[:3, :3] @ R.T
     pose[:3, 3] = frame.pose[:3, 3] * s

@@ -141,7 +141,7 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
                   if g is not None else None)
             yield Frame(pts, buf.lookup(stamp) @ extr, stamp, str(msg.header.frame_id), gt,
                         g.get('num_points') if g else None, g.get('instance_id') if g else None,
-                        str(path))
+                        str(path), extr.copy())
 
 
 def _transform_to_matrix(tr: Any) -> np.ndarray:

@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.errors import DatasetError
+from suit_ros.model.sweeps import Sweep, accumulate_sweeps
 from suit_ros.msg_adapters.odometry import quaternion_to_matrix
 from suit_ros.structures import Detections, Frame
 
@@ -114,7 +115,7 @@ class NuScenesReader:
         T_ref = self.sd_pose(ref)
         T_ref_inv = np.linalg.inv(T_ref)
         t_ref = ref['timestamp']
-        chunks = []
+        sweeps = []
         sd: dict[str, Any] | None = ref
         for _ in range(self.sweeps):
             if sd is None:
@@ -123,12 +124,12 @@ class NuScenesReader:
             near = (np.abs(pts[:, 0]) < self.min_distance) & (np.abs(pts[:, 1])
                                                                < self.min_distance)
             pts = pts[~near]
-            T = T_ref_inv @ self.sd_pose(sd)
-            xyz = pts[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
-            lag = np.full((len(pts), 1), (t_ref - sd['timestamp']) * 1e-6)
-            chunks.append(np.concatenate([xyz, pts[:, 3:4] / 255.0, lag], 1))
+            xyzi = np.concatenate([pts[:, :3], pts[:, 3:4] / 255.0], 1).astype(np.float32)
+            sweeps.append(Sweep(xyzi, self.sd_pose(sd), int(sd['timestamp']) * 1000))
             sd = self.t['sample_data'].get(sd['prev']) if sd['prev'] else None
-        points = np.concatenate(chunks).astype(np.float32)
+        # the keyframe's own LiDAR frame (identity extrinsic here); model_frame moves it to
+        # base_link with the LIDAR_TOP calibration kept in the Frame
+        points = accumulate_sweeps(sweeps, np.eye(4))
         boxes, vels, labels, nums, ids = [], [], [], [], []
         for ann in self.anns.get(sample_token, []):
             inst = self.t['instance'][ann['instance_token']]
@@ -149,8 +150,10 @@ class NuScenesReader:
             ids.append(len(ids))
         gt = Detections(np.asarray(boxes).reshape(-1, 7), np.asarray(vels).reshape(-1, 2),
                         np.ones(len(boxes)), np.asarray(labels, np.int64))
+        cal = self.t['calibrated_sensor'][ref['calibrated_sensor_token']]
         return Frame(points, T_ref, int(t_ref) * 1000, 'LIDAR_TOP', gt,
-                     np.asarray(nums, np.uint32), np.asarray(ids, np.uint32), sequence_id)
+                     np.asarray(nums, np.uint32), np.asarray(ids, np.uint32), sequence_id,
+                     _pose(cal['translation'], cal['rotation']))
 
     def box_velocity(self, ann: dict[str, Any], max_time_diff: float = 1.5
                      ) -> NDArray[np.float64]:

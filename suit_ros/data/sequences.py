@@ -3,9 +3,13 @@
 A dataset is a list of sequences, each a list of :class:`~suit_ros.structures.Frame` in time
 order. Training samples clips of 1-4 consecutive frames from them.
 
-The synthetic splits use disjoint seed ranges: ``train`` seeds 1000+, ``val`` seeds 9000+. The
-fixed validation set (used by every number in docs/results.md) is ``val`` seeds 9000..9003,
-preset ``val`` (40 frames each at 10 Hz, 32 beams).
+The synthetic splits use disjoint seed ranges: ``train`` seeds 1000+, ``val`` seeds 9000+,
+``heldout`` (a sensor no training drive uses) 9500+. Drive ``i`` of a split uses the sensor
+``SPLIT_SENSORS[split][i % len]``. The fixed validation set of docs/results.md is ``val`` seeds
+9000..9015 (16 drives of 40 frames at 10 Hz, four sensor models).
+
+Data sources yield *sensor frames* (one sweep, LiDAR frame); :class:`ClipSampler` turns them into
+*model frames* (accumulated sweeps in base_link) with :func:`suit_ros.model.sweeps.model_frame`.
 """
 from __future__ import annotations
 
@@ -19,42 +23,54 @@ import numpy as np
 
 from suit_ros.structures import Detections, Frame
 
-SPLIT_SEEDS = {'train': 1000, 'val': 9000, 'demo': 7}
-VAL_SEQUENCES = 4
+SPLIT_SEEDS = {'train': 1000, 'val': 9000, 'heldout': 9500, 'demo': 7}
+SPLIT_SENSORS: dict[str, tuple[str, ...]] = {
+    'train': ('sim32', 'hdl32e', 'sim32', 'vlp16', 'sim32', 'hdl64e', 'sim32', 'os1-64'),
+    'val': ('sim32', 'hdl32e', 'vlp16', 'hdl64e'),
+    'heldout': ('os1-128',),
+}
+VAL_SEQUENCES = 16
 
 
-def _cache_key(preset_name: str, seed: int, frames: int) -> str:
+def _cache_key(preset_name: str, sensor: str, seed: int, frames: int) -> str:
     from dataclasses import asdict
 
     from suit_ros.data.sim import preset
-    cfg = asdict(preset(preset_name, frames=frames))
-    blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 1}, sort_keys=True, default=str)
+    cfg = asdict(preset(preset_name, sensor=sensor, frames=frames))
+    blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 2}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
 def synthetic_sequence(preset_name: str, seed: int, frames: int,
-                       cache_dir: str | os.PathLike[str] | None = None) -> list[Frame]:
-    """One simulated drive as frames, optionally cached on disk (npz per drive)."""
+                       cache_dir: str | os.PathLike[str] | None = None,
+                       sensor: str = 'sim32') -> list[Frame]:
+    """One simulated drive as sensor frames, optionally cached on disk (npz per drive)."""
     from suit_ros.data.sim import preset, sim_frames
     path = None
     if cache_dir is not None:
-        path = Path(cache_dir) / f'{preset_name}-{seed}-{frames}-' \
-            f'{_cache_key(preset_name, seed, frames)}.npz'
+        path = Path(cache_dir) / f'{preset_name}-{sensor}-{seed}-{frames}-' \
+            f'{_cache_key(preset_name, sensor, seed, frames)}.npz'
         if path.is_file():
             return load_sequence(path)
-    out = list(sim_frames(preset(preset_name, frames=frames), seed))
+    out = list(sim_frames(preset(preset_name, sensor=sensor, frames=frames), seed))
     if path is not None:
         save_sequence(path, out)
     return out
 
 
+def split_drives(split: str, sequences: int) -> list[tuple[int, str]]:
+    """``(seed, sensor)`` of the first ``sequences`` drives of a split."""
+    sensors = SPLIT_SENSORS.get(split, ('sim32',))
+    return [(SPLIT_SEEDS[split] + i, sensors[i % len(sensors)]) for i in range(sequences)]
+
+
 def synthetic_split(split: str, sequences: int, frames: int,
                     cache_dir: str | os.PathLike[str] | None = None,
                     preset_name: str | None = None) -> list[list[Frame]]:
-    """The ``train`` or ``val`` split: ``sequences`` drives from the split's seed range."""
-    base = SPLIT_SEEDS[split]
-    name = preset_name or ('val' if split == 'val' else 'train')
-    return [synthetic_sequence(name, base + i, frames, cache_dir) for i in range(sequences)]
+    """A split (``train``, ``val``, ``heldout``): ``sequences`` drives (see module docstring)."""
+    name = preset_name or ('train' if split == 'train' else 'val')
+    return [synthetic_sequence(name, seed, frames, cache_dir, sensor)
+            for seed, sensor in split_drives(split, sequences)]
 
 
 def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
@@ -69,7 +85,8 @@ def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
                        f'{i}/num': (f.num_points if f.num_points is not None
                                     else np.zeros(len(gt), np.uint32)),
                        f'{i}/ids': (f.instance_ids if f.instance_ids is not None
-                                    else np.zeros(len(gt), np.uint32))})
+                                    else np.zeros(len(gt), np.uint32)),
+                       f'{i}/extrinsic': f.T_base_lidar})
     arrays['meta'] = np.frombuffer(json.dumps(
         {'n': len(frames), 'frame_id': frames[0].frame_id if frames else 'lidar',
          'sequence_id': frames[0].sequence_id if frames else ''}).encode(), np.uint8)
@@ -88,7 +105,7 @@ def load_sequence(path: Path) -> list[Frame]:
                             z[f'{i}/labels'])
             out.append(Frame(z[f'{i}/points'].astype(np.float32), z[f'{i}/pose'],
                              int(z[f'{i}/stamp']), meta['frame_id'], gt, z[f'{i}/num'],
-                             z[f'{i}/ids'], meta['sequence_id']))
+                             z[f'{i}/ids'], meta['sequence_id'], z[f'{i}/extrinsic']))
     return out
 
 
@@ -104,24 +121,31 @@ def training_view(frame: Frame, min_points: int = 1) -> Frame:
 
 
 class ClipSampler:
-    """Random clips of consecutive frames (length drawn from ``lengths``) from sequences."""
+    """Random clips of consecutive model frames (length drawn from ``lengths``).
+
+    :param sweeps: sweeps per model frame (the model config's ``sweeps``); a clip's first frame
+        still gets its previous sweeps when the sequence has them.
+    """
 
     def __init__(self, sequences: Sequence[Sequence[Frame]], lengths: Sequence[int],
-                 seed: int) -> None:
+                 seed: int, sweeps: int = 1) -> None:
         self.sequences = [s for s in sequences if len(s) >= max(lengths)]
         if not self.sequences:
             raise ValueError(f'no sequence has {max(lengths)} frames')
         self.lengths = list(lengths)
+        self.sweeps = sweeps
         self.rng = np.random.default_rng(seed)
 
     def batch(self, batch_size: int) -> list[list[Frame]]:
         """``batch_size`` clips of one common length."""
+        from suit_ros.model.sweeps import model_frame
         L = int(self.rng.choice(self.lengths))
         out = []
         for _ in range(batch_size):
             seq = self.sequences[int(self.rng.integers(len(self.sequences)))]
             start = int(self.rng.integers(len(seq) - L + 1))
-            out.append([training_view(f) for f in seq[start:start + L]])
+            out.append([training_view(model_frame(seq, t, self.sweeps))
+                        for t in range(start, start + L)])
         return out
 
 

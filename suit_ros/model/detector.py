@@ -54,7 +54,7 @@ class SUITDetector(nn.Module):
                        if cfg.temporal == 'suit' else None)
         self.head = CenterHead(C, len(cfg.class_names), self.grid, h.head_channels,
                                h.code_weights, h.loc_weight, h.min_overlap, h.min_radius,
-                               h.max_objects)
+                               h.max_objects, h.yaw_velocity_min_speed)
 
     @property
     def device(self) -> torch.device:
@@ -69,20 +69,22 @@ class SUITDetector(nn.Module):
         bev = self.pillars(torch.cat(rows, dim=0), len(points))
         return self.backbone(bev)
 
-    def usable(self, memory: Memory | None, stamps_ns: Sequence[int],
-               frame_ids: Sequence[str]) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
-        """Which frames of the batch may fuse the memory, and the time gaps (s)."""
+    @staticmethod
+    def usable(memory: Memory | None, stamps_ns: Sequence[int]
+               ) -> tuple[NDArray[np.bool_], NDArray[np.float64]]:
+        """Which frames of the batch may fuse the memory (time moved forward), and the gaps (s).
+
+        Staleness (a gap too long, a changed sensor) is the caller's rule: the pipeline resets
+        the memory (``max_gap_s``) before it gets here.
+        """
         B = len(stamps_ns)
         if memory is None:
             return np.zeros(B, bool), np.zeros(B)
         dt = (np.asarray(stamps_ns, np.int64) - np.asarray(memory.stamps_ns, np.int64)) * 1e-9
-        same = np.array([a == b for a, b in zip(frame_ids, memory.frame_ids)])
-        ok = same & (dt > 0) & (dt <= self.cfg.max_time_gap)
-        return ok, dt
+        return dt > 0, dt
 
     def past_term(self, memory: Memory | None, poses: NDArray[np.float64],
-                  stamps_ns: Sequence[int], frame_ids: Sequence[str]
-                  ) -> tuple[Tensor | None, dict[str, Tensor]]:
+                  stamps_ns: Sequence[int]) -> tuple[Tensor | None, dict[str, Tensor]]:
         """The W2-projected past features in the current grid, or None when nothing is fused.
 
         :return: the term ``(B, C, H, W)`` and aux outputs (``geo_logits``, ``sample_index``,
@@ -91,7 +93,7 @@ class SUITDetector(nn.Module):
         aux: dict[str, Tensor] = {}
         if self.fusion is None or memory is None:
             return None, aux
-        ok, dt = self.usable(memory, stamps_ns, frame_ids)
+        ok, dt = self.usable(memory, stamps_ns)
         if not ok.any():
             return None, aux
         B = len(stamps_ns)
@@ -106,8 +108,8 @@ class SUITDetector(nn.Module):
         bi = memory.batch_index[sel]
         feats, probs, mask = memory.features[sel], memory.probs[sel], memory.mask[sel]
         sub = SparseMemory(bi, memory.cell_xy[sel], feats, probs, mask, memory.boxes[sel],
-                           memory.velocities[sel], memory.stamps_ns, memory.frame_ids,
-                           memory.poses, memory.window)
+                           memory.velocities[sel], memory.stamps_ns, memory.poses,
+                           memory.window)
         positions = transform_sample_positions(sub, T_now_prev)
         dts = torch.from_numpy(dt).to(feats)[bi]                               # (M,)
         M = feats.shape[0]
@@ -134,14 +136,13 @@ class SUITDetector(nn.Module):
         return current if self.fusion is None else self.fusion(current, past)
 
     def sample_memory(self, fused: Tensor, preds: dict[str, Tensor],
-                      poses: NDArray[np.float64], stamps_ns: Sequence[int],
-                      frame_ids: Sequence[str]) -> Memory | None:
+                      poses: NDArray[np.float64], stamps_ns: Sequence[int]) -> Memory | None:
         """The state handed to the next frame (None for the single-frame model)."""
         poses = np.asarray(poses, np.float64).copy()
         if self.cfg.temporal == 'none':
             return None
         if self.cfg.temporal == 'dense':
-            return DenseMemory(fused, list(stamps_ns), list(frame_ids), poses)
+            return DenseMemory(fused, list(stamps_ns), poses)
         head = self.head
         samples = significant_sampling(
             preds['heatmap'], lambda b, c: head.decode_cells(preds, b, c), self.cfg.sampling,
@@ -150,8 +151,8 @@ class SUITDetector(nn.Module):
         prob = torch.sigmoid(preds['heatmap']).amax(dim=1)
         feats, probs = gather_window(fused, prob, samples.batch_index, cells, mask)
         return SparseMemory(samples.batch_index, self.grid.cell_to_xy(cells), feats, probs,
-                            mask, samples.boxes, samples.velocities, list(stamps_ns),
-                            list(frame_ids), poses, self.cfg.sampling.window)
+                            mask, samples.boxes, samples.velocities, list(stamps_ns), poses,
+                            self.cfg.sampling.window)
 
     # ------------------------------------------------------------------ training
     def forward(self, frames: Sequence[Sequence[Frame]]) -> dict[str, Tensor]:
@@ -178,9 +179,8 @@ class SUITDetector(nn.Module):
             points = [frame_points(f, device) for f in step]
             poses = np.stack([f.pose for f in step])
             stamps = [f.stamp_ns for f in step]
-            ids = [f.frame_id for f in step]
             current = self.encode(points)
-            past, aux = self.past_term(memory, poses, stamps, ids)
+            past, aux = self.past_term(memory, poses, stamps)
             fused = self.fuse(current, past)
             preds = self.head(fused)
             targets = self.head.build_targets(*gt_tensors(step, device))
@@ -190,7 +190,7 @@ class SUITDetector(nn.Module):
             if 'geo_logits' in aux and prev_gt is not None and isinstance(memory, SparseMemory):
                 totals['geo_loss'] = totals['geo_loss'] + self.geo_loss(memory, aux, prev_gt)
                 geo_terms += 1
-            memory = self.sample_memory(fused, preds, poses, stamps, ids)
+            memory = self.sample_memory(fused, preds, poses, stamps)
             prev_gt = step
         out = {k: v / (max(geo_terms, 1) if k == 'geo_loss' else T) for k, v in totals.items()}
         out['loss'] = (out['hm_loss'] + self.cfg.head.loc_weight * out['loc_loss']

@@ -63,8 +63,9 @@ class CenterHead(nn.Module):
                  head_channels: int = 32, code_weights: tuple[float, ...] = (
                      1, 1, 1, 1, 1, 1, 1, 1, 0.2, 0.2),
                  loc_weight: float = 0.25, min_overlap: float = 0.1, min_radius: int = 2,
-                 max_objects: int = 500) -> None:
+                 max_objects: int = 500, yaw_velocity_min_speed: float = 0.0) -> None:
         super().__init__()
+        self.yaw_velocity_min_speed = yaw_velocity_min_speed
         self.grid = grid
         self.num_classes = num_classes
         self.min_overlap = min_overlap
@@ -166,6 +167,11 @@ class CenterHead(nn.Module):
         y = (r.to(off.dtype) + off[:, 1]) * g.cell + g.point_range[1]
         dims = torch.exp(size.clamp(max=4.0))
         yaw = torch.atan2(rot[:, 0], rot[:, 1])
+        if self.yaw_velocity_min_speed > 0:   # a moving box faces where it goes
+            vx, vy = vel[:, 0], vel[:, 1]
+            backwards = ((torch.hypot(vx, vy) >= self.yaw_velocity_min_speed)
+                         & (torch.cos(yaw) * vx + torch.sin(yaw) * vy < 0))
+            yaw = torch.where(backwards, torch.remainder(yaw, 2 * math.pi) - math.pi, yaw)
         boxes = torch.stack([x, y, z[:, 0], dims[:, 0], dims[:, 1], dims[:, 2], yaw], dim=1)
         return boxes, vel
 

@@ -28,7 +28,7 @@ class SparseMemory:
     :param mask: ``(M, P)`` which window cells belong to the relaxed neighbourhood.
     :param boxes: ``(M, 7)`` box decoded at the sample's centre cell.
     :param velocities: ``(M, 2)`` velocity decoded at the sample's centre cell.
-    :param poses: ``(B, 4, 4)`` float64 ``T_odom_lidar`` of each frame.
+    :param poses: ``(B, 4, 4)`` float64 ``T_odom_base`` of each frame (the model frame's pose).
     """
 
     batch_index: Tensor
@@ -39,7 +39,6 @@ class SparseMemory:
     boxes: Tensor
     velocities: Tensor
     stamps_ns: list[int]
-    frame_ids: list[str]
     poses: NDArray[np.float64]
     window: int
 
@@ -50,18 +49,18 @@ class SparseMemory:
 
     @property
     def nbytes(self) -> int:
-        """Bytes held by the memory (tensors, poses, stamps; ids counted by their length)."""
+        """Bytes held by the memory (tensors, poses, stamps)."""
         tensors = (self.batch_index, self.cell_xy, self.features, self.probs, self.mask,
                    self.boxes, self.velocities)
         return (sum(t.numel() * t.element_size() for t in tensors) + self.poses.nbytes
-                + 8 * len(self.stamps_ns) + sum(len(f) for f in self.frame_ids))
+                + 8 * len(self.stamps_ns))
 
     def detach(self) -> SparseMemory:
         """Return a copy cut from the autograd graph (truncated backprop through time)."""
         return SparseMemory(self.batch_index, self.cell_xy.detach(), self.features.detach(),
                             self.probs.detach(), self.mask, self.boxes.detach(),
                             self.velocities.detach(), list(self.stamps_ns),
-                            list(self.frame_ids), self.poses.copy(), self.window)
+                            self.poses.copy(), self.window)
 
 
 @dataclass
@@ -70,7 +69,6 @@ class DenseMemory:
 
     features: Tensor
     stamps_ns: list[int]
-    frame_ids: list[str]
     poses: NDArray[np.float64]
 
     @property
@@ -83,7 +81,7 @@ class DenseMemory:
     def nbytes(self) -> int:
         """Bytes held by the memory."""
         return (self.features.numel() * self.features.element_size() + self.poses.nbytes
-                + 8 * len(self.stamps_ns) + sum(len(f) for f in self.frame_ids))
+                + 8 * len(self.stamps_ns))
 
 
 def ego_transforms(poses_now: NDArray[np.float64], poses_prev: NDArray[np.float64]

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 import torch
 
 from suit_ros.model.detector import Memory, SUITDetector
+from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.structures import Detections
 
 
@@ -20,14 +21,16 @@ from suit_ros.structures import Detections
 class StepResult:
     """What one frame produced.
 
-    :param timings: seconds per stage: ``pillars``, ``backbone``, ``fusion`` (GeoNet + fusion),
-        ``head_decode``, ``sampling``, ``total``.
+    :param model_points: points in the model input (all accumulated sweeps).
+    :param timings: seconds per stage: ``sweeps`` (accumulation), ``encode`` (pillars +
+        backbone), ``fusion`` (GeoNet + fusion), ``head_decode``, ``sampling``, ``total``.
     """
 
     detections: Detections
     memory_samples: int
     memory_bytes: int
     used_memory: bool
+    model_points: int = 0
     timings: dict[str, float] = field(default_factory=dict)
 
 
@@ -40,19 +43,25 @@ class StreamingDetector:
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
                  score_thresholds: list[float] | None = None,
-                 nms_iou_threshold: float | None = None, max_detections: int | None = None
-                 ) -> None:
+                 nms_iou_threshold: float | None = None, max_detections: int | None = None,
+                 candidates: int | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
         self.model = model.to(self.device).eval()
         self.cfg = model.cfg
         self.memory: Memory | None = None
+        self.sweeps = SweepBuffer(self.cfg.sweeps)
         self.last_reset_reason = 'start'
-        self.set_thresholds(score_thresholds, nms_iou_threshold, max_detections)
+        self.set_thresholds(score_thresholds, nms_iou_threshold, max_detections, candidates)
 
     def set_thresholds(self, score_thresholds: list[float] | None = None,
                        nms_iou_threshold: float | None = None,
-                       max_detections: int | None = None) -> None:
-        """Change the decoding thresholds (safe between frames)."""
+                       max_detections: int | None = None, candidates: int | None = None
+                       ) -> None:
+        """Change the decoding thresholds (safe between frames).
+
+        :param candidates: heatmap peaks kept before the score threshold and NMS (default: the
+            config's ``head.top_k``).
+        """
         K = len(self.cfg.class_names)
         thr = ([self.cfg.head.score_threshold] * K if score_thresholds is None
                else [float(v) for v in score_thresholds])
@@ -63,15 +72,21 @@ class StreamingDetector:
                                   else float(nms_iou_threshold))
         self.max_detections = (self.cfg.head.max_detections if max_detections is None
                                else int(max_detections))
+        self.candidates = self.cfg.head.top_k if candidates is None else int(candidates)
+        if self.candidates < 1:
+            raise ValueError(f'candidates must be >= 1, got {self.candidates}')
 
-    def reset(self, reason: str = 'reset') -> None:
-        """Forget the memory: the next frame runs single-frame."""
+    def reset(self, reason: str = 'reset', sweeps: bool = True) -> None:
+        """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps: the
+        next frame runs single-frame."""
         self.memory = None
+        if sweeps:
+            self.sweeps.clear()
         self.last_reset_reason = reason
 
     @property
     def memory_bytes(self) -> int:
-        """Bytes held by the temporal memory now."""
+        """Bytes held by the temporal feature memory now (the sweep buffer not included)."""
         return 0 if self.memory is None else self.memory.nbytes
 
     def _sync(self) -> float:
@@ -80,47 +95,52 @@ class StreamingDetector:
         return time.perf_counter()
 
     @torch.inference_mode()
-    def step(self, points: NDArray[np.float32], pose: NDArray[np.float64] | None,
-             stamp_ns: int, frame_id: str) -> StepResult:
-        """Detect in one frame.
+    def step(self, points: NDArray[np.float32], stamp_ns: int,
+             T_odom_base: NDArray[np.float64] | None,
+             T_base_lidar: NDArray[np.float64] | None = None) -> StepResult:
+        """Detect in one sweep.
 
-        :param points: ``(N, 4)`` x, y, z, intensity (0..1) or ``(N, 5)`` with time lag.
-        :param pose: ``T_odom_lidar`` at the stamp, or None: the frame runs single-frame and
-            the memory is reset (no way to move it without a pose).
+        :param points: ``(N, 4)`` x, y, z, intensity (0..1) (or ``(N, 5)`` with a time lag) in
+            the LiDAR frame.
+        :param T_odom_base: the vehicle pose at the stamp, or None: the frame runs single-frame
+            and the memory and sweep buffer are reset (no way to move them without a pose).
+        :param T_base_lidar: the LiDAR extrinsic (identity when None: points in base_link).
+        :return: detections in the LiDAR frame (the input cloud's frame).
         """
         m = self.model
         t0 = self._sync()
         pts = np.asarray(points, np.float32)
         if pts.ndim != 2 or pts.shape[1] not in (4, 5):
             raise ValueError(f'points must be (N, 4) or (N, 5), got {pts.shape}')
-        if pts.shape[1] == 4:
-            pts = np.concatenate([pts, np.zeros((len(pts), 1), np.float32)], axis=1)
-        tensor = torch.from_numpy(np.ascontiguousarray(pts)).to(self.device)
-        if pose is None and self.memory is not None:
+        T_bl = np.eye(4) if T_base_lidar is None else np.asarray(T_base_lidar, np.float64)
+        if T_odom_base is None and (self.memory is not None or len(self.sweeps)):
             self.reset('no pose')
-        rows = torch.cat([tensor.new_zeros((tensor.shape[0], 1)), tensor], dim=1)
-        bev = m.pillars(rows, 1)
+        T_ol = None if T_odom_base is None else np.asarray(T_odom_base, np.float64) @ T_bl
+        model_points = self.sweeps.push(pts, T_ol, stamp_ns, T_bl)
+        tensor = torch.from_numpy(model_points).to(self.device)
         t1 = self._sync()
-        current = m.backbone(bev)
+        current = m.encode([tensor])
         t2 = self._sync()
-        poses = np.asarray(pose if pose is not None else np.eye(4), np.float64)[None]
-        past, _ = m.past_term(self.memory, poses, [stamp_ns], [frame_id])
+        poses = np.asarray(T_odom_base if T_odom_base is not None else np.eye(4),
+                           np.float64)[None]
+        past, _ = m.past_term(self.memory, poses, [stamp_ns])
         used = past is not None
         fused = m.fuse(current, past)
         t3 = self._sync()
         preds = m.head(fused)
         h = self.cfg.head
         radius = torch.tensor(h.circle_nms_radius, device=self.device)
-        out = m.head.decode(preds, h.top_k, self.score_thresholds, h.nms,
+        out = m.head.decode(preds, self.candidates, self.score_thresholds, h.nms,
                             self.nms_iou_threshold, radius, self.max_detections)[0]
         t4 = self._sync()
-        self.memory = (m.sample_memory(fused, preds, poses, [stamp_ns], [frame_id])
-                       if pose is not None else None)
+        self.memory = (m.sample_memory(fused, preds, poses, [stamp_ns])
+                       if T_odom_base is not None else None)
         t5 = self._sync()
         det = Detections(out['boxes'].float().cpu().numpy(),
                          out['velocities'].float().cpu().numpy(),
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
-        timings = {'pillars': t1 - t0, 'backbone': t2 - t1, 'fusion': t3 - t2,
+        det = boxes_to_lidar(det, T_bl)
+        timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
                    'head_decode': t4 - t3, 'sampling': t5 - t4, 'total': t5 - t0}
         samples = 0 if self.memory is None else self.memory.num_samples
-        return StepResult(det, samples, self.memory_bytes, used, timings)
+        return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings)

@@ -30,6 +30,7 @@ class LidarConfig:
     motion_distortion: bool = False       # cast each column from the pose at its firing time
     extrinsic_xyz: tuple[float, float, float] = (0.9, 0.0, 1.8)
     extrinsic_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    intensity_max: float = 255.0          # the sensor's intensity convention: 0..intensity_max
 
     def beam_elevations(self) -> np.ndarray:
         """Beam elevation angles in radians, ascending; ring ``i`` is ``elevations[i]``."""
@@ -84,7 +85,42 @@ class SimConfig:
             raise ConfigError('max_range must be within 10..300 m')
         if not 0.0 <= lc.dropout < 1.0:
             raise ConfigError('dropout must be in [0, 1)')
+        if lc.intensity_max <= 0:
+            raise ConfigError('intensity_max must be > 0')
         return self
+
+
+def _hdl64e_elevations() -> tuple[float, ...]:
+    """HDL-64E S2: an upper block of 32 lasers from +2 deg down in 1/3 deg steps and a lower
+    block of 32 from -8.83 deg down in 1/2 deg steps (datasheet: +2 to -24.9 deg)."""
+    upper = [2.0 - k / 3.0 for k in range(32)]
+    lower = [-8.83 - 0.5 * k for k in range(32)]
+    return tuple(round(v, 4) for v in upper + lower)
+
+
+# Real sensors (beam tables and mounting heights; public datasheets, see docs/sensors.md).
+# Intensity conventions: Velodyne 0..255 calibrated reflectivity, KITTI reflectance 0..1,
+# Ouster's 8-bit reflectivity channel 0..255. Motion distortion on: real spinning sensors
+# report each column at its firing pose.
+SENSORS: dict[str, LidarConfig] = {
+    'sim32': LidarConfig(),
+    'hdl32e': LidarConfig(beams=32, fov_down=-30.67, fov_up=10.67, azimuth_resolution=0.16,
+                          range_noise=0.02, dropout=0.08, motion_distortion=True,
+                          extrinsic_xyz=(0.94, 0.0, 1.84), max_range=100.0),
+    'hdl64e': LidarConfig(elevations=_hdl64e_elevations(), azimuth_resolution=0.18,
+                          range_noise=0.02, dropout=0.06, motion_distortion=True,
+                          extrinsic_xyz=(0.76, 0.0, 1.73), intensity_max=1.0, max_range=120.0),
+    'vlp16': LidarConfig(beams=16, fov_down=-15.0, fov_up=15.0, azimuth_resolution=0.2,
+                         range_noise=0.03, dropout=0.05, motion_distortion=True,
+                         extrinsic_xyz=(0.8, 0.0, 1.6), max_range=100.0),
+    'os1-64': LidarConfig(beams=64, fov_down=-22.5, fov_up=22.5, azimuth_resolution=0.3515625,
+                          range_noise=0.03, dropout=0.05, motion_distortion=True,
+                          extrinsic_xyz=(0.8, 0.0, 1.8), max_range=120.0),
+    'os1-128': LidarConfig(beams=128, fov_down=-22.5, fov_up=22.5,
+                           azimuth_resolution=0.3515625, range_noise=0.03, dropout=0.05,
+                           motion_distortion=True, extrinsic_xyz=(0.8, 0.0, 1.8),
+                           max_range=120.0),
+}
 
 
 PRESETS: dict[str, SimConfig] = {
@@ -96,11 +132,18 @@ PRESETS: dict[str, SimConfig] = {
 }
 
 
-def preset(name: str, **overrides: object) -> SimConfig:
-    """A named preset (``demo``, ``train``, ``val``, ``test``) with optional field overrides."""
+def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:
+    """A named preset (``demo``, ``train``, ``val``, ``test``) with optional field overrides.
+
+    :param sensor: a real-sensor model from :data:`SENSORS` replacing the preset's LiDAR.
+    """
     if name not in PRESETS:
         raise ConfigError(f'unknown preset {name!r}; choose from {", ".join(PRESETS)}')
     cfg = PRESETS[name]
+    if sensor is not None:
+        if sensor not in SENSORS:
+            raise ConfigError(f'unknown sensor {sensor!r}; choose from {", ".join(SENSORS)}')
+        cfg = replace(cfg, lidar=SENSORS[sensor])
     lidar_keys = {k: v for k, v in overrides.items() if k in LidarConfig.__dataclass_fields__}
     other = {k: v for k, v in overrides.items() if k not in lidar_keys}
     if lidar_keys:

@@ -132,11 +132,11 @@ class Simulation:
                        np.where(surface < S, self.static_materials[np.clip(surface, 0, S - 1)],
                                 actor_mat[np.clip(surface - S, 0, len(self.actors) - 1)]))
         refl = REFLECTIVITY[mat]
-        inten = refl * (0.3 + 0.7 * image.cos[order_b, order_c]) * 255.0
+        inten = refl * (0.3 + 0.7 * image.cos[order_b, order_c]) * lc.intensity_max
         inten *= np.exp(-rr / 400.0) * (1.0 + rng.normal(0.0, 0.05, len(rr)))
         cloud = np.zeros(len(rr), POINT_DTYPE)
         cloud['x'], cloud['y'], cloud['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-        cloud['intensity'] = np.clip(inten, 0, 255)
+        cloud['intensity'] = np.clip(inten, 0, lc.intensity_max)
         cloud['ring'] = order_b
         cloud['time'] = order_c / C * period
         # ground truth at the stamp, in the LiDAR frame
@@ -217,16 +217,16 @@ def simulate(cfg: SimConfig, seed: int) -> Iterator[SimFrame]:
         yield sim.render(k)
 
 
-def to_frame(f: SimFrame, seed: int) -> Frame:
-    """A SimFrame as the model's Frame (intensity scaled to 0..1, time lag 0)."""
+def to_frame(f: SimFrame, seed: int, intensity_max: float = 255.0) -> Frame:
+    """A SimFrame as a sensor Frame (LiDAR frame, intensity scaled to 0..1, time lag 0)."""
     c = f.cloud
-    pts = np.stack([c['x'], c['y'], c['z'], c['intensity'] / 255.0,
+    pts = np.stack([c['x'], c['y'], c['z'], c['intensity'] / intensity_max,
                     np.zeros(len(c), np.float32)], 1).astype(np.float32)
     return Frame(pts, f.T_odom_lidar, f.stamp_ns, 'lidar', f.gt, f.num_points, f.instance_ids,
-                 f'sim-{seed}')
+                 f'sim-{seed}', f.T_base_lidar.copy())
 
 
 def sim_frames(cfg: SimConfig, seed: int) -> Iterator[Frame]:
-    """Yield model-ready frames of a seeded drive."""
+    """Yield the sensor frames of a seeded drive."""
     for f in simulate(cfg, seed):
-        yield to_frame(f, seed)
+        yield to_frame(f, seed, cfg.lidar.intensity_max)

@@ -1,0 +1,175 @@
+"""The fair benchmark: metrics by speed and visibility bucket, per-drive bootstrap intervals,
+and the car heading / velocity figures of the motion issue.
+
+Buckets follow nuScenes' attribute rule: a bucket's AP is computed against the GT in the bucket;
+a detection whose nearest same-class GT (within :data:`IGNORE_DIST` m) is outside the bucket is
+ignored (neither TP nor FP), and an unmatched detection counts as a false positive in every
+bucket, since it could belong to any.
+
+Intervals resample *drives* with replacement (frames of a drive are not independent) and
+recompute each metric on the resampled set; differences between two runs use the same resamples
+(paired), so an interval of a difference above 0 means the gain holds across drives.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from numpy.typing import NDArray
+
+from suit_ros.evaluate import ModelRun, evaluate
+from suit_ros.structures import Detections
+
+IGNORE_DIST = 2.0
+MOVING_SPEED = 1.0                 # m/s: GT faster than this is "moving"
+VISIBILITY = {'1-5': (1, 5), '6-20': (6, 20), '>20': (21, 1 << 31)}
+Bucket = Literal['all', 'moving', 'vis 1-5', 'vis 6-20', 'vis >20']
+BUCKETS: tuple[Bucket, ...] = ('all', 'moving', 'vis 1-5', 'vis 6-20', 'vis >20')
+
+
+def bucket_mask(gt: Detections, num_points: NDArray[np.uint32] | None,
+                bucket: Bucket) -> NDArray[np.bool_]:
+    """Which GT boxes of a frame are in ``bucket``."""
+    n = len(gt)
+    if bucket == 'all':
+        return np.ones(n, bool)
+    if bucket == 'moving':
+        return np.hypot(gt.velocities[:, 0], gt.velocities[:, 1]) > MOVING_SPEED
+    lo, hi = VISIBILITY[bucket.split(' ', 1)[1]]
+    pts = np.zeros(n, np.int64) if num_points is None else num_points.astype(np.int64)
+    return (pts >= lo) & (pts <= hi)
+
+
+def bucket_view(gt: Detections, det: Detections, num_points: NDArray[np.uint32] | None,
+                bucket: Bucket) -> tuple[Detections, Detections, NDArray[np.uint32] | None]:
+    """GT of the bucket, and the detections minus those that belong to GT outside it."""
+    keep = bucket_mask(gt, num_points, bucket)
+    if keep.all() or len(det) == 0:
+        return gt.select(keep), det, None if num_points is None else num_points[keep]
+    ignore = np.zeros(len(det), bool)
+    for label in np.unique(det.labels):
+        dm = np.nonzero(det.labels == label)[0]
+        gm = np.nonzero(gt.labels == label)[0]
+        if len(gm) == 0:
+            continue
+        d = np.hypot(det.boxes[dm, None, 0] - gt.boxes[None, gm, 0],
+                     det.boxes[dm, None, 1] - gt.boxes[None, gm, 1])
+        nearest = np.argmin(d, axis=1)
+        close = d[np.arange(len(dm)), nearest] < IGNORE_DIST
+        ignore[dm] = close & ~keep[gm[nearest]]
+    return (gt.select(keep), det.select(~ignore),
+            None if num_points is None else num_points[keep])
+
+
+def bucket_metrics(run: ModelRun, class_names: Sequence[str], frames: Sequence[int] | None = None
+                   ) -> dict[str, float]:
+    """mAP, NDS, the mTP errors and AP per bucket over the given frames (all when None)."""
+    idx = range(len(run.gt)) if frames is None else frames
+    gt = [run.gt[i] for i in idx]
+    det = [run.det[i] for i in idx]
+    npts = [run.num_points[i] for i in idx]
+    res = evaluate(gt, det, class_names, num_points=npts)
+    out = {'mAP': res.mean_ap, 'NDS': res.nds, **res.mean_tp}
+    out.update({f'AP {c}': v for c, v in res.class_ap.items()})
+    for bucket in BUCKETS[1:]:
+        views = [bucket_view(g, d, n, bucket) for g, d, n in zip(gt, det, npts)]
+        sub = evaluate([v[0] for v in views], [v[1] for v in views], class_names,
+                       num_points=[v[2] for v in views])
+        present = [c for c in class_names if sub.num_gt[c] > 0]
+        out[f'mAP {bucket}'] = (float(np.mean([sub.class_ap[c] for c in present]))
+                                if present else float('nan'))
+    out.update(car_motion(gt, det, list(class_names).index('car')
+                          if 'car' in class_names else 0))
+    return out
+
+
+def car_motion(gt: Sequence[Detections], det: Sequence[Detections], car: int,
+               min_score: float = 0.3, max_dist: float = 2.0) -> dict[str, float]:
+    """Car heading error over the full circle, flipped share (error > 135 deg), and velocity
+    error of moving cars, on detections with score >= ``min_score`` matched greedily within
+    ``max_dist`` m (BEV centre distance)."""
+    head, vel_moving, speed = [], [], []
+    for g, d in zip(gt, det):
+        gm = np.nonzero(g.labels == car)[0]
+        dm = np.nonzero((d.labels == car) & (d.scores >= min_score))[0]
+        dm = dm[np.argsort(-d.scores[dm], kind='stable')]
+        taken = np.zeros(len(gm), bool)
+        for j in dm:
+            if len(gm) == 0:
+                break
+            dist = np.hypot(g.boxes[gm, 0] - d.boxes[j, 0], g.boxes[gm, 1] - d.boxes[j, 1])
+            dist[taken] = np.inf
+            k = int(np.argmin(dist))
+            if dist[k] >= max_dist:
+                continue
+            taken[k] = True
+            err = (d.boxes[j, 6] - g.boxes[gm[k], 6] + np.pi) % (2 * np.pi) - np.pi
+            head.append(abs(err))
+            v = g.velocities[gm[k]]
+            if np.hypot(*v) > MOVING_SPEED:
+                vel_moving.append(float(np.hypot(*(d.velocities[j] - v))))
+                speed.append(float(np.hypot(*d.velocities[j])) / float(np.hypot(*v)))
+    h = np.asarray(head)
+    return {'car heading err': float(h.mean()) if len(h) else float('nan'),
+            'car flipped %': float(100 * (h > 0.75 * np.pi).mean()) if len(h) else float('nan'),
+            'moving car vel err': float(np.mean(vel_moving)) if vel_moving else float('nan'),
+            'moving car speed ratio': float(np.median(speed)) if speed else float('nan')}
+
+
+@dataclass
+class Interval:
+    """A point estimate with its bootstrap 95% interval."""
+
+    value: float
+    low: float
+    high: float
+
+    def fmt(self, digits: int = 3) -> str:
+        """``value [low, high]``."""
+        return f'{self.value:.{digits}f} [{self.low:.{digits}f}, {self.high:.{digits}f}]'
+
+
+def drive_frames(run: ModelRun) -> list[list[int]]:
+    """Frame indices of each drive of a run."""
+    drives: dict[int, list[int]] = {}
+    for i, d in enumerate(run.drive):
+        drives.setdefault(d, []).append(i)
+    return [drives[k] for k in sorted(drives)]
+
+
+def bootstrap(runs: dict[str, ModelRun], class_names: Sequence[str],
+              pairs: Sequence[tuple[str, str]] = (), resamples: int = 200, seed: int = 0,
+              metric: Callable[..., dict[str, float]] = bucket_metrics
+              ) -> tuple[dict[str, dict[str, Interval]], dict[str, dict[str, Interval]]]:
+    """Per-drive bootstrap of every metric of every run, and of paired differences ``a - b``.
+
+    All runs must cover the same drives in the same order.
+    :return: ``{run: {metric: Interval}}`` and ``{'a - b': {metric: Interval}}``.
+    """
+    names = list(runs)
+    drives = drive_frames(runs[names[0]])
+    point = {n: metric(runs[n], class_names) for n in names}
+    rng = np.random.default_rng(seed)
+    samples: dict[str, list[dict[str, float]]] = {n: [] for n in names}
+    for _ in range(resamples):
+        pick = rng.integers(0, len(drives), len(drives))
+        frames = [i for k in pick for i in drives[k]]
+        for n in names:
+            samples[n].append(metric(runs[n], class_names, frames))
+
+    def interval(values: list[float], value: float) -> Interval:
+        v = np.asarray(values, np.float64)
+        v = v[np.isfinite(v)]
+        if len(v) == 0:
+            return Interval(value, float('nan'), float('nan'))
+        return Interval(value, float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5)))
+
+    out = {n: {k: interval([s[k] for s in samples[n]], point[n][k]) for k in point[n]}
+           for n in names}
+    diffs = {f'{a} - {b}': {k: interval([sa[k] - sb[k] for sa, sb in
+                                         zip(samples[a], samples[b])],
+                                        point[a][k] - point[b][k]) for k in point[a]}
+             for a, b in pairs}
+    return out, diffs

@@ -1,0 +1,93 @@
+"""The fair benchmark: speed/visibility buckets, per-drive bootstrap intervals, car motion."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suit_ros.benchmark import bootstrap, bucket_mask, bucket_view, car_motion, drive_frames
+from suit_ros.evaluate import ModelRun
+from suit_ros.structures import Detections
+
+NAMES = ('car', 'truck', 'pedestrian', 'cyclist')
+
+
+def dets(rows, vel=None, scores=None, labels=None) -> Detections:
+    rows = np.asarray(rows, np.float64).reshape(-1, 7)
+    n = len(rows)
+    return Detections(rows, np.zeros((n, 2)) if vel is None else vel,
+                      np.ones(n) if scores is None else scores,
+                      np.zeros(n, np.int64) if labels is None else labels)
+
+
+GT = dets([[10, 0, 0, 4, 2, 1.5, 0], [20, 5, 0, 4, 2, 1.5, 0]],
+          vel=np.array([[5.0, 0.0], [0.0, 0.0]]))
+NUM = np.array([3, 40], np.uint32)
+
+
+def test_buckets_by_gt_speed_and_points():
+    assert bucket_mask(GT, NUM, 'moving').tolist() == [True, False]
+    assert bucket_mask(GT, NUM, 'vis 1-5').tolist() == [True, False]
+    assert bucket_mask(GT, NUM, 'vis 6-20').tolist() == [False, False]
+    assert bucket_mask(GT, NUM, 'vis >20').tolist() == [False, True]
+    assert bucket_mask(GT, NUM, 'all').all()
+
+
+def test_bucket_view_ignores_detections_of_other_buckets_and_keeps_false_positives():
+    det = dets([[10.3, 0, 0, 4, 2, 1.5, 0], [20.2, 5, 0, 4, 2, 1.5, 0],
+                [-30, 0, 0, 4, 2, 1.5, 0]], scores=np.array([0.9, 0.8, 0.7]))
+    g, d, n = bucket_view(GT, det, NUM, 'moving')
+    assert len(g) == 1 and g.boxes[0, 0] == 10
+    # the static car's detection is ignored, the unmatched one stays as a false positive
+    assert sorted(d.boxes[:, 0].tolist()) == [-30.0, pytest.approx(10.3)]
+    assert n is not None and n.tolist() == [3]
+    # a detection of another class near an out-of-bucket GT is not ignored
+    ped = dets([[20.2, 5, 0, 0.7, 0.7, 1.7, 0]], labels=np.array([2]))
+    assert len(bucket_view(GT, ped, NUM, 'moving')[1]) == 1
+
+
+def make_run(good: bool, drives: int = 4, frames: int = 3, seed: int = 0) -> ModelRun:
+    rng = np.random.default_rng(seed)
+    run = ModelRun([], [], [], [], [], {})
+    for d in range(drives):
+        for _ in range(frames):
+            x = rng.uniform(5, 30, 3)
+            g = dets(np.c_[x, np.zeros((3, 2)), np.tile([4, 2, 1.5, 0], (3, 1))],
+                     vel=np.c_[np.full(3, 4.0), np.zeros(3)])
+            run.gt.append(g)
+            if good:
+                run.det.append(dets(g.boxes + [0.1, 0, 0, 0, 0, 0, 0], vel=g.velocities,
+                                    scores=np.full(3, 0.9)))
+            else:   # boxes 3 m off: all false positives
+                run.det.append(dets(g.boxes + [3.0, 0, 0, 0, 0, 0, 0], scores=np.full(3, 0.9)))
+            run.num_points.append(np.full(3, 30, np.uint32))
+            run.drive.append(d)
+    return run
+
+
+def test_bootstrap_intervals_and_paired_differences():
+    runs = {'good': make_run(True), 'bad': make_run(False), 'same': make_run(True)}
+    assert [len(f) for f in drive_frames(runs['good'])] == [3, 3, 3, 3]
+    stats, diffs = bootstrap(runs, NAMES, [('good', 'bad'), ('good', 'same')], resamples=30)
+    assert stats['good']['mAP'].value > 0.9 and stats['bad']['mAP'].value < 0.5
+    iv = stats['good']['mAP']
+    assert iv.low <= iv.value <= iv.high
+    assert diffs['good - bad']['mAP'].low > 0.3               # holds in every resample
+    same = diffs['good - same']['mAP']
+    assert same.value == same.low == same.high == 0.0         # identical runs: exactly zero
+    assert stats['good']['moving car vel err'].value == pytest.approx(0.0, abs=1e-6)
+    assert '[' in stats['good']['mAP'].fmt()
+
+
+def test_car_motion_heading_and_flips():
+    g = dets([[10, 0, 0, 4, 2, 1.5, 0.5], [20, 0, 0, 4, 2, 1.5, 0.0]],
+             vel=np.array([[6.0, 0.0], [0.0, 0.0]]))
+    d = dets([[10.2, 0, 0, 4, 2, 1.5, 0.5 + np.pi], [20.1, 0, 0, 4, 2, 1.5, 0.1]],
+             vel=np.array([[5.0, 0.0], [0.0, 0.0]]), scores=np.array([0.9, 0.8]))
+    m = car_motion([g], [d], 0)
+    assert m['car flipped %'] == pytest.approx(50.0)
+    assert m['car heading err'] == pytest.approx((np.pi + 0.1) / 2, abs=1e-5)
+    assert m['moving car vel err'] == pytest.approx(1.0, abs=1e-6)
+    assert m['moving car speed ratio'] == pytest.approx(5 / 6, abs=1e-6)
+    # low-score detections and far ones are not matched
+    low = dets([[10.2, 0, 0, 4, 2, 1.5, 0.5]], scores=np.array([0.1]))
+    assert np.isnan(car_motion([g], [low], 0)['car heading err'])

@@ -1,0 +1,115 @@
+"""Multi-sweep accumulation: poses, extrinsic, time lags, the bounded buffer and its resets."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suit_ros.model.sweeps import Sweep, SweepBuffer, accumulate_sweeps, model_frame
+from suit_ros.ops.geometry import pose_from_xyz_rpy, se3_inverse
+from suit_ros.structures import Detections, Frame
+
+T_BL = pose_from_xyz_rpy((0.9, 0.1, 1.8), (0.0, 0.02, 0.01))
+FAR = np.array([250_000.0, -130_000.0, 40.0])         # odometry kilometres from its origin
+WORLD = FAR + np.array([[12.0, -3.0, 0.4], [30.0, 8.0, 1.1], [-5.0, 2.0, 0.0]])
+
+
+def base_pose(t: float) -> np.ndarray:
+    T = pose_from_xyz_rpy(FAR + [8.0 * t, 1.5 * t, 0.0], (0.0, 0.0, 0.3 + 0.2 * t))
+    return T
+
+
+def sweep_at(t: float, intensity: float = 0.5) -> Sweep:
+    """The static world points seen by the LiDAR at time t (LiDAR frame)."""
+    T_ol = base_pose(t) @ T_BL
+    local = (se3_inverse(T_ol) @ np.c_[WORLD, np.ones(len(WORLD))].T).T[:, :3]
+    pts = np.c_[local, np.full(len(local), intensity)].astype(np.float32)
+    return Sweep(pts, T_ol, int(1e9 + t * 1e9))
+
+
+def expected_in_base(t: float) -> np.ndarray:
+    return (se3_inverse(base_pose(t)) @ np.c_[WORLD, np.ones(len(WORLD))].T).T[:, :3]
+
+
+def test_static_points_coincide_across_sweeps_in_base_link():
+    sweeps = [sweep_at(0.2), sweep_at(0.1), sweep_at(0.0)]
+    out = accumulate_sweeps(sweeps, T_BL)
+    assert out.shape == (9, 5) and out.dtype == np.float32
+    want = expected_in_base(0.2)
+    for k in range(3):   # each sweep lands on the same base_link coordinates (float64 poses)
+        np.testing.assert_allclose(out[3 * k:3 * k + 3, :3], want, atol=2e-3)
+    np.testing.assert_allclose(out[:, 4], np.repeat([0.0, 0.1, 0.2], 3), atol=1e-6)
+    np.testing.assert_allclose(out[:, 3], 0.5)
+
+
+def test_existing_time_lag_is_kept_and_added():
+    s = sweep_at(0.1)
+    five = Sweep(np.c_[s.points, np.full(3, 0.05, np.float32)], s.T_odom_lidar, s.stamp_ns)
+    out = accumulate_sweeps([sweep_at(0.2), five], T_BL)
+    np.testing.assert_allclose(out[3:, 4], 0.15, atol=1e-6)
+
+
+def test_bad_shapes_raise():
+    with pytest.raises(ValueError, match='at least'):
+        accumulate_sweeps([], T_BL)
+    with pytest.raises(ValueError, match=r'\(N, 4\)'):
+        accumulate_sweeps([Sweep(np.zeros((3, 3), np.float32), np.eye(4), 0)], T_BL)
+
+
+def test_buffer_is_bounded_and_resets():
+    buf = SweepBuffer(3, max_age_s=0.5)
+    sizes = []
+    for k in range(6):
+        s = sweep_at(0.1 * k)
+        sizes.append(len(buf.push(s.points, s.T_odom_lidar, s.stamp_ns, T_BL)))
+    assert sizes == [3, 6, 9, 9, 9, 9] and len(buf) == 2
+    assert buf.nbytes == 2 * sweep_at(0).points.nbytes
+    # no pose: past sweeps cannot be placed; the buffer is cleared
+    s = sweep_at(0.6)
+    assert len(buf.push(s.points, None, s.stamp_ns, T_BL)) == 3 and len(buf) == 0
+    # time going backwards (a looped bag) starts over
+    for k in (7, 8):
+        s = sweep_at(0.1 * k)
+        buf.push(s.points, s.T_odom_lidar, s.stamp_ns, T_BL)
+    s = sweep_at(0.1)
+    assert len(buf.push(s.points, s.T_odom_lidar, s.stamp_ns, T_BL)) == 3
+    # a gap longer than max_age_s drops the old sweeps
+    s = sweep_at(2.0)
+    assert len(buf.push(s.points, s.T_odom_lidar, s.stamp_ns, T_BL)) == 3
+    buf.clear()
+    assert len(buf) == 0
+    with pytest.raises(ValueError):
+        SweepBuffer(0)
+
+
+def test_single_sweep_buffer_keeps_nothing():
+    buf = SweepBuffer(1)
+    for k in range(3):
+        s = sweep_at(0.1 * k)
+        out = buf.push(s.points, s.T_odom_lidar, s.stamp_ns, T_BL)
+        assert len(out) == 3 and len(buf) == 0
+        np.testing.assert_allclose(out[:, :3], expected_in_base(0.1 * k), atol=2e-3)
+
+
+def test_model_frame_equals_the_streaming_buffer():
+    """Training data (model_frame) and the node (SweepBuffer) build identical inputs."""
+    frames = []
+    for k in range(5):
+        s = sweep_at(0.1 * k, intensity=0.1 * k)
+        gt = Detections(np.array([[5.0, 1.0, -1.0, 4.0, 2.0, 1.5, 0.3]]), np.array([[3.0, 0.0]]),
+                        np.ones(1), np.zeros(1, np.int64))
+        frames.append(Frame(np.c_[s.points, np.zeros(3, np.float32)], s.T_odom_lidar,
+                            s.stamp_ns, 'lidar', gt, T_base_lidar=T_BL))
+    buf = SweepBuffer(3)
+    for t, f in enumerate(frames):
+        live = buf.push(f.points[:, :4], f.pose, f.stamp_ns, f.T_base_lidar)
+        mf = model_frame(frames, t, 3)
+        np.testing.assert_array_equal(mf.points, live)
+        np.testing.assert_allclose(mf.pose, f.pose @ se3_inverse(T_BL))
+        np.testing.assert_allclose(mf.T_base_lidar, np.eye(4))
+    # GT moves into base_link with the extrinsic (centre, yaw, velocity rotated)
+    gt = mf.gt
+    assert gt is not None
+    want = T_BL @ np.r_[5.0, 1.0, -1.0, 1.0]
+    np.testing.assert_allclose(gt.boxes[0, :3], want[:3], atol=1e-5)
+    assert gt.boxes[0, 6] == pytest.approx(0.3 + 0.01, abs=1e-4)
+    assert np.hypot(*gt.velocities[0]) == pytest.approx(3.0, abs=1e-3)   # pitch 0.02
