@@ -1,4 +1,5 @@
-"""Sequence datasets for training and evaluation: synthetic drives (cached), bags, nuScenes.
+"""Sequence datasets for training and evaluation: synthetic drives (cached), bags, nuScenes,
+KITTI.
 
 A dataset is a list of sequences, each a list of :class:`~suit_ros.structures.Frame` in time
 order. Training samples clips of 1-4 consecutive frames from them.
@@ -142,3 +143,16 @@ def nuscenes_sequences(root: str | os.PathLike[str], version: str = 'v1.0-mini',
     from suit_ros.data.nuscenes import NuScenesReader
     reader = NuScenesReader(root, version, sweeps)
     return [list(reader.sequence(s)) for s in reader.scenes()]
+
+
+def kitti_sequences(root: str | os.PathLike[str], intensity_scale: float = 1.0,
+                    fov_points_only: bool = False, ids: Sequence[str] | None = None
+                    ) -> list[Sequence[Frame]]:
+    """KITTI-format data as sequences read lazily from disk: one per tracking sequence, or
+    one single-frame sequence per frame of the object layout (see :mod:`suit_ros.data.kitti`).
+
+    :param fov_points_only: keep only the points the front camera sees (for training).
+    """
+    from suit_ros.data.kitti import KittiReader
+    reader = KittiReader(root, intensity_scale, fov_points_only=fov_points_only, ids=ids)
+    return list(reader.sequences())
