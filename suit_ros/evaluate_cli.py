@@ -25,6 +25,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='KITTI camera image width (px) that bounds the scored view')
     parser.add_argument('--kitti-intensity-scale', type=float, default=1.0,
                         help='divide the .bin reflectance by this (1: KITTI, 0..1)')
+    parser.add_argument('--kitti-ids', metavar='FILE',
+                        help='evaluate only the frame (object) or sequence (tracking) ids listed '
+                        'in FILE, one a line (e.g. ImageSets/val.txt); default: all')
     parser.add_argument('--det-topic', default='/detector/detections')
     parser.add_argument('--gt-topic', default='/gt/objects')
     parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
@@ -68,7 +71,14 @@ def _from_kitti(args: argparse.Namespace) -> Any:
     from suit_ros.data.sequences import kitti_sequences
     from suit_ros.evaluate import run_model
     model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
-    seqs = kitti_sequences(args.kitti, args.kitti_intensity_scale)
+    ids = None
+    if args.kitti_ids:
+        try:
+            with open(args.kitti_ids, encoding='utf-8') as f:
+                ids = [line.strip() for line in f if line.strip()]
+        except OSError as exc:
+            raise DatasetError(f'cannot read --kitti-ids {args.kitti_ids}: {exc}') from exc
+    seqs = kitti_sequences(args.kitti, args.kitti_intensity_scale, ids=ids)
     run = camera_fov_run(run_model(model, seqs, history=args.history), seqs, args.image_width)
     result = run.evaluate(model.cfg.class_names)
     result.extra['scored_region'] = f'camera field of view ({args.image_width:g} px)'

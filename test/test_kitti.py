@@ -367,6 +367,12 @@ def test_eval_cli_on_kitti_format(object_root, tmp_path, capsys):
     assert 'mAP' in out
     summary = json.loads((tmp_path / 'm.json').read_text())['summary']
     assert summary['frames'] == 2 and 'camera field of view' in summary['scored_region']
+    (tmp_path / 'val.txt').write_text('000001\n')
+    assert main(['eval', '--kitti', str(object_root), '--kitti-ids', str(tmp_path / 'val.txt'),
+                 '--json-out', str(tmp_path / 'v.json')]) == 0
+    assert json.loads((tmp_path / 'v.json').read_text())['summary']['frames'] == 1
     assert main(['eval', '--kitti', str(tmp_path / 'missing')]) == 1
     err = capsys.readouterr().err
     assert 'suit-ros eval: error:' in err and 'does not exist' in err
+    assert main(['eval', '--kitti', str(object_root), '--kitti-ids', 'nope.txt']) == 1
+    assert 'cannot read --kitti-ids nope.txt' in capsys.readouterr().err
