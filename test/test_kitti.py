@@ -22,7 +22,7 @@ from suit_ros.data.kitti import (
     read_calib,
     read_velodyne,
 )
-from suit_ros.data.sequences import kitti_sequences
+from suit_ros.data.sequences import ClipSampler, kitti_sequences
 from suit_ros.errors import DatasetError
 from suit_ros.evaluate import ModelRun
 from suit_ros.structures import Detections
@@ -206,6 +206,8 @@ def test_num_points_classes_points_and_extrinsic(object_root):
     assert in_camera_fov(small.points[:, :3], calib).all()
     assert 0 < len(small.points) < len(frame.points)
     assert small.num_points is not None and small.num_points.tolist() == [o[6] for o in kept]
+    clips = ClipSampler(kitti_sequences(object_root), [1], 0).batch(3)
+    assert all(len(c) == 1 and c[0].sequence_id in ('000000', '000001') for c in clips)
 
 
 def test_camera_fov_against_projection(object_root):
@@ -301,6 +303,10 @@ def test_tracking_layout_poses_and_velocities(tmp_path):
     assert ped.gt is not None and ped.instance_ids is not None
     assert sorted(ped.instance_ids.tolist()) == [3, 5]
     np.testing.assert_array_equal(ped.gt.velocities[ped.instance_ids.tolist().index(5)], 0)
+    # training samples clips straight from the lazily read sequences
+    clips = ClipSampler(kitti_sequences(tmp_path, fov_points_only=True), [3], 0).batch(2)
+    assert [len(c) for c in clips] == [3, 3]
+    assert all(c[1].stamp_ns - c[0].stamp_ns == 100_000_000 for c in clips)
     # oxts_poses on its own: translations from the Mercator projection
     calib = read_calib(tmp_path / 'training/calib/0000.txt')
     assert calib.Tr_imu_to_velo is not None

@@ -15,10 +15,14 @@ import hashlib
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from suit_ros.structures import Detections, Frame
+
+if TYPE_CHECKING:
+    from suit_ros.data.kitti import KittiSequence
 
 SPLIT_SEEDS = {'train': 1000, 'val': 9000, 'demo': 7}
 VAL_SEQUENCES = 4
@@ -147,7 +151,7 @@ def nuscenes_sequences(root: str | os.PathLike[str], version: str = 'v1.0-mini',
 
 def kitti_sequences(root: str | os.PathLike[str], intensity_scale: float = 1.0,
                     fov_points_only: bool = False, ids: Sequence[str] | None = None
-                    ) -> list[Sequence[Frame]]:
+                    ) -> list[KittiSequence]:
     """KITTI-format data as sequences read lazily from disk: one per tracking sequence, or
     one single-frame sequence per frame of the object layout (see :mod:`suit_ros.data.kitti`).
 
@@ -155,4 +159,4 @@ def kitti_sequences(root: str | os.PathLike[str], intensity_scale: float = 1.0,
     """
     from suit_ros.data.kitti import KittiReader
     reader = KittiReader(root, intensity_scale, fov_points_only=fov_points_only, ids=ids)
-    return list(reader.sequences())
+    return reader.sequences()
