@@ -395,7 +395,7 @@ class KittiSequence(Sequence[Frame]):
             points = points[in_camera_fov(points[:, :3], self.calib, self.image_width)]
         boxes = self.boxes[k]
         gt = Detections(boxes.astype(np.float32), self.velocities[k].astype(np.float32),
-                        np.ones(len(boxes), np.float32), self.labels[k])
+                        np.ones(len(boxes), np.float32), self.labels[k].copy())
         return Frame(points, self.poses[k].copy(), self.stamps_ns[k], FRAME_ID, gt,
                      count_points_in_boxes(points[:, :3], boxes), self._instance_ids(k),
                      self.sequence_id, lidar_mounting())
@@ -443,6 +443,11 @@ class KittiReader:
         scans = sorted((self.root / 'velodyne').glob('*.bin'))
         if self.ids is not None:
             scans = [self.root / 'velodyne' / f'{i}.bin' for i in self.ids]
+            missing = [s.name for s in scans if not s.is_file()]
+            if missing:
+                raise DatasetError(f'{len(missing)} listed frame(s) have no scan in '
+                                   f'{self.root / "velodyne"} (first: {missing[0]}); check the '
+                                   'id list against ROOT')
         if not scans:
             raise DatasetError(f'{self.root / "velodyne"} holds no .bin scan')
         out = []
