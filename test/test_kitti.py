@@ -354,7 +354,7 @@ def test_malformed_inputs_say_what_is_wrong(tmp_path, object_root):
     fails('reflectance up to .* intensity_scale=255')
     frame = KittiReader(root, intensity_scale=255.0).sequences()[0][0]
     assert 0.5 < frame.points[:, 3].max() <= 1.0
-    with pytest.raises(DatasetError, match='no scan in .* first: 000009.bin'):
+    with pytest.raises(DatasetError, match=r'no scan in .* \(first: 000009.bin\)'):
         KittiReader(root, ids=['000000', '000009']).sequences()
     scan.unlink()
     with pytest.raises(DatasetError, match='missing LiDAR file'):
