@@ -1,5 +1,5 @@
 """``suit-ros eval``: nuScenes-style metrics for a bag with detections and GT, or for a model
-on a synthetic split."""
+on a synthetic split, nuScenes-format or KITTI-format data."""
 from __future__ import annotations
 
 import argparse
@@ -16,8 +16,18 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                      help='run --checkpoint over a synthetic split')
     src.add_argument('--nuscenes', metavar='ROOT',
                      help='run --checkpoint over nuScenes-format data (tables + samples/sweeps)')
+    src.add_argument('--kitti', metavar='ROOT',
+                     help='run --checkpoint over KITTI-format data (velodyne/ label_2/ calib/, '
+                     'or the tracking layout), scoring only the camera field of view')
     parser.add_argument('--version', default='v1.0-mini', help='nuScenes table version')
     parser.add_argument('--sweeps', type=int, default=10, help='nuScenes sweeps per keyframe')
+    parser.add_argument('--image-width', type=float, default=1242.0,
+                        help='KITTI camera image width (px) that bounds the scored view')
+    parser.add_argument('--kitti-intensity-scale', type=float, default=1.0,
+                        help='divide the .bin reflectance by this (1: KITTI, 0..1)')
+    parser.add_argument('--kitti-ids', metavar='FILE',
+                        help='evaluate only the frame (object) or sequence (tracking) ids listed '
+                        'in FILE, one a line (e.g. ImageSets/val.txt); default: all')
     parser.add_argument('--det-topic', default='/detector/detections')
     parser.add_argument('--gt-topic', default='/gt/objects')
     parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
@@ -55,10 +65,32 @@ def _from_bag(args: argparse.Namespace) -> Any:
                     num_points=[gt[s].get('num_points') for s in stamps])
 
 
+def _from_kitti(args: argparse.Namespace) -> Any:
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.data.kitti import camera_fov_run
+    from suit_ros.data.sequences import kitti_sequences
+    from suit_ros.evaluate import run_model
+    model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
+    ids = None
+    if args.kitti_ids:
+        try:
+            with open(args.kitti_ids, encoding='utf-8') as f:
+                ids = [line.strip() for line in f if line.strip()]
+        except OSError as exc:
+            raise DatasetError(f'cannot read --kitti-ids {args.kitti_ids}: {exc}') from exc
+    seqs = kitti_sequences(args.kitti, args.kitti_intensity_scale, ids=ids)
+    run = camera_fov_run(run_model(model, seqs, history=args.history), seqs, args.image_width)
+    result = run.evaluate(model.cfg.class_names)
+    result.extra['scored_region'] = f'camera field of view ({args.image_width:g} px)'
+    return result
+
+
 def run(args: argparse.Namespace) -> int:
     """Evaluate and report."""
     if args.bag:
         result = _from_bag(args)
+    elif args.kitti:
+        result = _from_kitti(args)
     else:
         from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
         from suit_ros.data.sequences import SPLIT_SEEDS, VAL_SEQUENCES, synthetic_sequence

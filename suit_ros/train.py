@@ -26,8 +26,8 @@ class TrainConfig:
     """A training run (``params/train_*.yaml``)."""
 
     model_config: str = 'params/model_cpu.yaml'
-    dataset: str = 'synthetic'       # synthetic | bags | nuscenes
-    dataset_paths: tuple[str, ...] = ()   # bags, or the nuScenes root (first entry)
+    dataset: str = 'synthetic'       # synthetic | bags | nuscenes | kitti
+    dataset_paths: tuple[str, ...] = ()   # bags, or the nuScenes / KITTI root (first entry)
     nuscenes_version: str = 'v1.0-mini'
     temporal: str = ''               # override the model config's temporal mode
     init_from: str = ''              # stage 2: initialise shared weights from this checkpoint
@@ -140,8 +140,16 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         if not tc.dataset_paths:
             raise ConfigError('dataset nuscenes needs dataset_paths: [ROOT]')
         data = nuscenes_sequences(tc.dataset_paths[0], tc.nuscenes_version)
+    elif tc.dataset == 'kitti':
+        from suit_ros.data.sequences import kitti_sequences
+        if not tc.dataset_paths:
+            raise ConfigError('dataset kitti needs dataset_paths: [ROOT]')
+        # read lazily (a KITTI split does not fit in memory); ClipSampler takes any Sequence
+        data = kitti_sequences(  # type: ignore[assignment]
+            tc.dataset_paths[0], fov_points_only=True)
     else:
-        raise ConfigError(f'dataset must be synthetic, bags or nuscenes, not {tc.dataset!r}')
+        raise ConfigError('dataset must be synthetic, bags, nuscenes or kitti, not '
+                          f'{tc.dataset!r}')
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank,

@@ -1,4 +1,5 @@
-"""Sequence datasets for training and evaluation: synthetic drives (cached), bags, nuScenes.
+"""Sequence datasets for training and evaluation: synthetic drives (cached), bags, nuScenes,
+KITTI.
 
 A dataset is a list of sequences, each a list of :class:`~suit_ros.structures.Frame` in time
 order. Training samples clips of 1-4 consecutive frames from them.
@@ -18,10 +19,14 @@ import hashlib
 import json
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from suit_ros.structures import Detections, Frame
+
+if TYPE_CHECKING:
+    from suit_ros.data.kitti import KittiSequence
 
 SPLIT_SEEDS = {'train': 1000, 'val': 9000, 'heldout': 9500, 'demo': 7}
 SPLIT_SENSORS: dict[str, tuple[str, ...]] = {
@@ -166,3 +171,16 @@ def nuscenes_sequences(root: str | os.PathLike[str], version: str = 'v1.0-mini',
     from suit_ros.data.nuscenes import NuScenesReader
     reader = NuScenesReader(root, version, sweeps)
     return [list(reader.sequence(s)) for s in reader.scenes()]
+
+
+def kitti_sequences(root: str | os.PathLike[str], intensity_scale: float = 1.0,
+                    fov_points_only: bool = False, ids: Sequence[str] | None = None
+                    ) -> list[KittiSequence]:
+    """KITTI-format data as sequences read lazily from disk: one per tracking sequence, or
+    one single-frame sequence per frame of the object layout (see :mod:`suit_ros.data.kitti`).
+
+    :param fov_points_only: keep only the points the front camera sees (for training).
+    """
+    from suit_ros.data.kitti import KittiReader
+    reader = KittiReader(root, intensity_scale, fov_points_only=fov_points_only, ids=ids)
+    return reader.sequences()
