@@ -7,15 +7,18 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, fields, is_dataclass
 import os
 import typing
-from typing import Any
+from typing import Any, Literal, get_args
 
 import yaml
 
 from suit_ros import CLASS_NAMES
 from suit_ros.errors import ConfigError
 
-TEMPORAL_MODES = ('none', 'dense', 'sparse', 'sparse_velocity', 'suit')
-RELAXATIONS = ('square', 'circle', 'rectangle')
+TemporalMode = Literal['none', 'dense', 'sparse', 'sparse_velocity', 'suit']
+Relaxation = Literal['square', 'circle', 'rectangle']
+NmsKind = Literal['rotated', 'circle']
+TEMPORAL_MODES: tuple[str, ...] = get_args(TemporalMode)
+RELAXATIONS: tuple[str, ...] = get_args(Relaxation)
 
 
 @dataclass(frozen=True)
@@ -52,7 +55,7 @@ class HeadConfig:
     max_objects: int = 500
     top_k: int = 500              # heatmap peaks kept before the score threshold and NMS
     score_threshold: float = 0.1
-    nms: str = 'rotated'          # 'rotated' (BEV IoU) or 'circle'
+    nms: NmsKind = 'rotated'      # 'rotated' (BEV IoU) or 'circle'
     nms_iou_threshold: float = 0.2
     circle_nms_radius: tuple[float, ...] = (2.0, 3.0, 0.5, 0.75)   # metres, per class
     max_detections: int = 200
@@ -66,7 +69,7 @@ class SamplingConfig:
     alpha: float = 0.1            # coarse: keep cells with max-class score >= alpha
     top_k: int = 200              # K
     nms_iou_threshold: float = 0.1   # refined: suppress overlapping decoded boxes
-    relaxation: str = 'square'    # square | circle | rectangle
+    relaxation: Relaxation = 'square'
     window: int = 3               # Hs = Ws for square; window bound for circle / rectangle
     radius: float = 1.5           # rho in cells, for circle
 
@@ -90,7 +93,7 @@ class ModelConfig:
     """The whole detector."""
 
     class_names: tuple[str, ...] = CLASS_NAMES
-    temporal: str = 'suit'        # none | dense | sparse | sparse_velocity | suit
+    temporal: TemporalMode = 'suit'
     pillars: PillarConfig = field(default_factory=PillarConfig)
     backbone: BackboneConfig = field(default_factory=BackboneConfig)
     head: HeadConfig = field(default_factory=HeadConfig)
@@ -109,7 +112,7 @@ class ModelConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """Return a plain dict (YAML/JSON-serialisable)."""
-        return _plain(asdict(self))
+        return typing.cast(dict[str, Any], _plain(asdict(self)))
 
     def diff(self, other: ModelConfig) -> list[str]:
         """Return the dotted keys whose values differ between two configs."""
@@ -155,14 +158,14 @@ def validate(cfg: ModelConfig) -> None:
         raise bad('head.code_weights needs 10 values (offset 2, z, size 3, rot 2, vel 2)')
     if len(cfg.head.circle_nms_radius) != len(cfg.class_names):
         raise bad('head.circle_nms_radius needs one radius per class')
-    s = cfg.sampling
-    if not 0.0 < s.alpha < 1.0:
+    sc = cfg.sampling
+    if not 0.0 < sc.alpha < 1.0:
         raise bad('sampling.alpha must be in (0, 1)')
-    if s.top_k < 1:
+    if sc.top_k < 1:
         raise bad('sampling.top_k must be >= 1')
-    if s.relaxation not in RELAXATIONS:
+    if sc.relaxation not in RELAXATIONS:
         raise bad(f'sampling.relaxation must be one of {RELAXATIONS}')
-    if s.window < 1 or s.window % 2 == 0:
+    if sc.window < 1 or sc.window % 2 == 0:
         raise bad('sampling.window must be odd and >= 1')
     if cfg.geonet.bins < 1 or cfg.geonet.bins % 2 == 0:
         raise bad('geonet.bins must be odd and >= 1')
@@ -211,8 +214,13 @@ def _coerce(cls: type, data: Any, where: str, source: str) -> Any:
 
 def _convert(hint: Any, value: Any, key: str, source: str) -> Any:
     origin = typing.get_origin(hint)
-    if is_dataclass(hint):
+    if isinstance(hint, type) and is_dataclass(hint):
         return _coerce(hint, value, key + '.', source)
+    if origin is Literal:
+        if value not in get_args(hint):
+            raise ConfigError(f'{source}: {key} must be one of {list(get_args(hint))}, '
+                              f'got {value!r}')
+        return value
     if origin is tuple:
         if not isinstance(value, (list, tuple)):
             raise ConfigError(f'{source}: {key} must be a list, got {value!r}')

@@ -140,7 +140,7 @@ class EvalResult:
 def _filter(det: Detections, ranges: NDArray[np.float64], num_points: NDArray[np.uint32] | None
             ) -> NDArray[np.bool_]:
     dist = np.hypot(det.boxes[:, 0], det.boxes[:, 1])
-    keep = dist <= ranges[det.labels]
+    keep = np.asarray(dist <= ranges[det.labels], bool)
     if num_points is not None:
         keep &= num_points > 0
     return keep
@@ -157,7 +157,7 @@ def _cummean(x: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def _wrap_abs(a: NDArray[np.float64]) -> NDArray[np.float64]:
     d = (a + np.pi) % (2 * np.pi) - np.pi
-    return np.abs(d)
+    return np.asarray(np.abs(d), np.float64)
 
 
 def _accumulate(gt: Sequence[Detections], det: Sequence[Detections], label: int,

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -17,10 +18,10 @@ class Detections:
     :param labels: ``(N,)`` int64 index into the class names.
     """
 
-    boxes: NDArray[np.float32]
-    velocities: NDArray[np.float32]
-    scores: NDArray[np.float32]
-    labels: NDArray[np.int64]
+    boxes: NDArray[np.floating[Any]]
+    velocities: NDArray[np.floating[Any]]
+    scores: NDArray[np.floating[Any]]
+    labels: NDArray[np.integer[Any]]
 
     def __post_init__(self) -> None:
         self.boxes = np.ascontiguousarray(self.boxes, dtype=np.float32).reshape(-1, 7)

@@ -13,7 +13,8 @@ import math
 import os
 from pathlib import Path
 import time
-from typing import Any
+import typing
+from typing import Any, Literal
 
 import numpy as np
 import yaml
@@ -29,7 +30,8 @@ class TrainConfig:
     dataset: str = 'synthetic'       # synthetic | bags | nuscenes | kitti
     dataset_paths: tuple[str, ...] = ()   # bags, or the nuScenes / KITTI root (first entry)
     nuscenes_version: str = 'v1.0-mini'
-    temporal: str = ''               # override the model config's temporal mode
+    temporal: Literal['', 'none', 'dense', 'sparse', 'sparse_velocity', 'suit'] = ''
+    # '' keeps the model config's temporal mode
     init_from: str = ''              # stage 2: initialise shared weights from this checkpoint
     train_sequences: int = 16
     train_frames: int = 60
@@ -59,7 +61,7 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
             data = yaml.safe_load(f) or {}
     except FileNotFoundError as exc:
         raise ConfigError(f'training config {path} does not exist') from exc
-    return dataclass_from_dict(TrainConfig, data, os.fspath(path))
+    return typing.cast(TrainConfig, dataclass_from_dict(TrainConfig, data, os.fspath(path)))
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -98,7 +100,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
           resume: bool = False) -> dict[str, Any]:
     """Run one training stage; return the final metrics."""
     import torch
-    from tqdm import tqdm
+    from tqdm import tqdm  # type: ignore[import-untyped]
 
     from suit_ros.checkpoint import load_weights_into, save_checkpoint
     from suit_ros.config import load_model_config

@@ -274,3 +274,40 @@ def test_config_validation():
         ModelConfig(temporal='lstm')
     with pytest.raises(ConfigError, match='alpha'):
         replace(ModelConfig(), sampling=SamplingConfig(alpha=1.5))
+
+
+def test_decode_turns_moving_boxes_to_face_their_velocity():
+    grid = BEVGrid((-25.6, -25.6, -3.0, 25.6, 25.6, 3.0), 0.4, 2)
+    preds = {'heatmap': torch.full((1, 1, grid.H, grid.W), -10.0),
+             'offset': torch.zeros(1, 2, grid.H, grid.W), 'z': torch.zeros(1, 1, grid.H, grid.W),
+             'size': torch.zeros(1, 3, grid.H, grid.W), 'rot': torch.zeros(1, 2, grid.H, grid.W),
+             'vel': torch.zeros(1, 2, grid.H, grid.W)}
+    preds['rot'][0, 1] = 1.0                                      # yaw 0 everywhere
+    for col, vx in ((10, -5.0), (20, -0.5), (30, 5.0)):          # backwards fast/slow, forwards
+        preds['heatmap'][0, 0, 5, col] = 5.0
+        preds['vel'][0, 0, 5, col] = vx
+    yaws = {}
+    for min_speed in (1.0, 0.0):
+        head = CenterHead(8, 1, grid, 8, yaw_velocity_min_speed=min_speed)
+        out = head.decode(preds, 10, 0.5, 'circle', 0.2, torch.tensor([0.1]), 10)[0]
+        yaws[min_speed] = {int(c): float(y) for c, y in zip(out['cells'][:, 0],
+                                                             out['boxes'][:, 6])}
+    assert yaws[1.0][10] == pytest.approx(-math.pi) or yaws[1.0][10] == pytest.approx(math.pi)
+    assert yaws[1.0][20] == 0.0 and yaws[1.0][30] == 0.0        # slow or forwards: untouched
+    assert set(yaws[0.0].values()) == {0.0}                       # disabled
+
+
+def test_streaming_candidates_and_literal_modes():
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.errors import ConfigError
+    runner = StreamingDetector(SUITDetector(small_config('none')), candidates=7)
+    assert runner.candidates == 7
+    runner.set_thresholds(candidates=None)
+    assert runner.candidates == runner.cfg.head.top_k == 500
+    with pytest.raises(ValueError, match='candidates'):
+        runner.set_thresholds(candidates=0)
+    with pytest.raises(ConfigError, match='head.nms must be one of'):
+        model_config_from_dict({'head': {'nms': 'iou'}})
+    assert model_config_from_dict({'sweeps': 3}).sweeps == 3
+    with pytest.raises(ConfigError, match='sweeps'):
+        model_config_from_dict({'sweeps': 0})

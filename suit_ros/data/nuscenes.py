@@ -130,7 +130,11 @@ class NuScenesReader:
         # the keyframe's own LiDAR frame (identity extrinsic here); model_frame moves it to
         # base_link with the LIDAR_TOP calibration kept in the Frame
         points = accumulate_sweeps(sweeps, np.eye(4))
-        boxes, vels, labels, nums, ids = [], [], [], [], []
+        boxes: list[list[float]] = []
+        vels: list[NDArray[np.float64]] = []
+        labels: list[int] = []
+        nums: list[int] = []
+        ids: list[int] = []
         for ann in self.anns.get(sample_token, []):
             inst = self.t['instance'][ann['instance_token']]
             cls = map_category(self.t['category'][inst['category_token']]['name'])
@@ -170,4 +174,6 @@ class NuScenesReader:
             max_time_diff *= 2
         if dt > max_time_diff or dt <= 0:
             return np.array([np.nan, np.nan])
-        return (np.asarray(last['translation']) - np.asarray(first['translation']))[:2] / dt
+        d = np.asarray(last['translation'], np.float64) - np.asarray(first['translation'],
+                                                                      np.float64)
+        return np.asarray(d[:2] / dt, np.float64)

@@ -19,9 +19,10 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from suit_ros.structures import Detections, Frame
 
@@ -81,11 +82,11 @@ def synthetic_split(split: str, sequences: int, frames: int,
 def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
     """Write frames to one compressed npz (atomically)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    arrays: dict[str, np.ndarray] = {}
+    arrays: dict[str, NDArray[Any]] = {}
     for i, f in enumerate(frames):
         gt = f.gt if f.gt is not None else Detections.empty()
         arrays.update({f'{i}/points': f.points.astype(np.float16), f'{i}/pose': f.pose,
-                       f'{i}/stamp': np.int64(f.stamp_ns), f'{i}/boxes': gt.boxes,
+                       f'{i}/stamp': np.asarray(f.stamp_ns, np.int64), f'{i}/boxes': gt.boxes,
                        f'{i}/vel': gt.velocities, f'{i}/labels': gt.labels,
                        f'{i}/num': (f.num_points if f.num_points is not None
                                     else np.zeros(len(gt), np.uint32)),

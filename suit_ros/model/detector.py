@@ -10,6 +10,7 @@ memory, zero displacement), ``sparse_velocity`` (shifted by predicted velocity) 
 from __future__ import annotations
 
 from collections.abc import Sequence
+import typing
 
 import numpy as np
 from numpy.typing import NDArray
@@ -67,7 +68,8 @@ class SUITDetector(nn.Module):
         rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
                 for i, pts in enumerate(points)]
         bev = self.pillars(torch.cat(rows, dim=0), len(points))
-        return self.backbone(bev)
+        out: Tensor = self.backbone(bev)
+        return out
 
     @staticmethod
     def usable(memory: Memory | None, stamps_ns: Sequence[int]
@@ -113,12 +115,13 @@ class SUITDetector(nn.Module):
         positions = transform_sample_positions(sub, T_now_prev)
         dts = torch.from_numpy(dt).to(feats)[bi]                               # (M,)
         M = feats.shape[0]
-        if self.cfg.temporal == 'suit':
+        if self.geonet is not None:
             win = memory.window
             patches = (feats * mask[..., None]).permute(0, 2, 1).reshape(M, -1, win, win)
             logits = self.geonet(patches)
             q = torch.softmax(logits, dim=1)
-            disp = self.geonet.bin_velocities[None] * dts[:, None, None]
+            bins = typing.cast(Tensor, self.geonet.bin_velocities)
+            disp = bins[None] * dts[:, None, None]
             aux.update(geo_logits=logits, sample_index=sel)
             prune = 0.0 if self.training else self.cfg.geonet.prune_probability
         elif self.cfg.temporal == 'sparse_velocity':

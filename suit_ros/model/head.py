@@ -6,6 +6,7 @@ sin, cos (2), velocity vx, vy (2).
 from __future__ import annotations
 
 import math
+import typing
 
 import torch
 from torch import Tensor, nn
@@ -86,7 +87,9 @@ class CenterHead(nn.Module):
             nn.BatchNorm2d(head_channels), nn.ReLU(inplace=True))
         self.heatmap = branch(num_classes)
         self.regression = branch(10)
-        nn.init.constant_(self.heatmap[-1].bias, -2.19)   # prior 0.1, as CenterPoint
+        last = self.heatmap[-1]
+        if isinstance(last, nn.Conv2d) and last.bias is not None:
+            nn.init.constant_(last.bias, -2.19)   # prior 0.1, as CenterPoint
 
     def forward(self, x: Tensor) -> dict[str, Tensor]:
         """Return ``heatmap`` logits ``(B, K, H, W)`` and the regression maps by name."""
@@ -148,7 +151,8 @@ class CenterHead(nn.Module):
         mask = targets['mask'].unsqueeze(-1).to(pred.dtype)
         l1 = (torch.abs(pred - targets['reg']) * mask).sum(dim=(0, 1))   # (10,)
         num = mask.sum().clamp(min=1.0)
-        loc_loss = (l1 / num * self.code_weights).sum()
+        code_weights = typing.cast(Tensor, self.code_weights)
+        loc_loss = (l1 / num * code_weights).sum()
         return {'hm_loss': hm_loss, 'loc_loss': loc_loss,
                 'loss': hm_loss + self.loc_weight * loc_loss}
 

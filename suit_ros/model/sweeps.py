@@ -131,9 +131,8 @@ def model_frame(sequence: Sequence[Frame], t: int, sweeps: int,
                                + [Sweep(p.points, p.pose, p.stamp_ns) for p in past], T_bl)
     gt = f.gt
     if gt is not None:
-        boxes, vel = transform_boxes(T_bl, gt.boxes.astype(np.float64),
-                                     gt.velocities.astype(np.float64))
-        gt = Detections(boxes, vel, gt.scores, gt.labels)
+        boxes, vel = transform_boxes(T_bl, gt.boxes, gt.velocities)
+        gt = Detections(boxes, gt.velocities if vel is None else vel, gt.scores, gt.labels)
     return replace(f, points=points, pose=np.asarray(f.pose, np.float64) @ se3_inverse(T_bl),
                    gt=gt, T_base_lidar=np.eye(4))
 
@@ -142,6 +141,6 @@ def boxes_to_lidar(det: Detections, T_base_lidar: NDArray[np.float64]) -> Detect
     """Detections in base_link moved into the LiDAR (cloud) frame."""
     if len(det) == 0:
         return det
-    boxes, vel = transform_boxes(se3_inverse(np.asarray(T_base_lidar, np.float64)),
-                                 det.boxes.astype(np.float64), det.velocities.astype(np.float64))
-    return Detections(boxes, vel, det.scores, det.labels)
+    boxes, vel = transform_boxes(se3_inverse(np.asarray(T_base_lidar, np.float64)), det.boxes,
+                                 det.velocities)
+    return Detections(boxes, det.velocities if vel is None else vel, det.scores, det.labels)
