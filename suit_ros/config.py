@@ -86,6 +86,7 @@ class GeoNetConfig:
     velocity_step: float = 5.0    # m/s between bins: 7 bins cover -15..15 m/s
     channels: int = 32
     prune_probability: float = 1e-3   # inference only: skip bins below this probability
+    velocity_input: bool = False  # append the head's velocity at the sample to the patch
 
 
 @dataclass(frozen=True)

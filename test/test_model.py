@@ -311,3 +311,21 @@ def test_streaming_candidates_and_literal_modes():
     assert model_config_from_dict({'sweeps': 3}).sweeps == 3
     with pytest.raises(ConfigError, match='sweeps'):
         model_config_from_dict({'sweeps': 0})
+
+
+def test_geonet_learns_bins_from_the_head_velocity():
+    """With velocity_input the displacement bin is learnable from the velocity alone."""
+    torch.manual_seed(0)
+    g = GeoNet(4, 3, bins=7, velocity_step=5.0, velocity_input=True)
+    with pytest.raises(ValueError, match='velocities'):
+        g(torch.zeros(1, 4, 3, 3))
+    v = (torch.rand(256, 2) - 0.5) * 30.0
+    patches = torch.randn(256, 4, 3, 3)                 # no information in the features
+    opt = torch.optim.Adam(g.parameters(), lr=1e-2)
+    for _ in range(300):
+        loss = g.loss(g(patches, v), v)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    acc = (g(patches, v).argmax(1) == g.target_bins(v)).float().mean()
+    assert acc > 0.9, float(acc)

@@ -51,7 +51,8 @@ class SUITDetector(nn.Module):
                                     b.upsample_strides, b.num_upsample_filters)
         C = self.backbone.out_channels
         self.fusion = TemporalFusion(C) if cfg.temporal != 'none' else None
-        self.geonet = (GeoNet(C, cfg.sampling.window, g.bins, g.channels, g.velocity_step)
+        self.geonet = (GeoNet(C, cfg.sampling.window, g.bins, g.channels, g.velocity_step,
+                              g.velocity_input)
                        if cfg.temporal == 'suit' else None)
         self.head = CenterHead(C, len(cfg.class_names), self.grid, h.head_channels,
                                h.code_weights, h.loc_weight, h.min_overlap, h.min_radius,
@@ -118,7 +119,7 @@ class SUITDetector(nn.Module):
         if self.geonet is not None:
             win = memory.window
             patches = (feats * mask[..., None]).permute(0, 2, 1).reshape(M, -1, win, win)
-            logits = self.geonet(patches)
+            logits = self.geonet(patches, rotate_velocities(sub.velocities, bi, T_now_prev))
             q = torch.softmax(logits, dim=1)
             bins = typing.cast(Tensor, self.geonet.bin_velocities)
             disp = bins[None] * dts[:, None, None]

@@ -4,6 +4,11 @@ A three-layer CNN looks at a sample's ``Hs x Ws x C`` feature patch and predicts
 an ``Hw x Hw`` window of displacement bins. Bins are velocities, ``k * velocity_step`` per axis,
 and a bin's displacement is its velocity times the real time gap between the two frames, so the
 same weights serve a 10 Hz node and a 20 Hz bag.
+
+Motion evidence: the patch features come from multi-sweep input (a moving object leaves a trail
+of returns with growing time lags), and, with ``velocity_input``, the velocity the head decoded
+at the sample (rotated into the current frame, in units of ``velocity_step``) is appended to the
+patch as two constant channels, so GeoNet can weigh the head's estimate against the patch.
 """
 from __future__ import annotations
 
@@ -13,15 +18,17 @@ import torch.nn.functional as F
 
 
 class GeoNet(nn.Module):
-    """``(M, C, Hs, Ws)`` patches -> ``(M, Hw * Hw)`` displacement-bin logits."""
+    """``(M, C, Hs, Ws)`` patches (+ velocities) -> ``(M, Hw * Hw)`` displacement-bin logits."""
 
     def __init__(self, in_channels: int, window: int, bins: int = 7, channels: int = 32,
-                 velocity_step: float = 5.0) -> None:
+                 velocity_step: float = 5.0, velocity_input: bool = False) -> None:
         super().__init__()
         self.bins = bins
         self.velocity_step = velocity_step
+        self.velocity_input = velocity_input
         self.net = nn.Sequential(
-            nn.Conv2d(in_channels, channels, 3, padding=1), nn.ReLU(inplace=True),
+            nn.Conv2d(in_channels + (2 if velocity_input else 0), channels, 3, padding=1),
+            nn.ReLU(inplace=True),
             nn.Conv2d(channels, channels, 3, padding=1), nn.ReLU(inplace=True),
             nn.Conv2d(channels, bins * bins, window))
         half = bins // 2
@@ -30,10 +37,21 @@ class GeoNet(nn.Module):
         self.register_buffer('bin_velocities', torch.stack([vx.reshape(-1), vy.reshape(-1)], 1),
                              persistent=False)
 
-    def forward(self, patches: Tensor) -> Tensor:
+    def forward(self, patches: Tensor, velocities: Tensor | None = None) -> Tensor:
         """Return logits ``(M, bins * bins)``; bin ``j * bins + i`` is velocity
-        ``((i - bins // 2) * step, (j - bins // 2) * step)``."""
-        return self.net(patches).flatten(1)
+        ``((i - bins // 2) * step, (j - bins // 2) * step)``.
+
+        :param velocities: ``(M, 2)`` m/s in the current frame; required with
+            ``velocity_input``.
+        """
+        if self.velocity_input:
+            if velocities is None:
+                raise ValueError('this GeoNet takes the samples\' velocities')
+            M, _, H, W = patches.shape
+            v = (velocities / self.velocity_step)[:, :, None, None].expand(M, 2, H, W)
+            patches = torch.cat([patches, v.to(patches)], dim=1)
+        out: Tensor = self.net(patches).flatten(1)
+        return out
 
     def target_bins(self, velocities: Tensor) -> Tensor:
         """Bin index ``(M,)`` of velocities ``(M, 2)`` (nearest bin, clipped to the window)."""
