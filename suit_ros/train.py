@@ -1,6 +1,8 @@
 """``suit-ros train``: train the detector (single-frame pretraining or SUIT fine-tuning).
 
-AdamW with a one-cycle schedule (weight decay 0.01, momentum cycled 0.85-0.95, as the paper),
+AdamW with a one-cycle schedule (weight decay 0.01, momentum cycled 0.85-0.95, as the paper)
+that follows the larger of the step and the wall-time progress when ``max_minutes`` is set (so a
+time-budgeted run on a shared machine still anneals to the end),
 gradient clipping, clips of mixed length (memory passed frame to frame), clip-consistent
 augmentation, CSV log, resume, and torch.distributed when launched by ``torchrun``.
 """
@@ -77,6 +79,22 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--seed', type=int)
     parser.add_argument('--device', default='auto', choices=['auto', 'cpu', 'cuda'])
     parser.add_argument('--threads', type=int, default=0, help='torch threads (0: default)')
+
+
+def one_cycle(progress: float, max_lr: float, pct_start: float = 0.3, div: float = 10.0,
+              final_div: float = 100.0) -> tuple[float, float]:
+    """Learning rate and Adam beta1 at ``progress`` in [0, 1]: cosine warm-up from
+    ``max_lr / div`` to ``max_lr`` over ``pct_start``, then cosine annealing to
+    ``max_lr / (div * final_div)``; beta1 goes 0.95 -> 0.85 -> 0.95 (torch's OneCycleLR)."""
+    p = min(max(progress, 0.0), 1.0)
+
+    def cos(a: float, b: float, t: float) -> float:
+        return b + (a - b) * (1.0 + math.cos(math.pi * t)) / 2.0
+    if p < pct_start:
+        t = p / pct_start
+        return cos(max_lr / div, max_lr, t), cos(0.95, 0.85, t)
+    t = (p - pct_start) / (1.0 - pct_start)
+    return cos(max_lr, max_lr / (div * final_div), t), cos(0.85, 0.95, t)
 
 
 def _dist_info() -> tuple[int, int]:
@@ -159,17 +177,15 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
     opt = torch.optim.AdamW(module.parameters(), lr=tc.lr, weight_decay=tc.weight_decay,
                             betas=(0.95, 0.99))
-    sched = torch.optim.lr_scheduler.OneCycleLR(
-        opt, max_lr=tc.lr, total_steps=tc.steps, pct_start=0.3, base_momentum=0.85,
-        max_momentum=0.95, div_factor=10.0, final_div_factor=100.0)
     step = 0
+    done_s = 0.0                     # wall time of earlier runs of a resumed training
     last = out / 'last.pt'
     if resume and last.is_file():
         state = torch.load(last, map_location='cpu', weights_only=True)
         module.load_state_dict(state['model'])
         opt.load_state_dict(state['optimizer'])
-        sched.load_state_dict(state['scheduler'])
         step = int(state['step'])
+        done_s = float(state.get('elapsed_s', 0.0))
         torch.set_rng_state(state['torch_rng'])
         sampler.rng = np.random.default_rng([tc.seed, step, rank])
         aug_rng = np.random.default_rng([tc.seed, step, rank, 1])
@@ -179,11 +195,20 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     writer = csv.writer(log_file) if log_file else None
     if writer and log_path.stat().st_size == 0:
         writer.writerow(['step', 'time_s', 'lr', 'loss', 'hm_loss', 'loc_loss', 'geo_loss'])
-    start = time.monotonic()
+    start = time.monotonic() - done_s
+
+    def progress() -> float:
+        by_time = ((time.monotonic() - start) / (tc.max_minutes * 60) if tc.max_minutes
+                   else 0.0)
+        return max(step / tc.steps, by_time)
     bar = tqdm(total=tc.steps, initial=step, disable=rank != 0, dynamic_ncols=True,
                desc=f'train[{mcfg.temporal}]')
     model.train()
-    while step < tc.steps:
+    while progress() < 1.0:
+        lr, beta1 = one_cycle(progress(), tc.lr)
+        for group in opt.param_groups:
+            group['lr'] = lr
+            group['betas'] = (beta1, group['betas'][1])
         clips = sampler.batch(batch)
         if tc.augment:
             clips = [augment.apply_clip(c, augment.draw(
@@ -194,30 +219,28 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         losses['loss'].backward()
         torch.nn.utils.clip_grad_norm_(module.parameters(), tc.grad_clip)
         opt.step()
-        sched.step()
         step += 1
         vals = {k: float(v.detach()) for k, v in losses.items()}
         if not math.isfinite(vals['loss']):
             raise RuntimeError(f'loss became {vals["loss"]} at step {step}; lower the lr')
         if writer:
-            writer.writerow([step, round(time.monotonic() - start, 2), sched.get_last_lr()[0],
+            writer.writerow([step, round(time.monotonic() - start, 2), lr,
                              vals['loss'], vals['hm_loss'], vals['loc_loss'], vals['geo_loss']])
         bar.set_postfix(loss=f'{vals["loss"]:.3f}', hm=f'{vals["hm_loss"]:.3f}',
                         loc=f'{vals["loc_loss"]:.3f}', geo=f'{vals["geo_loss"]:.3f}')
         bar.update(1)
-        out_of_time = bool(tc.max_minutes) and time.monotonic() - start > tc.max_minutes * 60
-        if rank == 0 and (step % tc.checkpoint_every == 0 or step == tc.steps or out_of_time):
+        finished = progress() >= 1.0
+        if rank == 0 and (step % tc.checkpoint_every == 0 or finished):
             torch.save({'model': module.state_dict(), 'optimizer': opt.state_dict(),
-                        'scheduler': sched.state_dict(), 'step': step,
+                        'step': step, 'elapsed_s': time.monotonic() - start,
                         'torch_rng': torch.get_rng_state()}, last)
             save_checkpoint(out / 'snapshot.safetensors', module, mcfg, {'steps': step},
                             {'snapshot': True})
             if log_file:
                 log_file.flush()
-        if out_of_time:
-            print(f'\n[train] time budget reached at step {step}')
-            break
     bar.close()
+    if tc.max_minutes and step < tc.steps:
+        print(f'[train] time budget reached at step {step}')
     elapsed = time.monotonic() - start
     metrics: dict[str, Any] = {'steps': step, 'train_minutes': round(elapsed / 60, 2),
                                'device': str(dev), 'world_size': world}

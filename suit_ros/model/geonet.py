@@ -46,7 +46,7 @@ class GeoNet(nn.Module):
         """
         if self.velocity_input:
             if velocities is None:
-                raise ValueError('this GeoNet takes the samples\' velocities')
+                raise ValueError("this GeoNet takes the samples' velocities")
             M, _, H, W = patches.shape
             v = (velocities / self.velocity_step)[:, :, None, None].expand(M, 2, H, W)
             patches = torch.cat([patches, v.to(patches)], dim=1)
