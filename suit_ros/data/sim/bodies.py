@@ -245,7 +245,7 @@ def motorcycle_body(size: NDArray[np.float64], coat: tuple[float, float, float],
 
 def parked_bicycle_body(rng: np.random.Generator) -> tuple[Body, NDArray[np.float64]]:
     """A bicycle without a rider, and its size."""
-    size = np.array([rng.uniform(1.6, 1.85), rng.uniform(0.45, 0.6), rng.uniform(1.0, 1.1)])
+    size = np.array([rng.uniform(1.6, 1.85), rng.uniform(0.45, 0.6), rng.uniform(1.05, 1.15)])
     p = _Parts()
     bicycle_parts(p, float(size[0]), float(size[1]))
     return p.body(), size

@@ -145,7 +145,8 @@ class Simulation:
             return (np.stack([x, y, size[:, 2] / 2, size[:, 0], size[:, 1], size[:, 2], yaw], 1),
                     np.stack([vx, vy], 1))
         out = [a.box(t) for a in self.actors]
-        return np.array([b for b, _ in out]), np.array([v for _, v in out])
+        return (np.array([b for b, _ in out]).reshape(-1, 7),
+                np.array([v for _, v in out]).reshape(-1, 2))
 
     def render(self, k: int) -> SimFrame:
         """Render frame ``k``: cast the sweep, turn hits into returns, label them."""
@@ -269,10 +270,10 @@ class Simulation:
             return np.where(surface == GROUND, REFLECTIVITY[0],
                             self.surfaces.reflectivity[surface.clip(0)])
         S = len(self.world.boxes)
-        actor_mat = np.array([a.material for a in self.actors], np.int64)
+        actor_mat = np.array([a.material for a in self.actors] or [0], np.int64)
         mat = np.where(surface == GROUND, 0,
                        np.where(surface < S, self.static_materials[np.clip(surface, 0, S - 1)],
-                                actor_mat[np.clip(surface - S, 0, len(self.actors) - 1)]))
+                                actor_mat[np.clip(surface - S, 0, len(actor_mat) - 1)]))
         return REFLECTIVITY[mat]
 
     def _ground_truth(self, T_ol: NDArray[np.float64], actor_boxes: NDArray[np.float64],
