@@ -2,8 +2,8 @@
 glass and hedges pass rays, clutter stays out of GT, and false positives on clutter count."""
 from __future__ import annotations
 
-import hashlib
 from dataclasses import replace
+import hashlib
 from types import SimpleNamespace
 
 import numpy as np

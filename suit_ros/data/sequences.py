@@ -37,6 +37,9 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int) -> str:
 
     from suit_ros.data.sim import preset
     cfg = asdict(preset(preset_name, sensor=sensor, frames=frames))
+    for name in ('realism', 'exact_sectors'):   # off: the box world, keys as before they existed
+        if not cfg[name]:
+            del cfg[name]
     blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 2}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -12,8 +12,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros import CLASS_NAMES
-from suit_ros.data.sim.bodies import (Body, car_body, cyclist_body, heavy_body, motorcycle_body,
-                                      paint, pedestrian_body, vehicle_kind)
+from suit_ros.data.sim.bodies import (
+    Body,
+    car_body,
+    cyclist_body,
+    heavy_body,
+    motorcycle_body,
+    paint,
+    pedestrian_body,
+    vehicle_kind,
+)
 from suit_ros.data.sim.config import Realism, SimConfig
 from suit_ros.data.sim.world import MATERIAL_IDS, World, random_route, route_polyline
 

@@ -123,7 +123,7 @@ def _world_objects(b: _Builder, world: World, realism: Realism,
 def _wall_with_gaps(b: _Builder, box: NDArray[np.float64], refl: float,
                     rng: np.random.Generator) -> None:
     """A wall split into pieces 4-12 m long with gates 1-3 m wide between them."""
-    b.open('wall', box)
+    b.open('wall', box.tolist())
     c, s = np.cos(box[6]), np.sin(box[6])
     pos = -box[3] / 2
     while pos < box[3] / 2 - 0.5:
@@ -341,4 +341,5 @@ def footprint_distance(xy: NDArray[np.float64], boxes: NDArray[np.float64]
     c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
     along = np.abs(d[..., 0] * c + d[..., 1] * s) - boxes[:, 3] / 2
     across = np.abs(-d[..., 0] * s + d[..., 1] * c) - boxes[:, 4] / 2
-    return np.hypot(np.clip(along, 0, None), np.clip(across, 0, None))
+    out: NDArray[np.float64] = np.hypot(np.clip(along, 0, None), np.clip(across, 0, None))
+    return out

@@ -4,6 +4,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from numpy.typing import NDArray
 
 from suit_ros.errors import ConfigError
 
@@ -32,11 +33,14 @@ class LidarConfig:
     extrinsic_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
     intensity_max: float = 255.0          # the sensor's intensity convention: 0..intensity_max
 
-    def beam_elevations(self) -> np.ndarray:
+    def beam_elevations(self) -> NDArray[np.float64]:
         """Beam elevation angles in radians, ascending; ring ``i`` is ``elevations[i]``."""
         if self.elevations is not None:
-            return np.radians(np.sort(np.asarray(self.elevations, np.float64)))
-        return np.radians(np.linspace(self.fov_down, self.fov_up, self.beams))
+            degrees = np.sort(np.asarray(self.elevations, np.float64))
+        else:
+            degrees = np.linspace(self.fov_down, self.fov_up, self.beams)
+        out: NDArray[np.float64] = np.radians(degrees)
+        return out
 
     @property
     def columns(self) -> int:
