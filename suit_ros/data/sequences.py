@@ -7,7 +7,9 @@ order. Training samples clips of 1-4 consecutive frames from them.
 The synthetic splits use disjoint seed ranges: ``train`` seeds 1000+, ``val`` seeds 9000+,
 ``heldout`` (a sensor no training drive uses) 9500+. Drive ``i`` of a split uses the sensor
 ``SPLIT_SENSORS[split][i % len]``. The fixed validation set of docs/results.md is ``val`` seeds
-9000..9015 (16 drives of 40 frames at 10 Hz, four sensor models).
+9000..9015 (16 drives of 40 frames at 10 Hz, four sensor models). Splits use the detailed world
+(presets ``train-real`` and ``val-real``: vehicles with a front and a back, articulated
+pedestrians, cyclists and motorcycles, street clutter as negatives).
 
 Data sources yield *sensor frames* (one sweep, LiDAR frame); :class:`ClipSampler` turns them into
 *model frames* (accumulated sweeps in base_link) with :func:`suit_ros.model.sweeps.model_frame`.
@@ -43,6 +45,9 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int) -> str:
 
     from suit_ros.data.sim import preset
     cfg = asdict(preset(preset_name, sensor=sensor, frames=frames))
+    for name in ('realism', 'exact_sectors'):   # off: the box world, keys as before they existed
+        if not cfg[name]:
+            del cfg[name]
     blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 2}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
@@ -74,7 +79,7 @@ def synthetic_split(split: str, sequences: int, frames: int,
                     cache_dir: str | os.PathLike[str] | None = None,
                     preset_name: str | None = None) -> list[list[Frame]]:
     """A split (``train``, ``val``, ``heldout``): ``sequences`` drives (see module docstring)."""
-    name = preset_name or ('train' if split == 'train' else 'val')
+    name = preset_name or ('train-real' if split == 'train' else 'val-real')
     return [synthetic_sequence(name, seed, frames, cache_dir, sensor)
             for seed, sensor in split_drives(split, sequences)]
 

@@ -3,8 +3,8 @@
 ``simulate(config, seed)`` yields :class:`SimFrame` s; ``sim_frames(config, seed)`` yields
 model-ready :class:`suit_ros.structures.Frame` s; ``write_bag`` writes a rosbag2 bag.
 """
-from suit_ros.data.sim.config import PRESETS, LidarConfig, SimConfig, preset
+from suit_ros.data.sim.config import PRESETS, LidarConfig, Realism, SimConfig, preset
 from suit_ros.data.sim.scene import SimFrame, sim_frames, simulate
 
-__all__ = ['LidarConfig', 'PRESETS', 'SimConfig', 'SimFrame', 'preset', 'sim_frames',
+__all__ = ['LidarConfig', 'PRESETS', 'Realism', 'SimConfig', 'SimFrame', 'preset', 'sim_frames',
            'simulate']

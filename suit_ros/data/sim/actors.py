@@ -12,7 +12,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros import CLASS_NAMES
-from suit_ros.data.sim.config import SimConfig
+from suit_ros.data.sim.bodies import (
+    Body,
+    car_body,
+    cyclist_body,
+    heavy_body,
+    motorcycle_body,
+    paint,
+    pedestrian_body,
+    vehicle_kind,
+)
+from suit_ros.data.sim.config import Realism, SimConfig
 from suit_ros.data.sim.world import MATERIAL_IDS, World, random_route, route_polyline
 
 LABEL = {name: i for i, name in enumerate(CLASS_NAMES)}
@@ -32,6 +42,7 @@ class Actor:
     s: NDArray[np.float64]               # arc length at t = k * STEP
     v: NDArray[np.float64]               # speed at t = k * STEP
     heading: float = 0.0                 # yaw of a static, single-point actor
+    body: Body | None = None             # parts in the detailed world (None: one cuboid)
 
     def state(self, t: float) -> tuple[float, float, float, float, float]:
         """``x, y, yaw, vx, vy`` at time ``t`` (s, world frame)."""
@@ -172,3 +183,69 @@ def make_actors(world: World, cfg: SimConfig, rng: np.random.Generator, duration
         s, v = speed_profile(rng, duration, (2.5, 7.0), 1.0, cum, 0.05)
         actors.append(_actor(next_id(), 'cyclist', 'cyclist', size, poly, s, v))
     return actors
+
+
+# ------------------------------------------------------------------ the detailed world
+def dress_actors(actors: list[Actor], realism: Realism, rng: np.random.Generator) -> None:
+    """Give every actor a :class:`Body` (and a size that fits it): cars become sedans,
+    hatchbacks, SUVs, vans or pickups; trucks and buses get cabs, cargo boxes or window bands;
+    pedestrians limbs and carried objects; cyclists a bicycle (some a motorcycle)."""
+    for a in actors:
+        name = CLASS_NAMES[a.label]
+        if name == 'car':
+            kind, a.size = vehicle_kind(rng)
+            a.body = car_body(kind, a.size, paint(rng, realism), realism)
+        elif name == 'truck':
+            a.body = heavy_body(a.size, paint(rng, realism), realism)
+        elif name == 'pedestrian':
+            a.body = pedestrian_body(a.size, rng, moving=bool(a.v.max() > 0))
+        elif rng.random() < 0.3:
+            a.size = np.array([rng.uniform(2.0, 2.3), rng.uniform(0.75, 0.9),
+                               rng.uniform(1.45, 1.6)])
+            a.body = motorcycle_body(a.size, paint(rng, realism), rng)
+        else:
+            a.body = cyclist_body(a.size, rng)
+
+
+@dataclass
+class Trajectories:
+    """Every actor's state sampled at ``k * STEP`` once, so that all actors' poses at any time
+    are one interpolation: ``(A, K)`` arrays (yaw unwrapped over time)."""
+
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    yaw: NDArray[np.float64]
+    vx: NDArray[np.float64]
+    vy: NDArray[np.float64]
+    s: NDArray[np.float64]
+
+    @classmethod
+    def sample(cls, actors: list[Actor]) -> Trajectories:
+        """Sample the actors' routes and speed profiles (all have the same length)."""
+        rows = [_sampled_state(a) for a in actors]
+        return cls(*(np.array([r[i] for r in rows]).reshape(len(actors), -1) for i in range(6)))
+
+    def at(self, t: float) -> tuple[NDArray[np.float64], ...]:
+        """``x, y, yaw, vx, vy, s`` of every actor ``(A,)`` at time ``t``."""
+        k = min(max(t / STEP, 0.0), self.x.shape[1] - 1.000001)
+        i = int(k)
+        f = k - i
+        return tuple(v[:, i] * (1 - f) + v[:, i + 1] * f
+                     for v in (self.x, self.y, self.yaw, self.vx, self.vy, self.s))
+
+
+def _sampled_state(a: Actor) -> tuple[NDArray[np.float64], ...]:
+    """``x, y, yaw, vx, vy, s`` of one actor at every ``k * STEP`` (as :meth:`Actor.state`)."""
+    s, v = a.s, a.v
+    if len(a.poly) == 1:
+        one = np.ones_like(s)
+        return (a.poly[0, 0] * one, a.poly[0, 1] * one, a.heading * one, 0 * one, 0 * one, s)
+    x = np.interp(s, a.cum, a.poly[:, 0])
+    y = np.interp(s, a.cum, a.poly[:, 1])
+    ax, ay = np.interp(s - 1.0, a.cum, a.poly[:, 0]), np.interp(s - 1.0, a.cum, a.poly[:, 1])
+    bx, by = np.interp(s + 1.0, a.cum, a.poly[:, 0]), np.interp(s + 1.0, a.cum, a.poly[:, 1])
+    yaw = np.unwrap(np.arctan2(by - ay, bx - ax))
+    j = np.clip(np.searchsorted(a.cum, s) - 1, 0, len(a.cum) - 2)
+    seg = a.poly[j + 1] - a.poly[j]
+    tangent = seg / np.maximum(np.linalg.norm(seg, axis=1, keepdims=True), 1e-9)
+    return x, y, yaw, v * tangent[:, 0], v * tangent[:, 1], s

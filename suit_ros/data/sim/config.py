@@ -35,14 +35,38 @@ class LidarConfig:
 
     def beam_elevations(self) -> NDArray[np.float64]:
         """Beam elevation angles in radians, ascending; ring ``i`` is ``elevations[i]``."""
-        deg = (np.sort(np.asarray(self.elevations, np.float64)) if self.elevations is not None
-               else np.linspace(self.fov_down, self.fov_up, self.beams))
-        return np.asarray(np.radians(deg), np.float64)
+        if self.elevations is not None:
+            degrees = np.sort(np.asarray(self.elevations, np.float64))
+        else:
+            degrees = np.linspace(self.fov_down, self.fov_up, self.beams)
+        out: NDArray[np.float64] = np.radians(degrees)
+        return out
 
     @property
     def columns(self) -> int:
         """Azimuth columns per sweep."""
         return int(round(360.0 / self.azimuth_resolution))
+
+
+@dataclass(frozen=True)
+class Realism:
+    """The detailed world: actors built from parts, street clutter as negatives, ego returns.
+
+    :param clutter: density of street furniture (hedges, fences, guardrails, bicycles, benches,
+        bollards, signs, cones, barriers, curbs, verges) relative to the preset's; 0: none.
+    :param glass_porosity: probability that a ray passes through vehicle glass.
+    :param glass_return: probability that a ray stopped by glass gives a return.
+    :param dark_paint: fraction of vehicles with dark paint (low reflectivity, fewer returns).
+    :param hedge_porosity: range of the pass-through probability of hedges, bushes, canopies.
+    :param ego_body: cast the ego vehicle's own body (hood, roof, mirrors) near the sensor.
+    """
+
+    clutter: float = 1.0
+    glass_porosity: float = 0.6
+    glass_return: float = 0.5
+    dark_paint: float = 0.25
+    hedge_porosity: tuple[float, float] = (0.25, 0.6)
+    ego_body: bool = True
 
 
 @dataclass(frozen=True)
@@ -67,6 +91,13 @@ class SimConfig:
     odom_rate_hz: float = 50.0
     odom_noise: float = 0.0               # m / rad noise on recorded odometry
     lidar: LidarConfig = field(default_factory=LidarConfig)
+    realism: Realism | None = None        # None: the box world (every actor one cuboid)
+    exact_sectors: bool = True            # see below
+
+    # ``exact_sectors``: with motion distortion, find each box's columns in the sector being
+    # cast. False reproduces the sweeps generated before it existed, where boxes were looked
+    # up in the wrong columns and most were missed (ground only in most sectors); set it for
+    # any new data. The detailed world (``realism``) always casts exactly.
 
     def validate(self) -> SimConfig:
         """Raise ConfigError on out-of-range values; return self."""
@@ -88,7 +119,28 @@ class SimConfig:
             raise ConfigError('dropout must be in [0, 1)')
         if lc.intensity_max <= 0:
             raise ConfigError('intensity_max must be > 0')
+        if self.realism is not None:
+            _validate_realism(self.realism)
         return self
+
+    @property
+    def exact_sector_columns(self) -> bool:
+        """Whether sector casting looks boxes up in the right columns (see ``exact_sectors``)."""
+        return self.exact_sectors or self.realism is not None
+
+
+def _validate_realism(r: Realism) -> None:
+    """Raise ConfigError on out-of-range realism values."""
+    if r.clutter < 0:
+        raise ConfigError(f'realism.clutter must be >= 0 (0: no clutter), got {r.clutter}')
+    for name in ('glass_porosity', 'glass_return', 'dark_paint'):
+        value = getattr(r, name)
+        if not 0.0 <= value <= 1.0:
+            raise ConfigError(f'realism.{name} is a probability in [0, 1], got {value}')
+    lo, hi = r.hedge_porosity
+    if not 0.0 <= lo <= hi < 1.0:
+        raise ConfigError('realism.hedge_porosity must be (low, high) with 0 <= low <= high < 1, '
+                          f'got {r.hedge_porosity}')
 
 
 def _hdl64e_elevations() -> tuple[float, ...]:
@@ -131,10 +183,16 @@ PRESETS: dict[str, SimConfig] = {
     'test': SimConfig(frames=8, moving_vehicles=20, parked_vehicles=10, pedestrians=15,
                       cyclists=5, lidar=LidarConfig(beams=16, azimuth_resolution=0.4)),
 }
+# the same drives in the detailed world (actors from parts, clutter, ego returns)
+PRESETS.update({f'{name}-real': replace(cfg, realism=Realism())
+                for name, cfg in list(PRESETS.items())})
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:
-    """A named preset (``demo``, ``train``, ``val``, ``test``) with optional field overrides.
+    """A named preset with optional field overrides.
+
+    ``demo``, ``train``, ``val``, ``test`` are the box world; ``demo-real``, ``train-real``,
+    ``val-real``, ``test-real`` the same drives in the detailed world (:class:`Realism`).
 
     :param sensor: a real-sensor model from :data:`SENSORS` replacing the preset's LiDAR.
     """

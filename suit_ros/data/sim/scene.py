@@ -13,9 +13,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.data.sim.actors import Actor, make_actors, make_ego
-from suit_ros.data.sim.config import SimConfig
-from suit_ros.data.sim.lidar import GROUND, RangeImage, cast, ray_directions
+from suit_ros.data.sim.actors import Actor, Trajectories, dress_actors, make_actors, make_ego
+from suit_ros.data.sim.bodies import ego_body
+from suit_ros.data.sim.clutter import CLUTTER_ID, StaticScene, furnish
+from suit_ros.data.sim.config import Realism, SimConfig
+from suit_ros.data.sim.lidar import GROUND, Porosity, RangeImage, cast, ray_directions
 from suit_ros.data.sim.world import REFLECTIVITY, build_world
 from suit_ros.ops.geometry import pose_from_xyz_rpy, se3_inverse, transform_boxes
 from suit_ros.structures import Detections, Frame
@@ -43,6 +45,11 @@ class SimFrame:
     boxes_world: NDArray[np.float64]        # (S + A, 7) the boxes ``surface`` indexes
     odometry: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]] = field(
         default_factory=list)               # (stamp_ns, T_odom_base, twist [vx, vy, wz])
+    # detailed world only (empty in the box world): clutter footprints (K, 7) in the LiDAR
+    # frame, their types (ids into clutter.CLUTTER_TYPES), the actor instance per point (0: none)
+    clutter_boxes: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 7)))
+    clutter_types: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    surface_instance: NDArray[np.uint32] | None = None
 
     @property
     def T_odom_lidar(self) -> NDArray[np.float64]:  # noqa: N802 - ROS naming T_a_b
@@ -65,6 +72,23 @@ def ego_twist(ego: Actor, t: float, h: float = 0.01) -> NDArray[np.float64]:
     return np.array([c * vx + s * vy, -s * vx + c * vy, wz])
 
 
+@dataclass
+class _Surfaces:
+    """The detailed world's surfaces: static parts, then the ego's parts, then every actor's
+    parts, with what a LiDAR sees of each ``(N,)``."""
+
+    static: NDArray[np.float64]              # (S, 7) world
+    ego: NDArray[np.float64]                 # (E, 7) base_link
+    actor_parts: NDArray[np.float64]         # (P, 7) in their actor's frame
+    actor_owner: NDArray[np.int64]           # (P,) actor index
+    swing: NDArray[np.float64]               # (P,) walking swing amplitude (m)
+    stride: NDArray[np.float64]              # (P,) metres per swing cycle
+    reflectivity: NDArray[np.float64]
+    return_prob: NDArray[np.float64]
+    porosity: NDArray[np.float64]
+    instance: NDArray[np.uint32]             # actor instance id per surface (0: not an actor)
+
+
 class Simulation:
     """A seeded drive: build once, render frames on demand."""
 
@@ -80,69 +104,184 @@ class Simulation:
         self.dirs = ray_directions(cfg.lidar)
         self.T_base_lidar = pose_from_xyz_rpy(cfg.lidar.extrinsic_xyz, cfg.lidar.extrinsic_rpy)
         self.static_materials = self.world.materials
+        self.scene: StaticScene | None = None
+        self.surfaces: _Surfaces | None = None
+        self.trajectories: Trajectories | None = None
+        if cfg.realism is not None:
+            self._build_detailed(cfg.realism)
+
+    def _build_detailed(self, realism: Realism) -> None:
+        """Dress the actors, furnish the streets and lay out the surface table."""
+        rng = np.random.default_rng([self.seed, 0xDE7A])
+        dress_actors(self.actors, realism, rng)
+        self.trajectories = Trajectories.sample(self.actors)
+        self.scene = furnish(self.world, self.cfg, realism, rng)
+        ego = ego_body(self.ego.size) if realism.ego_body else None
+        bodies = [a.body for a in self.actors if a.body is not None]
+        if len(bodies) != len(self.actors):
+            raise RuntimeError('every actor of the detailed world needs a body (dress_actors)')
+        empty = np.zeros((0, 7))
+        looks = [(self.scene.reflectivity, self.scene.return_prob, self.scene.porosity)]
+        if ego is not None:
+            looks.append((ego.reflectivity, ego.return_prob, ego.porosity))
+        looks += [(b.reflectivity, b.return_prob, b.porosity) for b in bodies]
+        counts = [len(b.parts) for b in bodies]
+        owner = np.repeat(np.arange(len(bodies)), counts)
+        n_fixed = len(self.scene.parts) + (0 if ego is None else len(ego.parts))
+        self.surfaces = _Surfaces(
+            self.scene.parts, empty if ego is None else ego.parts,
+            np.concatenate([b.parts for b in bodies]) if bodies else empty, owner,
+            np.concatenate([b.swing for b in bodies]) if bodies else np.zeros(0),
+            np.repeat([b.stride for b in bodies], counts),
+            *(np.concatenate([look[i] for look in looks]) for i in range(3)),
+            np.concatenate([np.zeros(n_fixed, np.uint32),
+                            np.array([a.instance_id for a in self.actors], np.uint32)[owner]]))
 
     def actor_boxes(self, t: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """World boxes ``(A, 7)`` and velocities ``(A, 2)`` of every actor at ``t``."""
+        if self.trajectories is not None:
+            x, y, yaw, vx, vy, _ = self.trajectories.at(t)
+            size = np.array([a.size for a in self.actors]).reshape(-1, 3)
+            return (np.stack([x, y, size[:, 2] / 2, size[:, 0], size[:, 1], size[:, 2], yaw], 1),
+                    np.stack([vx, vy], 1))
         out = [a.box(t) for a in self.actors]
-        return np.array([b for b, _ in out]), np.array([v for _, v in out])
+        return (np.array([b for b, _ in out]).reshape(-1, 7),
+                np.array([v for _, v in out]).reshape(-1, 2))
 
     def render(self, k: int) -> SimFrame:
-        """Render frame ``k``."""
+        """Render frame ``k``: cast the sweep, turn hits into returns, label them."""
+        period = 1.0 / self.cfg.lidar.rate_hz
+        t = k * period
+        image = self._cast_sweep(t, k)
+        cloud, xyz, surface = self._returns(image, k)
+        T_ob = base_pose(self.ego, t)
+        T_ol = T_ob @ self.T_base_lidar
+        actor_boxes, actor_vel = self.actor_boxes(t)
+        gt, num, ids = self._ground_truth(T_ol, actor_boxes, actor_vel, xyz)
+        frame = SimFrame(k, START_NS + int(round(t * 1e9)), cloud, T_ob, self.T_base_lidar, gt,
+                         num, ids, surface, self._surface_boxes(t, actor_boxes),
+                         self._odometry(k))
+        if self.surfaces is not None:
+            frame.clutter_boxes, frame.clutter_types = self._clutter(T_ol)
+            frame.surface_instance = self.surfaces.instance[np.clip(surface, 0, None)]
+            frame.surface_instance[surface < 0] = 0
+        return frame
+
+    # ------------------------------------------------------------------ casting
+    def _cast_sweep(self, t: float, k: int) -> RangeImage:
+        """The range image of the sweep starting at ``t``: one cast, or with motion distortion
+        one per azimuth sector from the poses at its firing time."""
         lc = self.cfg.lidar
         period = 1.0 / lc.rate_hz
-        t = k * period
         B, C = self.dirs.shape[:2]
         image = RangeImage(np.full((B, C), np.inf), np.full((B, C), -2, np.int64),
                            np.zeros((B, C)))
-        S = len(self.world.boxes)
         sectors = SECTORS if lc.motion_distortion else 1
         bounds = np.linspace(0, C, sectors + 1).astype(int)
-        T_world_lidar_sector = []
+        ray_u = None
+        if self.surfaces is not None:
+            ray_u = np.random.default_rng([self.seed, 0x9A55, k]).random((B, C))
         for j in range(sectors):
-            tj = t + (bounds[j] + bounds[j + 1]) / 2 / C * period if sectors > 1 else t
+            c0, c1 = int(bounds[j]), int(bounds[j + 1])
+            tj = t + (c0 + c1) / 2 / C * period if sectors > 1 else t
             T_wl = base_pose(self.ego, tj) @ self.T_base_lidar
-            T_world_lidar_sector.append(T_wl)
-            origin = T_wl[:3, 3]
-            near = np.hypot(*(self.world.boxes[:, :2] - origin[:2]).T) < lc.max_range + 30
-            actor_boxes, _ = self.actor_boxes(tj)
+            boxes, idx, porosity = self._sector_surfaces(tj, T_wl[:3, 3])
+            sub = RangeImage(image.rng[:, c0:c1].copy(), np.full((B, c1 - c0), -2, np.int64),
+                             np.zeros((B, c1 - c0)))
+            exact = self.cfg.exact_sector_columns
+            cast(self.dirs[:, c0:c1], T_wl[:3, 3], T_wl[:3, :3], boxes, slice(None),
+                 lc.max_range, sub, first_column=c0 if exact else 0,
+                 sweep_columns=C if exact else None,
+                 porosity=None if porosity is None or ray_u is None
+                 else Porosity(porosity, ray_u[:, c0:c1]))
+            image.rng[:, c0:c1] = sub.rng
+            image.hit[:, c0:c1] = np.where(sub.hit >= 0, idx[np.clip(sub.hit, 0, None)], sub.hit)
+            image.cos[:, c0:c1] = sub.cos
+        return image
+
+    def _sector_surfaces(self, t: float, origin: NDArray[np.float64]
+                         ) -> tuple[NDArray[np.float64], NDArray[np.int64],
+                                    NDArray[np.float64] | None]:
+        """Boxes near ``origin`` at time ``t``, their surface ids and (detailed world) their
+        porosity."""
+        reach = self.cfg.lidar.max_range
+        if self.surfaces is None:
+            near = np.hypot(*(self.world.boxes[:, :2] - origin[:2]).T) < reach + 30
+            actor_boxes, _ = self.actor_boxes(t)
             boxes = np.concatenate([self.world.boxes, actor_boxes])
             cand = np.concatenate([near, np.hypot(*(actor_boxes[:, :2] - origin[:2]).T)
-                                   < lc.max_range + 15])
+                                   < reach + 15])
             idx = np.nonzero(cand)[0]
-            sub = RangeImage(image.rng[:, bounds[j]:bounds[j + 1]].copy(),
-                             np.full((B, bounds[j + 1] - bounds[j]), -2, np.int64),
-                             np.zeros((B, bounds[j + 1] - bounds[j])))
-            cast(self.dirs[:, bounds[j]:bounds[j + 1]], origin, T_wl[:3, :3], boxes[idx],
-                 slice(None), lc.max_range, sub)
-            hit = np.where(sub.hit >= 0, idx[np.clip(sub.hit, 0, None)], sub.hit)
-            image.rng[:, bounds[j]:bounds[j + 1]] = sub.rng
-            image.hit[:, bounds[j]:bounds[j + 1]] = hit
-            image.cos[:, bounds[j]:bounds[j + 1]] = sub.cos
-        # returns: range limits, dropout, noise; points in column (firing) order
+            return boxes[idx], idx, None
+        boxes = self._surface_boxes(t)
+        extent = 0.5 * np.hypot(boxes[:, 3], boxes[:, 4])
+        idx = np.nonzero(np.hypot(*(boxes[:, :2] - origin[:2]).T) - extent < reach)[0]
+        return boxes[idx], idx, self.surfaces.porosity[idx]
+
+    def _surface_boxes(self, t: float, actor_boxes: NDArray[np.float64] | None = None
+                       ) -> NDArray[np.float64]:
+        """World boxes of every surface at ``t`` (what ``SimFrame.surface`` indexes)."""
+        if self.surfaces is None or self.trajectories is None:
+            assert actor_boxes is not None
+            return np.concatenate([self.world.boxes, actor_boxes])
+        sf = self.surfaces
+        x, y, yaw, _, _, travelled = self.trajectories.at(t)
+        o = sf.actor_owner
+        local = sf.actor_parts
+        lx = local[:, 0] + sf.swing * np.sin(2 * np.pi * travelled[o] / sf.stride)
+        parts = _place_boxes(local, lx, x[o], y[o], yaw[o])
+        T = base_pose(self.ego, t)
+        ego = _place_boxes(sf.ego, sf.ego[:, 0], np.full(len(sf.ego), T[0, 3]),
+                           np.full(len(sf.ego), T[1, 3]),
+                           np.full(len(sf.ego), np.arctan2(T[1, 0], T[0, 0])))
+        return np.concatenate([sf.static, ego, parts])
+
+    # ------------------------------------------------------------------ returns and labels
+    def _returns(self, image: RangeImage, k: int
+                 ) -> tuple[NDArray[np.void], NDArray[np.float64], NDArray[np.int64]]:
+        """Points from the range image: range limits, dropout, noise, intensity; in column
+        (firing) order. Returns the cloud, its xyz and each point's surface id."""
+        lc = self.cfg.lidar
+        C = self.dirs.shape[1]
         rng = self.noise_rng
         valid = np.isfinite(image.rng) & (image.rng >= lc.min_range) & (image.rng <= lc.max_range)
         valid &= rng.random(image.rng.shape) >= lc.dropout
+        if self.surfaces is not None:       # glass, dark paint, tyres: hits without a return
+            kept = np.random.default_rng([self.seed, 0x7E7, k]).random(image.rng.shape)
+            valid &= (image.hit < 0) | (kept < self.surfaces.return_prob[image.hit.clip(0)])
         r = image.rng + rng.normal(0.0, lc.range_noise, image.rng.shape)
         order_b, order_c = np.nonzero(valid.T)[::-1]          # column-major: c outer, b inner
         rr = r[order_b, order_c]
         xyz = self.dirs[order_b, order_c] * rr[:, None]
         surface = image.hit[order_b, order_c]
-        actor_mat = np.array([a.material for a in self.actors], np.int64)
-        mat = np.where(surface == GROUND, 0,
-                       np.where(surface < S, self.static_materials[np.clip(surface, 0, S - 1)],
-                                actor_mat[np.clip(surface - S, 0, len(self.actors) - 1)]))
-        refl = REFLECTIVITY[mat]
+        refl = self._reflectivity(surface)
         inten = refl * (0.3 + 0.7 * image.cos[order_b, order_c]) * lc.intensity_max
         inten *= np.exp(-rr / 400.0) * (1.0 + rng.normal(0.0, 0.05, len(rr)))
         cloud = np.zeros(len(rr), POINT_DTYPE)
         cloud['x'], cloud['y'], cloud['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         cloud['intensity'] = np.clip(inten, 0, lc.intensity_max)
         cloud['ring'] = order_b
-        cloud['time'] = order_c / C * period
-        # ground truth at the stamp, in the LiDAR frame
-        T_ob = base_pose(self.ego, t)
-        T_ol = T_ob @ self.T_base_lidar
-        actor_boxes, actor_vel = self.actor_boxes(t)
+        cloud['time'] = order_c / C * (1.0 / lc.rate_hz)
+        return cloud, xyz, surface
+
+    def _reflectivity(self, surface: NDArray[np.int64]) -> NDArray[np.float64]:
+        """Reflectivity (0..1) of each point's surface."""
+        if self.surfaces is not None:
+            return np.where(surface == GROUND, REFLECTIVITY[0],
+                            self.surfaces.reflectivity[surface.clip(0)])
+        S = len(self.world.boxes)
+        actor_mat = np.array([a.material for a in self.actors] or [0], np.int64)
+        mat = np.where(surface == GROUND, 0,
+                       np.where(surface < S, self.static_materials[np.clip(surface, 0, S - 1)],
+                                actor_mat[np.clip(surface - S, 0, len(actor_mat) - 1)]))
+        return REFLECTIVITY[mat]
+
+    def _ground_truth(self, T_ol: NDArray[np.float64], actor_boxes: NDArray[np.float64],
+                      actor_vel: NDArray[np.float64], xyz: NDArray[np.float64]
+                      ) -> tuple[Detections, NDArray[np.uint32], NDArray[np.uint32]]:
+        """GT in the LiDAR frame (actors within range, not the one the sensor sits in), the
+        number of returns in each box and the instance ids."""
+        lc = self.cfg.lidar
         T_lo = se3_inverse(T_ol)
         boxes_l, vel_l = transform_boxes(T_lo, actor_boxes, actor_vel)
         assert vel_l is not None
@@ -158,6 +297,29 @@ class Simulation:
         ids = np.array([a.instance_id for a in self.actors], np.uint32)[keep]
         num = count_points_in_boxes(xyz, boxes_l)
         gt = Detections(boxes_l, vel_l, np.ones(len(boxes_l), np.float32), labels)
+        return gt, num, ids
+
+    def _clutter(self, T_ol: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+        """Clutter objects within range, LiDAR frame, with their types; the ego's body last."""
+        assert self.scene is not None and self.cfg.realism is not None
+        objects, types = self.scene.objects, self.scene.types
+        near = np.hypot(*(objects[:, :2] - T_ol[:2, 3]).T) <= self.cfg.lidar.max_range
+        boxes, _ = transform_boxes(se3_inverse(T_ol), objects[near])
+        types = types[near]
+        if self.cfg.realism.ego_body:
+            size = self.ego.size
+            ego_box = np.array([[0.0, 0.0, size[2] / 2, *size, 0.0]])
+            ego_l, _ = transform_boxes(se3_inverse(self.T_base_lidar), ego_box)
+            boxes = np.concatenate([boxes, ego_l])
+            types = np.append(types, CLUTTER_ID['ego_body'])
+        return boxes, types
+
+    def _odometry(self, k: int) -> list[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
+        """Odometry messages from the previous sweep's stamp (exclusive) to this one's end."""
+        period = 1.0 / self.cfg.lidar.rate_hz
+        t = k * period
+        rng = self.noise_rng
         odometry = []
         odom_period = 1.0 / self.cfg.odom_rate_hz
         first = -1.0 * period if k == 0 else t
@@ -174,9 +336,19 @@ class Simulation:
                 T = T @ pose_from_xyz_rpy(rng.normal(0, self.cfg.odom_noise, 3) * [1, 1, 0],
                                           (0, 0, rng.normal(0, self.cfg.odom_noise)))
             odometry.append((START_NS + int(round(ts * 1e9)), T, tw))
-        return SimFrame(k, START_NS + int(round(t * 1e9)), cloud, T_ob, self.T_base_lidar, gt,
-                        num, ids, surface, np.concatenate([self.world.boxes, actor_boxes]),
-                        odometry)
+        return odometry
+
+
+def _place_boxes(local: NDArray[np.float64], lx: NDArray[np.float64], x: NDArray[np.float64],
+                 y: NDArray[np.float64], yaw: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Boxes ``(P, 7)`` given in their owner's frame (x replaced by ``lx``) placed in the world
+    at the owners' ``x, y, yaw`` ``(P,)``."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = local.copy()
+    out[:, 0] = x + c * lx - s * local[:, 1]
+    out[:, 1] = y + s * lx + c * local[:, 1]
+    out[:, 6] = yaw + local[:, 6]
+    return out
 
 
 def points_in_boxes(xyz: NDArray[np.floating], boxes: NDArray[np.floating]) -> NDArray[np.bool_]:
