@@ -54,6 +54,26 @@ def _no_intensity(frame: Any) -> Any:
     return replace(frame, points=pts)
 
 
+def clutter_fp(runs: dict[str, Any], drives: list[tuple[int, str]], frames: int,
+               min_score: float) -> dict[str, dict[str, float]]:
+    """False positives per frame on clutter objects, per clutter type (the val drives are
+    rendered again for their clutter footprints)."""
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.clutter import CLUTTER_TYPES, clutter_false_positives
+    from suit_ros.data.sim.scene import Simulation
+    sim_frames = []
+    for seed, sensor in drives:
+        sim = Simulation(preset('val-real', sensor=sensor, frames=frames), seed)
+        sim_frames += [sim.render(k) for k in range(frames)]
+    out = {}
+    for name, run in runs.items():
+        dets = [d.select(d.scores >= min_score) for d in run.det]
+        counts = clutter_false_positives(sim_frames, dets)
+        out[name] = {t: float(counts[:, j].mean()) for j, t in enumerate(CLUTTER_TYPES)}
+        out[name]['all'] = float(counts.sum(1).mean())
+    return out
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or '').splitlines()[0])
     parser.add_argument('--single', required=True, help='single-frame checkpoint')
@@ -86,6 +106,9 @@ def main() -> int:
           flush=True)
     pairs = [p for p in PAIRS if p[0] in runs and p[1] in runs]
     stats, diffs = bootstrap(runs, names, pairs, args.resamples)
+    clutter = ({} if args.quick else
+               clutter_fp({k: runs[k] for k in ('single', 'suit')},
+                          [tuple(d) for d in split_drives('val', args.drives)], args.frames, 0.3))
     held: dict[str, Any] = {}
     if args.heldout_drives and not args.quick:
         hv = synthetic_split('heldout', args.heldout_drives, args.frames, args.cache_dir)
@@ -108,9 +131,10 @@ def main() -> int:
     out.mkdir(exist_ok=True)
     (out / 'results.json').write_text(json.dumps(
         {'meta': meta, 'runs': plain(stats), 'differences': plain(diffs),
-         'heldout_sensor': plain(held), 'latency_p50_ms': latency, 'memory_bytes': memory},
+         'heldout_sensor': plain(held), 'latency_p50_ms': latency, 'memory_bytes': memory,
+         'clutter_fp_per_frame': clutter},
         indent=1))
-    text = render(stats, diffs, held, latency, memory, meta, list(names))
+    text = render(stats, diffs, held, latency, memory, meta, list(names), clutter)
     (out / 'results.md').write_text(text)
     print(text)
     return 0
@@ -118,7 +142,7 @@ def main() -> int:
 
 def render(stats: dict[str, Any], diffs: dict[str, Any], held: dict[str, Any],
            latency: dict[str, float], memory: dict[str, Any], meta: dict[str, Any],
-           names: list[str]) -> str:
+           names: list[str], clutter: dict[str, dict[str, float]]) -> str:
     """docs/results.md."""
     def table(rows: dict[str, Any], cols: list[str]) -> list[str]:
         lines = ['| run | ' + ' | '.join(cols) + ' |', '|---' * (len(cols) + 1) + '|']
@@ -152,6 +176,14 @@ def render(stats: dict[str, Any], diffs: dict[str, Any], held: dict[str, Any],
         lines += ['', f'## Held-out sensor ({held_sensors}, never in training; seeds '
                   f'{meta["heldout_drives"][0][0]}+)', '']
         lines += table(held, ['mAP', 'NDS'] + [f'AP {c}' for c in names])
+    if clutter:
+        types = [t for t in next(iter(clutter.values())) if t != 'all']
+        lines += ['', '## False positives on clutter (per frame, score >= 0.3, no GT within '
+                  '2 m, centre within 0.5 m of the object)', '',
+                  '| run | all | ' + ' | '.join(types) + ' |', '|---' * (len(types) + 2) + '|']
+        for r, c in clutter.items():
+            lines.append(f'| {r} | {c["all"]:.2f} | '
+                         + ' | '.join(f'{c[t]:.3f}' for t in types) + ' |')
     lines += ['', '## Latency and memory', '',
               '| run | model step p50 (ms, this benchmark, 2 threads) | memory bytes after 2 / '
               '10 frames |', '|---|---|---|']

@@ -15,8 +15,8 @@ cd "$root"
 . "$root/scripts/env.sh"
 suit="$root/.venv/bin/suit-ros"
 py="$root/.venv/bin/python"
-STAGE1_MIN=${STAGE1_MIN:-65}
-STAGE2_MIN=${STAGE2_MIN:-55}
+STAGE1_MIN=${STAGE1_MIN:-55}
+STAGE2_MIN=${STAGE2_MIN:-45}
 resume=()
 [ -n "${RESUME:-}" ] && resume=(--resume)
 mkdir -p runs/prev
