@@ -329,3 +329,19 @@ def test_geonet_learns_bins_from_the_head_velocity():
         opt.step()
     acc = (g(patches, v).argmax(1) == g.target_bins(v)).float().mean()
     assert acc > 0.9, float(acc)
+
+
+def test_voxelize_equals_torch_unique_over_batches():
+    torch.manual_seed(1)
+    enc = PillarEncoder(GRID, 5, 8)
+    n = 5000
+    pts = torch.cat([torch.randint(0, 3, (n, 1)).float(),
+                     torch.randn(n, 2) * 8, torch.rand(n, 3) - 0.5], 1)
+    kept, inverse, keys = enc.voxelize(pts)
+    ix = ((kept[:, 1] - GRID.point_range[0]) / GRID.pillar_size).long()
+    iy = ((kept[:, 2] - GRID.point_range[1]) / GRID.pillar_size).long()
+    key = (kept[:, 0].long() * GRID.ny + iy) * GRID.nx + ix
+    want_keys, want_inverse = torch.unique(key, return_inverse=True)
+    assert torch.equal(keys, want_keys) and torch.equal(inverse, want_inverse)
+    empty = enc.voxelize(torch.zeros(0, 6))
+    assert empty[0].shape[0] == 0 and empty[2].numel() == 0
