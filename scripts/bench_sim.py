@@ -8,10 +8,10 @@ Usage: scripts/bench_sim.py [--frames 12] [--sensors sim32 os1-128 ...] [--exact
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 import os
 import statistics
 import time
-from dataclasses import replace
 
 from suit_ros.data.sim import preset
 from suit_ros.data.sim.config import SENSORS
