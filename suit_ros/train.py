@@ -172,8 +172,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
                           f'{tc.dataset!r}')
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
-    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank,
-                          1 if tc.dataset == 'nuscenes' else mcfg.sweeps)
+    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps)
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
     opt = torch.optim.AdamW(module.parameters(), lr=tc.lr, weight_decay=tc.weight_decay,
                             betas=(0.95, 0.99))

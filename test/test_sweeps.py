@@ -113,3 +113,20 @@ def test_model_frame_equals_the_streaming_buffer():
     np.testing.assert_allclose(gt.boxes[0, :3], want[:3], atol=1e-5)
     assert gt.boxes[0, 6] == pytest.approx(0.3 + 0.01, abs=1e-4)
     assert np.hypot(*gt.velocities[0]) == pytest.approx(3.0, abs=1e-3)   # pitch 0.02
+
+
+def test_an_accumulation_already_is_used_as_it_is():
+    """nuScenes keyframes come with their sweeps stacked (time lags > 0): nothing is added."""
+    buf = SweepBuffer(3)
+    for k in range(3):
+        s = sweep_at(0.1 * k)
+        buf.push(s.points, s.T_odom_lidar, s.stamp_ns, T_BL)
+    s = sweep_at(0.3)
+    stacked = np.c_[s.points, np.array([0.0, 0.05, 0.1], np.float32)]
+    out = buf.push(stacked, s.T_odom_lidar, s.stamp_ns, T_BL)
+    assert len(out) == 3 and len(buf) == 0
+    np.testing.assert_allclose(out[:, 4], [0.0, 0.05, 0.1], atol=1e-7)
+    frames = [Frame(np.c_[sweep_at(0.5 * k).points, np.full(3, 0.05, np.float32)],
+                    sweep_at(0.5 * k).T_odom_lidar, int(1e9 + 5e8 * k), T_base_lidar=T_BL)
+              for k in range(2)]
+    assert len(model_frame(frames, 1, 3).points) == 3

@@ -9,6 +9,10 @@ gap (the ground is at z = 0 for every sensor).
 One implementation serves every path: :func:`accumulate_sweeps` is called by
 :class:`SweepBuffer` (the node and ``detect-bag``, through the streaming detector) and by
 :func:`model_frame` (training and evaluation data).
+
+A sweep whose points already carry non-zero time lags (a nuScenes keyframe with its sweeps, as
+the dataset ships them) is an accumulation already: it is used as it is, without adding the
+previous frames, and it clears the buffer.
 """
 from __future__ import annotations
 
@@ -23,6 +27,12 @@ from suit_ros.ops.geometry import se3_inverse, transform_boxes
 from suit_ros.structures import Detections, Frame
 
 DEFAULT_MAX_AGE_S = 0.5
+
+
+def already_accumulated(points: NDArray[np.float32]) -> bool:
+    """Whether a sweep's points carry time lags (a fifth column with a value > 0)."""
+    return points.ndim == 2 and points.shape[1] == 5 and len(points) > 0 \
+        and bool(points[:, 4].max() > 0)
 
 
 @dataclass(frozen=True)
@@ -104,7 +114,7 @@ class SweepBuffer:
             buffer is cleared and the input is the current sweep alone.
         :return: the model input ``(N, 5)`` in base_link.
         """
-        if T_odom_lidar is None:
+        if T_odom_lidar is None or already_accumulated(points):
             self.clear()
             return accumulate_sweeps([Sweep(points, np.eye(4), stamp_ns)], T_base_lidar)
         if self.past and stamp_ns <= self.past[-1].stamp_ns:
@@ -126,7 +136,8 @@ def model_frame(sequence: Sequence[Frame], t: int, sweeps: int,
     f = sequence[t]
     T_bl = np.asarray(f.T_base_lidar, np.float64)
     past = [sequence[j] for j in range(t - 1, max(t - sweeps, -1), -1)]
-    past = [p for p in past if 0 < f.stamp_ns - p.stamp_ns <= max_age_s * 1e9]
+    past = [p for p in past if 0 < f.stamp_ns - p.stamp_ns <= max_age_s * 1e9
+            and not already_accumulated(f.points)]
     points = accumulate_sweeps([Sweep(f.points, f.pose, f.stamp_ns)]
                                + [Sweep(p.points, p.pose, p.stamp_ns) for p in past], T_bl)
     gt = f.gt
