@@ -38,7 +38,7 @@ def main() -> int:
     os.environ.update(env)
     bag = 'out/demo/demo-seed7-100f'
     if not os.path.exists(bag):
-        write_bag(bag, preset('demo', frames=100), 7, 'mcap')
+        write_bag(bag, preset('demo-real', frames=100), 7, 'mcap')
     node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
                              f'checkpoint:={default_checkpoint_path()}', '-p', 'threads:=2',
                              '-p', 'qos_overrides./points.subscription.reliability:=reliable'],

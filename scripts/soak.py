@@ -39,7 +39,7 @@ def main() -> int:
     torch.set_num_threads(args.threads)
     model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
     runner = StreamingDetector(model, 'cpu')
-    drive = synthetic_sequence('demo', 7, 100, 'data_cache')
+    drive = synthetic_sequence('demo-real', 7, 100, 'data_cache')
     lat, rss = [], []
     period = drive[1].stamp_ns - drive[0].stamp_ns
     t0 = time.monotonic()

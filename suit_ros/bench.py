@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2, pointcloud2_to_xyzi
     torch.set_num_threads(args.threads)
     n = args.frames
-    sim = Simulation(preset('demo', frames=max(n, 12)), 7)
+    sim = Simulation(preset('demo-real', frames=max(n, 12)), 7)
     simframes = [sim.render(k) for k in range(n)]
     frames = [to_frame(f, 7) for f in simframes]
     C = MessageClasses.from_rclpy()
@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     res['scaling_points_ms'] = scaling
     by_objects = []
     for actors in (10, 40, 120):
-        cfg = preset('demo', frames=6, moving_vehicles=actors // 2, parked_vehicles=actors // 4,
+        cfg = preset('demo-real', frames=6, moving_vehicles=actors // 2, parked_vehicles=actors // 4,
                      pedestrians=actors // 4, cyclists=2)
         runner.reset('bench')
         s = Simulation(cfg, 3)

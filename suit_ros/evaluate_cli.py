@@ -103,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
             seqs = [synthetic_sequence('val', SPLIT_SEEDS['val'] + i, 40, args.cache_dir)
                     for i in range(VAL_SEQUENCES)]
         else:
-            seqs = [synthetic_sequence('demo', SPLIT_SEEDS['demo'], 100, args.cache_dir)]
+            seqs = [synthetic_sequence('demo-real', SPLIT_SEEDS['demo'], 100, args.cache_dir)]
         if not seqs or not seqs[0]:
             raise DatasetError('the synthetic split is empty')
         result = evaluate_model(model, seqs, history=args.history)

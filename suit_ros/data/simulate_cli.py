@@ -92,7 +92,12 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     group.add_argument('--duration', type=float, help='seconds of driving')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     parser.add_argument('--beams', type=int, help='16, 32, 64 or 128')
-    parser.add_argument('--preset', default='demo', help='demo | train | val | test')
+    parser.add_argument('--preset', default='demo-real',
+                        help='demo-real | train-real | val-real (the detailed world the shipped '
+                             'model is trained on) | demo | train | val | test (box world)')
+    parser.add_argument('--sensor', help='a real-sensor model: sim32, hdl32e, hdl64e, vlp16, '
+                        'os1-64, os1-128 (docs/sensors.md); the intensity field keeps the '
+                        "sensor's convention (hdl64e: 0..1, the others 0..255)")
     parser.add_argument('--motion-distortion', action='store_true',
                         help='cast each azimuth sector at its firing time')
 
@@ -105,7 +110,7 @@ def run(args: argparse.Namespace) -> int:
         overrides['beams'] = args.beams
     if args.motion_distortion:
         overrides['motion_distortion'] = True
-    cfg = preset(args.preset, **overrides)
+    cfg = preset(args.preset, sensor=args.sensor, **overrides)
     rate = cfg.lidar.rate_hz
     frames = args.frames if args.frames is not None else (
         int(round(args.duration * rate)) if args.duration is not None else cfg.frames)
