@@ -109,6 +109,9 @@ def main() -> int:
     clutter = ({} if args.quick else
                clutter_fp({k: runs[k] for k in ('single', 'suit')},
                           [tuple(d) for d in split_drives('val', args.drives)], args.frames, 0.3))
+    from suit_ros.benchmark import past_share
+    share = {} if args.quick else past_share(suit, val[:8])
+    print(f'[ablation] past share at car centres: {share}', flush=True)
     held: dict[str, Any] = {}
     if args.heldout_drives and not args.quick:
         hv = synthetic_split('heldout', args.heldout_drives, args.frames, args.cache_dir)
@@ -132,9 +135,9 @@ def main() -> int:
     (out / 'results.json').write_text(json.dumps(
         {'meta': meta, 'runs': plain(stats), 'differences': plain(diffs),
          'heldout_sensor': plain(held), 'latency_p50_ms': latency, 'memory_bytes': memory,
-         'clutter_fp_per_frame': clutter},
+         'clutter_fp_per_frame': clutter, 'past_share_at_car_centres': share},
         indent=1))
-    text = render(stats, diffs, held, latency, memory, meta, list(names), clutter)
+    text = render(stats, diffs, held, latency, memory, meta, list(names), clutter, share)
     (out / 'results.md').write_text(text)
     print(text)
     return 0
@@ -142,7 +145,8 @@ def main() -> int:
 
 def render(stats: dict[str, Any], diffs: dict[str, Any], held: dict[str, Any],
            latency: dict[str, float], memory: dict[str, Any], meta: dict[str, Any],
-           names: list[str], clutter: dict[str, dict[str, float]]) -> str:
+           names: list[str], clutter: dict[str, dict[str, float]],
+           share: dict[str, float]) -> str:
     """docs/results.md."""
     def table(rows: dict[str, Any], cols: list[str]) -> list[str]:
         lines = ['| run | ' + ' | '.join(cols) + ' |', '|---' * (len(cols) + 1) + '|']
@@ -184,6 +188,10 @@ def render(stats: dict[str, Any], diffs: dict[str, Any], held: dict[str, Any],
         for r, c in clutter.items():
             lines.append(f'| {r} | {c["all"]:.2f} | '
                          + ' | '.join(f'{c[t]:.3f}' for t in types) + ' |')
+    if share:
+        lines += ['', f'The fusion\'s past term at car centres (first 8 drives, '
+                  f'{int(share["cells"])} cells): {100 * share["past share"]:.1f}% of the norm of '
+                  'the current term W1 F_t (0% at the start of stage 2 by construction).']
     lines += ['', '## Latency and memory', '',
               '| run | model step p50 (ms, this benchmark, 2 threads) | memory bytes after 2 / '
               '10 frames |', '|---|---|---|']

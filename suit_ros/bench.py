@@ -135,8 +135,8 @@ def run(args: argparse.Namespace) -> int:
     res['scaling_points_ms'] = scaling
     by_objects = []
     for actors in (10, 40, 120):
-        cfg = preset('demo-real', frames=6, moving_vehicles=actors // 2, parked_vehicles=actors // 4,
-                     pedestrians=actors // 4, cyclists=2)
+        cfg = preset('demo-real', frames=6, moving_vehicles=actors // 2,
+                     parked_vehicles=actors // 4, pedestrians=actors // 4, cyclists=2)
         runner.reset('bench')
         s = Simulation(cfg, 3)
         times, objs = [], []

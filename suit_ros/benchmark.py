@@ -14,13 +14,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.evaluate import ModelRun, evaluate
-from suit_ros.structures import Detections
+from suit_ros.structures import Detections, Frame
 
 IGNORE_DIST = 2.0
 MOVING_SPEED = 1.0                 # m/s: GT faster than this is "moving"
@@ -116,6 +116,44 @@ def car_motion(gt: Sequence[Detections], det: Sequence[Detections], car: int,
             'car flipped %': float(100 * (h > 0.75 * np.pi).mean()) if len(h) else float('nan'),
             'moving car vel err': float(np.mean(vel_moving)) if vel_moving else float('nan'),
             'moving car speed ratio': float(np.median(speed)) if speed else float('nan')}
+
+
+def past_share(model: Any, sequences: Sequence[Sequence[Frame]], class_index: int = 0
+               ) -> dict[str, float]:
+    """How much the temporal path contributes: the norm of the fusion's past term relative to
+    the current term ``W1 F_t`` at the head cells of GT object centres (class ``class_index``,
+    with LiDAR returns), over frames that fused a memory."""
+    from suit_ros.evaluate import step_inputs
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.model.sweeps import model_frame
+    runner = StreamingDetector(model)
+    runner.keep_terms = True
+    grid = model.grid
+    past_n, own_n = [], []
+    for seq in sequences:
+        runner.reset('new sequence')
+        for t, f in enumerate(seq):
+            runner.step(*step_inputs(f))
+            terms = runner.last_terms
+            if terms is None:
+                continue
+            own, past = terms
+            if past is None:
+                continue
+            gt = model_frame(seq, t, 1).gt
+            if gt is None or f.num_points is None:
+                continue
+            keep = (gt.labels == class_index) & (f.num_points > 0)
+            for x, y in gt.boxes[keep, :2]:
+                c, r = int((x - grid.point_range[0]) // grid.cell), \
+                    int((y - grid.point_range[1]) // grid.cell)
+                if 0 <= c < grid.W and 0 <= r < grid.H:
+                    past_n.append(float(past[0, :, r, c].norm()))
+                    own_n.append(float(own[0, :, r, c].norm()))
+    if not own_n:
+        return {'past share': float('nan'), 'cells': 0.0}
+    return {'past share': float(np.mean(past_n)) / max(float(np.mean(own_n)), 1e-12),
+            'cells': float(len(own_n))}
 
 
 @dataclass

@@ -49,6 +49,7 @@ class TrainConfig:
     max_minutes: float = 0.0         # 0: no time limit
     seed: int = 0
     augment: bool = True
+    temporal_lr_scale: float = 1.0   # lr multiplier of the temporal modules (fusion, GeoNet)
     flip_probability: float = 0.0    # 0: keep the front/back cue of box-shaped actors
     intensity_dropout: float = 0.2   # clips trained without intensity
     eval_at_end: bool = True
@@ -174,8 +175,12 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps)
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
-    opt = torch.optim.AdamW(module.parameters(), lr=tc.lr, weight_decay=tc.weight_decay,
-                            betas=(0.95, 0.99))
+    temporal = [p for n, p in module.named_parameters() if n.startswith(('fusion.', 'geonet.'))]
+    ids = {id(p) for p in temporal}
+    groups = [{'params': [p for p in module.parameters() if id(p) not in ids], 'lr_scale': 1.0}]
+    if temporal:
+        groups.append({'params': temporal, 'lr_scale': tc.temporal_lr_scale})
+    opt = torch.optim.AdamW(groups, lr=tc.lr, weight_decay=tc.weight_decay, betas=(0.95, 0.99))
     step = 0
     done_s = 0.0                     # wall time of earlier runs of a resumed training
     last = out / 'last.pt'
@@ -206,7 +211,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     while progress() < 1.0:
         lr, beta1 = one_cycle(progress(), tc.lr)
         for group in opt.param_groups:
-            group['lr'] = lr
+            group['lr'] = lr * group['lr_scale']
             group['betas'] = (beta1, group['betas'][1])
         clips = sampler.batch(batch)
         if tc.augment:

@@ -91,3 +91,39 @@ def test_car_motion_heading_and_flips():
     # low-score detections and far ones are not matched
     low = dets([[10.2, 0, 0, 4, 2, 1.5, 0.5]], scores=np.array([0.1]))
     assert np.isnan(car_motion([g], [low], 0)['car heading err'])
+
+
+@pytest.mark.slow
+def test_past_share_is_zero_at_init_and_grows_with_the_past_weights():
+    import torch
+
+    from suit_ros.benchmark import past_share
+    from suit_ros.config import BackboneConfig, ModelConfig, PillarConfig, SamplingConfig
+    from suit_ros.model.detector import SUITDetector
+    from suit_ros.ops.geometry import pose_from_xyz_rpy
+    from suit_ros.structures import Frame
+    torch.manual_seed(0)
+    cfg = ModelConfig(temporal='sparse',
+                      pillars=PillarConfig(point_range=(-25.6, -25.6, -2.0, 25.6, 25.6, 4.0),
+                                           channels=8),
+                      backbone=BackboneConfig(num_filters=(8, 8, 8),
+                                              num_upsample_filters=(8, 8, 8)),
+                      sampling=SamplingConfig(top_k=5000))
+    model = SUITDetector(cfg).eval()
+    with torch.no_grad():                 # every cell significant: the memory covers the map
+        model.head.heatmap[-1].bias.fill_(5.0)
+    rng = np.random.default_rng(0)
+    frames = []
+    for t in range(4):
+        pts = np.c_[rng.uniform(-20, 20, (2000, 2)), rng.uniform(0, 2, 2000),
+                    rng.uniform(0, 1, 2000), np.zeros(2000)].astype(np.float32)
+        pts[:300, :2] = rng.normal([5, 3], 0.6, (300, 2))
+        gt = dets([[5, 3, 0.8, 4, 2, 1.5, 0]])
+        frames.append(Frame(pts, pose_from_xyz_rpy((0.5 * t, 0, 0), (0, 0, 0)),
+                            int(1e9 + t * 1e8), gt=gt, num_points=np.array([300], np.uint32)))
+    zero = past_share(model, [frames])
+    assert zero['cells'] == 3 and zero['past share'] == 0.0     # W2 starts at zero
+    with torch.no_grad():
+        model.fusion.past.weight.copy_(torch.eye(model.fusion.past.weight.shape[0]))
+    grown = past_share(model, [frames])
+    assert grown['past share'] > 0.0

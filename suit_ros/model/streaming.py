@@ -51,6 +51,9 @@ class StreamingDetector:
         self.memory: Memory | None = None
         self.sweeps = SweepBuffer(self.cfg.sweeps)
         self.last_reset_reason = 'start'
+        # set keep_terms to inspect the fusion: (W1 F_t, past term or None) of the last step
+        self.keep_terms = False
+        self.last_terms: tuple[torch.Tensor, torch.Tensor | None] | None = None
         self.set_thresholds(score_thresholds, nms_iou_threshold, max_detections, candidates)
 
     def set_thresholds(self, score_thresholds: list[float] | None = None,
@@ -126,6 +129,9 @@ class StreamingDetector:
         past, _ = m.past_term(self.memory, poses, [stamp_ns])
         used = past is not None
         fused = m.fuse(current, past)
+        if self.keep_terms:
+            own = m.fusion.current(current) if m.fusion is not None else current
+            self.last_terms = (own, past)
         t3 = self._sync()
         preds = m.head(fused)
         h = self.cfg.head
