@@ -189,7 +189,7 @@ def render(stats: dict[str, Any], diffs: dict[str, Any], held: dict[str, Any],
             lines.append(f'| {r} | {c["all"]:.2f} | '
                          + ' | '.join(f'{c[t]:.3f}' for t in types) + ' |')
     if share:
-        lines += ['', f'The fusion\'s past term at car centres (first 8 drives, '
+        lines += ['', f"The fusion's past term at car centres (first 8 drives, "
                   f'{int(share["cells"])} cells): {100 * share["past share"]:.1f}% of the norm of '
                   'the current term W1 F_t (0% at the start of stage 2 by construction).']
     lines += ['', '## Latency and memory', '',
