@@ -35,7 +35,7 @@ def local_ros_env() -> dict[str, str]:
     """This process's environment with DDS kept on this machine and a per-run domain."""
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env['ROS_LOCALHOST_ONLY'] = '1'
+    env.pop('ROS_LOCALHOST_ONLY', None)   # deprecated; it overrides the range
     env.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 1))
     return env
 

@@ -313,7 +313,6 @@ class DetectorNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run suit_ros detector``."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     rclpy.init(args=args)
     try:
         node = DetectorNode()

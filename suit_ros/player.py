@@ -46,7 +46,6 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.data.bag import messages, open_reader
     if args.rate <= 0:
         raise BagError('--rate must be > 0')
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     with open_reader(args.bag) as reader:
         conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
         if not conns:

@@ -16,7 +16,7 @@ def ros_env() -> dict[str, str]:
     """Environment for child processes: DDS on localhost, this run's domain."""
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env['ROS_LOCALHOST_ONLY'] = '1'
+    env.pop('ROS_LOCALHOST_ONLY', None)
     env['PYTHONUNBUFFERED'] = '1'
     return env
 
