@@ -56,8 +56,7 @@ def run(args: argparse.Namespace) -> int:
     read_metadata(ckpt)   # fail early with a clear message
     env = os.environ.copy()
     node = subprocess.Popen(
-        [sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p', f'checkpoint:={ckpt}',
-         '-p', 'qos_overrides./points.subscription.reliability:=reliable'],
+        [sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p', f'checkpoint:={ckpt}'],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         return _record(args, bag, node, env, out)
@@ -109,6 +108,7 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
             if time.monotonic() > deadline:
                 raise SuitRosError('the detector node did not come up in time')
         print(f'[demo] playing {bag} at rate {args.rate} ...', flush=True)
+        # the player sets the large-data Fast DDS profile for itself (suit_ros.dds)
         player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
                                    '--rate', str(args.rate), '--start-delay', '1.0',
                                    '--wait-subscribers', '20'],

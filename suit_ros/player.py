@@ -26,6 +26,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--max-messages', type=int, default=0, help='stop after N (0: all)')
     parser.add_argument('--wait-subscribers', type=float, default=0.0, metavar='SECONDS',
                         help='first wait up to this long until every topic has a subscriber')
+    parser.add_argument('--reliability', choices=['reliable', 'best_effort'],
+                        default='reliable',
+                        help='QoS reliability of the publishers (drivers often use best_effort)')
 
 
 def message_class(msgtype: str) -> Any:
@@ -40,10 +43,11 @@ def message_class(msgtype: str) -> Any:
 def run(args: argparse.Namespace) -> int:
     """Play the bag."""
     import rclpy
-    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from rosgraph_msgs.msg import Clock
 
     from suit_ros.data.bag import messages, open_reader
+    from suit_ros.dds import use_large_data_profile
     if args.rate <= 0:
         raise BagError('--rate must be > 0')
     with open_reader(args.bag) as reader:
@@ -54,6 +58,9 @@ def run(args: argparse.Namespace) -> int:
                     for c, t, raw in messages(reader, conns)]
     if not messages:
         raise BagError(f'{args.bag} has no messages on the selected topics')
+    profile = use_large_data_profile(os.environ)   # before rclpy creates the participant
+    if profile:
+        print(f'play: Fast DDS profile {profile} (large messages over shared memory)')
     rclpy.init()
     node = rclpy.create_node('suit_ros_player')
     pubs = {}
@@ -65,7 +72,10 @@ def run(args: argparse.Namespace) -> int:
             continue
         latched = topic == '/tf_static'
         qos = QoSProfile(depth=10, durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
-                                               else DurabilityPolicy.VOLATILE))
+                                               else DurabilityPolicy.VOLATILE),
+                         reliability=(ReliabilityPolicy.RELIABLE
+                                      if latched or args.reliability == 'reliable'
+                                      else ReliabilityPolicy.BEST_EFFORT))
         pubs[topic] = node.create_publisher(cls, topic, qos)
     messages = [m for m in messages if m[0] in pubs]
     clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
