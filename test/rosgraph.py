@@ -23,10 +23,9 @@ def ros_env() -> dict[str, str]:
 
 def start_node(checkpoint: str, *params: str, cmd: list[str] | None = None
                ) -> subprocess.Popen[str]:
-    """Start the detector node in its own process (reliable QoS override for big clouds)."""
+    """Start the detector node in its own process (every other parameter at its default)."""
     args = (cmd or [sys.executable, '-m', 'suit_ros.node']) + [
-        '--ros-args', '-p', f'checkpoint:={checkpoint}',
-        '-p', 'qos_overrides./points.subscription.reliability:=reliable']
+        '--ros-args', '-p', f'checkpoint:={checkpoint}']
     for p in params:
         args += ['-p', p]
     return subprocess.Popen(args, env=ros_env(), stdout=subprocess.PIPE,
