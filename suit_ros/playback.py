@@ -124,11 +124,11 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.data.bag import open_reader, open_writer
     from suit_ros.msg_adapters.classes import MessageClasses
     out_path = Path(args.output)
-    if out_path.exists():
-        raise BagError(f'{out_path} already exists; choose a new output path')
     params = params_from_args(args)
     t0 = time.monotonic()
     with open_reader(args.input) as reader:
+        if out_path.exists():
+            raise BagError(f'{out_path} already exists; choose a new output path')
         topics = {c.topic: c for c in reader.connections}
         if params.points_topic not in topics:
             raise BagError(f'{args.input} has no {params.points_topic} topic; topics: '
