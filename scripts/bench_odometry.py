@@ -19,17 +19,17 @@ import subprocess
 import sys
 import threading
 import time
+from typing import Any
 
 
-def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str, float]:
+def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str, Any]:
     """Run the node against odometry at ``rate_hz``; return its counters."""
+    from diagnostic_msgs.msg import DiagnosticArray
+    from nav_msgs.msg import Odometry
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile
-
-    from diagnostic_msgs.msg import DiagnosticArray
-    from nav_msgs.msg import Odometry
     from sensor_msgs.msg import PointCloud2
 
     from suit_ros.data.sim import preset
@@ -77,7 +77,8 @@ def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str,
             time.sleep(0.05)
     try:
         end = time.monotonic() + 90
-        while not diags and time.monotonic() < end:
+        while time.monotonic() < end and (not diags or odom_pub.get_subscription_count() == 0
+                                          or cloud_pub.get_subscription_count() == 0):
             ex.spin_once(timeout_sec=0.1)
         threads = [threading.Thread(target=publish_odometry, daemon=True)]
         threads[0].start()
@@ -106,6 +107,8 @@ def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str,
     return {'frames_in': int(last['frames_in']), 'frames_out': out, 'single': single,
             'single_pct': 100.0 * single / max(out, 1),
             'odometry_waits': int(last['odometry_waits']),
+            'reasons': {k.split('.', 1)[1]: int(v) for k, v in last.items()
+                        if k.startswith('single_frame.')},
             'model_ms_p50': float(last['model_ms_p50'])}
 
 
@@ -125,7 +128,8 @@ def main() -> int:
         r = one_run(rate, args.seconds, args.node_param)
         print(f'odometry {rate:.0f} Hz: {r["frames_out"]} frames processed of '
               f'{r["frames_in"]} received, {r["single"]} single-frame '
-              f'({r["single_pct"]:.1f}%), waited for odometry {r["odometry_waits"]} times, '
+              f'({r["single_pct"]:.1f}%; {r["reasons"] or "-"}), waited for odometry '
+              f'{r["odometry_waits"]} times, '
               f'model p50 {r["model_ms_p50"]:.0f} ms', flush=True)
     return 0
 

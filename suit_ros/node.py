@@ -122,6 +122,7 @@ class DetectorNode(Node):
         self.frames_out = 0
         self.dropped = 0
         self.frames_single = 0
+        self.single_reasons: collections.Counter[str] = collections.Counter()
         self.odom_waits = 0
         self.reason_counts: collections.Counter[str] = collections.Counter()
         self._reason_logged: dict[str, float] = {}
@@ -308,12 +309,15 @@ class DetectorNode(Node):
 
     def _wait_for_odometry(self, msg: PointCloud2) -> None:
         """Wait up to ``odom_wait_s`` for odometry at or after the cloud stamp (as a tf2
-        message filter would); no wait before the first odometry message."""
+        message filter would); no wait while nobody publishes odometry."""
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
         deadline = time.monotonic() + self.params.odom_wait_s
         with self._cv:
-            if self._odom_latest_ns < 0 or self._odom_latest_ns >= stamp:
+            if self._odom_latest_ns >= stamp:
                 return
+        if self._odom_latest_ns < 0 and self.count_publishers(self.params.odom_topic) == 0:
+            return                        # nobody publishes odometry: no reason to wait
+        with self._cv:
             self.odom_waits += 1
             while self._odom_latest_ns < stamp and not self._stop:
                 left = deadline - time.monotonic()
@@ -350,7 +354,10 @@ class DetectorNode(Node):
                  'by_receive': by_receive, 'skew': skew}
         with self._cv:
             self.frames_out += 1
-            self.frames_single += out.pose_source != 'odometry'
+            if out.pose_source != 'odometry':
+                self.frames_single += 1
+                self.single_reasons['no_odometry' if 'no odometry' in out.pose_source
+                                    else 'outside_odometry'] += 1
             self._stats.append(stats)
             self._last = out
         if out.reset_reason:
@@ -426,6 +433,8 @@ class DetectorNode(Node):
                 levels.append((DiagnosticStatus.WARN, text))
             if not last.pose_source.startswith('odometry'):
                 levels.append((DiagnosticStatus.WARN, f'single-frame: {last.pose_source}'))
+        for key, count in sorted(self.single_reasons.items()):
+            values[f'single_frame.{key}'] = str(count)
         for key, count in sorted(self.reason_counts.items()):
             values[f'warnings.{key}'] = str(count)
         values['last_reset_reason'] = self.pipeline.last_reset_reason
