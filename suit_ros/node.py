@@ -37,6 +37,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import HistoryPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.subscription import Subscription
+from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
@@ -296,6 +297,8 @@ class DetectorNode(Node):
                 received, self._slot = self._slot, None
                 reset, self._reset_request = self._reset_request, None
                 pending, self._pending = self._pending, None
+            if received is None:
+                continue
             try:
                 if pending is not None:
                     self.pipeline.configure(pending)
@@ -481,7 +484,7 @@ def main(args: list[str] | None = None) -> int:
         node = DetectorNode()
     except SuitRosError as exc:
         print(f'[detector] cannot start: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
+        try_shutdown()
         return 1
     executor = MultiThreadedExecutor(num_threads=3)
     executor.add_node(node)
@@ -492,7 +495,7 @@ def main(args: list[str] | None = None) -> int:
     finally:
         executor.shutdown()
         node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
     return 0
 
 

@@ -8,7 +8,7 @@ an exception, so a caller can always publish a (possibly empty) correctly stampe
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 import time
 from typing import Any, Literal
 
@@ -125,8 +125,7 @@ class DetectionPipeline:
     def set_extrinsic(self, xyz: tuple[float, float, float],
                       rpy: tuple[float, float, float]) -> None:
         """Change the LiDAR extrinsic (resets the memory)."""
-        self.configure(replace(self.params, extrinsic_xyz=tuple(map(float, xyz)),
-                               extrinsic_rpy=tuple(map(float, rpy))))
+        self.configure(self.params.updated({'extrinsic_xyz': xyz, 'extrinsic_rpy': rpy}))
 
     # ------------------------------------------------------------------ the step
     def process(self, cloud: Any, markers: bool = True) -> PipelineOutput:

@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
     """Play the bag."""
     import rclpy
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.utilities import try_shutdown
     from rosgraph_msgs.msg import Clock
 
     from suit_ros.data.bag import messages, open_reader
@@ -54,9 +55,9 @@ def run(args: argparse.Namespace) -> int:
         conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
         if not conns:
             raise BagError(f'none of {args.topics} is in {args.bag}')
-        messages = [(c.topic, c.msgtype, t, bytes(raw))
+        recorded = [(c.topic, c.msgtype, t, bytes(raw))
                     for c, t, raw in messages(reader, conns)]
-    if not messages:
+    if not recorded:
         raise BagError(f'{args.bag} has no messages on the selected topics')
     profile = use_large_data_profile(os.environ)   # before rclpy creates the participant
     if profile:
@@ -64,7 +65,7 @@ def run(args: argparse.Namespace) -> int:
     rclpy.init()
     node = rclpy.create_node('suit_ros_player')
     pubs = {}
-    for topic, msgtype in sorted({(m[0], m[1]) for m in messages}):
+    for topic, msgtype in sorted({(m[0], m[1]) for m in recorded}):
         try:
             cls = message_class(msgtype)
         except BagError as exc:
@@ -77,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
                                       if latched or args.reliability == 'reliable'
                                       else ReliabilityPolicy.BEST_EFFORT))
         pubs[topic] = node.create_publisher(cls, topic, qos)
-    messages = [m for m in messages if m[0] in pubs]
+    recorded = [m for m in recorded if m[0] in pubs]
     clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
     sent = 0
     try:
@@ -87,9 +88,9 @@ def run(args: argparse.Namespace) -> int:
             time.sleep(0.05)
         time.sleep(args.start_delay)
         while True:
-            t_bag0 = messages[0][2]
+            t_bag0 = recorded[0][2]
             t_wall0 = time.monotonic()
-            for topic, _, t, data in messages:
+            for topic, _, t, data in recorded:
                 due = t_wall0 + (t - t_bag0) * 1e-9 / args.rate
                 delay = due - time.monotonic()
                 if delay > 0:
@@ -109,5 +110,5 @@ def run(args: argparse.Namespace) -> int:
     finally:
         print(f'play: published {sent} messages')
         node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
     return 0
