@@ -109,7 +109,9 @@ def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str,
             'odometry_waits': int(last['odometry_waits']),
             'reasons': {k.split('.', 1)[1]: int(v) for k, v in last.items()
                         if k.startswith('single_frame.')},
-            'model_ms_p50': float(last['model_ms_p50'])}
+            'model_ms_p50': float(last['model_ms_p50']),
+            'odom_delay_p50': float(last['odometry_delay_ms_p50']),
+            'odom_delay_max': float(last['odometry_delay_ms_max'])}
 
 
 def main() -> int:
@@ -130,7 +132,9 @@ def main() -> int:
               f'{r["frames_in"]} received, {r["single"]} single-frame '
               f'({r["single_pct"]:.1f}%; {r["reasons"] or "-"}), waited for odometry '
               f'{r["odometry_waits"]} times, '
-              f'model p50 {r["model_ms_p50"]:.0f} ms', flush=True)
+              f'model p50 {r["model_ms_p50"]:.0f} ms, odometry delay at the node p50 '
+              f'{r["odom_delay_p50"]:.1f} ms, max (last 500) {r["odom_delay_max"]:.1f} ms',
+              flush=True)
     return 0
 
 

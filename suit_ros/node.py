@@ -51,6 +51,9 @@ REASON_LOG_PERIOD_S = 30.0
 RATE_WINDOW_S = 5.0
 # how often the points publishers' QoS is re-checked
 QOS_CHECK_PERIOD_S = 1.0
+# the worker thread runs this much nicer than the executor threads, so that on a loaded
+# machine the OS runs the odometry and cloud callbacks before more inference
+WORKER_NICENESS = 5
 # a replaced points subscription lives on this long, so no cloud is lost while the new one
 # matches the publishers (duplicates are recognised by stamp and frame_id)
 QOS_OVERLAP_S = 3.0
@@ -128,6 +131,7 @@ class DetectorNode(Node):
         self.reason_counts: collections.Counter[str] = collections.Counter()
         self._reason_logged: dict[str, float] = {}
         self._arrivals: collections.deque[float] = collections.deque(maxlen=1000)
+        self._odom_delays: collections.deque[float] = collections.deque(maxlen=500)
         self._stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
         self._last: Any = None
 
@@ -272,7 +276,9 @@ class DetectorNode(Node):
 
     def _on_odom(self, msg: Odometry) -> None:
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        delay = (self.get_clock().now().nanoseconds - stamp) * 1e-9
         with self._cv:
+            self._odom_delays.append(delay)
             self._odom.append(msg)
             self._odom_latest_ns = max(self._odom_latest_ns, stamp)
             self._cv.notify_all()
@@ -288,6 +294,12 @@ class DetectorNode(Node):
 
     # ------------------------------------------------------------------ the worker
     def _work(self) -> None:
+        try:
+            tid = threading.get_native_id()
+            os.setpriority(os.PRIO_PROCESS, tid,
+                           os.getpriority(os.PRIO_PROCESS, tid) + WORKER_NICENESS)
+        except (AttributeError, OSError):    # not Linux: threads share the process priority
+            pass
         while True:
             with self._cv:
                 while self._slot is None and not self._stop:
@@ -385,6 +397,7 @@ class DetectorNode(Node):
         with self._cv:
             arrivals = list(self._arrivals)
             stats = list(self._stats)
+            odom_delays = list(self._odom_delays)
             last = self._last
         levels: list[tuple[bytes, str]] = []
         values: dict[str, str] = {}
@@ -410,6 +423,11 @@ class DetectorNode(Node):
                        'frames_single_frame': str(self.frames_single),
                        'odometry_waits': str(self.odom_waits),
                        'points_reliability': self.points_reliability.name.lower()})
+        # odometry receive time minus its stamp (meaningful when both clocks agree)
+        values['odometry_delay_ms_p50'] = (f'{np.median(odom_delays) * 1e3:.1f}'
+                                           if odom_delays else 'nan')
+        values['odometry_delay_ms_max'] = (f'{max(odom_delays) * 1e3:.1f}'
+                                           if odom_delays else 'nan')
         for key in ('convert', 'model', 'publish'):
             arr = [s[key] for s in stats]
             values[f'{key}_ms_p50'] = f'{np.median(arr) * 1e3:.1f}' if arr else 'nan'

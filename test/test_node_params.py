@@ -196,3 +196,51 @@ def test_read_only_parameters_are_refused_by_rclpy(make_node):
     assert not result.successful
     result = node.set_parameters([Parameter('score_thresholds', value=[2.0])])[0]
     assert not result.successful and 'score_thresholds' in result.reason
+
+
+def test_each_input_contract_case_raises_its_diagnostic(make_node):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    node = make_node()
+    t = node.get_clock().now().nanoseconds
+    no_x = cloud(t + 5 * S // 10)
+    no_x.fields = [f for f in no_x.fields if f.name != 'x']
+    no_i = cloud(t + S // 10)
+    no_i.fields = [f for f in no_i.fields if f.name != 'intensity']
+    other_frame = cloud(t + 6 * S // 10)
+    other_frame.header.frame_id = 'velodyne'
+    cases = [('no_intensity', no_i, 'no intensity field'),
+             ('too_few_points', cloud(t + 2 * S // 10, n=50), 'only 50 points'),
+             ('empty_cloud', cloud(t + 3 * S // 10, n=0), 'empty cloud'),
+             ('unusable_cloud', no_x, 'unusable cloud'),
+             ('frame_changed', other_frame, "frame_id changed from 'lidar' to 'velodyne'")]
+    node._on_cloud(cloud(t))
+    wait_frames(node, 1)
+    level, message, values = diag(node)
+    assert values['input_warnings'] == 'none'
+    for n, (reason, msg, text) in enumerate(cases, start=2):
+        node._on_cloud(msg)
+        wait_frames(node, n)
+        level, message, values = diag(node)
+        assert level == DiagnosticStatus.WARN and text in message, (reason, message)
+        assert values['input_warnings'] == reason and values[f'warnings.{reason}'] == '1'
+    node._on_cloud(no_i)                              # the same reason again: counted
+    no_i2 = cloud(t + 7 * S // 10)
+    no_i2.fields = [f for f in no_i2.fields if f.name != 'intensity']
+    no_i2.header.frame_id = 'velodyne'
+    node._on_cloud(no_i2)
+    wait_frames(node, len(cases) + 2)
+    assert diag(node)[2]['warnings.no_intensity'] == '2'
+    assert set(node._reason_logged) == {r for r, _, _ in cases}   # one log line per reason
+
+
+def test_intensity_as_reflectance_raises_its_diagnostic(make_node):
+    import numpy as np
+    node = make_node()
+    msg = cloud(node.get_clock().now().nanoseconds)
+    data = np.frombuffer(bytes(msg.data), np.float32).reshape(-1, 4).copy()
+    data[:, 3] /= 255.0                                          # 0..1 reflectance
+    msg.data = data.tobytes()
+    node._on_cloud(msg)
+    wait_frames(node, 1)
+    level, message, values = diag(node)
+    assert 'likely 0..1 reflectance' in message and values['input_warnings'] == 'intensity_range'
