@@ -330,8 +330,9 @@ class DetectorNode(Node):
         with self._cv:
             if self._odom_latest_ns >= stamp:
                 return
-        if self._odom_latest_ns < 0 and self.count_publishers(self.params.odom_topic) == 0:
-            return                        # nobody publishes odometry: no reason to wait
+        if self.params.odom_wait_s <= 0.0 or (
+                self._odom_latest_ns < 0 and self.count_publishers(self.params.odom_topic) == 0):
+            return                        # no waiting, or nobody publishes odometry
         with self._cv:
             self.odom_waits += 1
             while self._odom_latest_ns < stamp and not self._stop:
