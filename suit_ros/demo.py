@@ -32,9 +32,14 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def local_ros_env() -> dict[str, str]:
-    """This process's environment with DDS kept on this machine and a per-run domain."""
+    """The environment of the demo's (and the benchmark's) own private graph.
+
+    The demo starts its own node, player and recorder; unless the user chose otherwise, their
+    discovery stays on this machine in a per-run domain. The detector node and the other
+    commands set no discovery variable.
+    """
     env = dict(os.environ)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     env.pop('ROS_LOCALHOST_ONLY', None)   # deprecated; it overrides the range
     env.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 1))
     return env
