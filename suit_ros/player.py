@@ -81,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
     recorded = [m for m in recorded if m[0] in pubs]
     clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
     sent = 0
+    late_max = 0.0
     try:
         end = time.monotonic() + args.wait_subscribers
         while time.monotonic() < end and any(p.get_subscription_count() == 0
@@ -95,6 +96,8 @@ def run(args: argparse.Namespace) -> int:
                 delay = due - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
+                else:             # behind the recorded pace (a loaded machine): say how far
+                    late_max = max(late_max, -delay)
                 if clock_pub is not None:
                     clock = Clock()
                     clock.clock.sec, clock.clock.nanosec = divmod(t, 10**9)
@@ -108,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        print(f'play: published {sent} messages')
+        print(f'play: published {sent} messages; at most {late_max * 1e3:.0f} ms behind the '
+              'recorded pace')
         node.destroy_node()
         try_shutdown()
     return 0

@@ -63,7 +63,7 @@ def test_default_node_gets_the_clouds_of_a_played_bag(big_bag, checkpoint, relia
     dropped = int(last['dropped_frames'])
     print(f'{reliability} publisher: node received {frames_in}/{FRAMES}, processed '
           f'{frames_out}, dropped (busy) {dropped}, detections at the probe {len(dets)}; '
-          f'subscription {last["points_reliability"]}')
+          f'subscription {last["points_reliability"]}; {player_out.strip().splitlines()[-1]}')
     assert 'large-data' in player_out or 'fastdds_large_data' in player_out, player_out
     expected = 'reliable' if reliability == 'reliable' else 'best_effort'
     assert last['points_reliability'] == expected, node_out[-2000:]
