@@ -13,6 +13,8 @@ from typing import Any
 
 from suit_ros.errors import BagError
 
+POINT_CLOUD = 'sensor_msgs/msg/PointCloud2'
+
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Add ``play`` options."""
@@ -28,7 +30,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='first wait up to this long until every topic has a subscriber')
     parser.add_argument('--reliability', choices=['reliable', 'best_effort'],
                         default='reliable',
-                        help='QoS reliability of the publishers (drivers often use best_effort)')
+                        help='QoS reliability of the PointCloud2 publishers (LiDAR drivers often '
+                        'use best_effort); other topics are published reliably')
 
 
 def message_class(msgtype: str) -> Any:
@@ -72,11 +75,11 @@ def run(args: argparse.Namespace) -> int:
             print(f'play: skipping {topic}: {exc}')
             continue
         latched = topic == '/tf_static'
+        best_effort = args.reliability == 'best_effort' and msgtype == POINT_CLOUD
         qos = QoSProfile(depth=10, durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
                                                else DurabilityPolicy.VOLATILE),
-                         reliability=(ReliabilityPolicy.RELIABLE
-                                      if latched or args.reliability == 'reliable'
-                                      else ReliabilityPolicy.BEST_EFFORT))
+                         reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
+                                      else ReliabilityPolicy.RELIABLE))
         pubs[topic] = node.create_publisher(cls, topic, qos)
     recorded = [m for m in recorded if m[0] in pubs]
     clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
