@@ -66,3 +66,20 @@ def test_class_thresholds():
     assert DetectorParams().class_thresholds(4) is None
     assert DetectorParams(score_thresholds=(0.3,)).class_thresholds(3) == [0.3, 0.3, 0.3]
     assert DetectorParams(score_thresholds=(0.1, 0.2)).class_thresholds(2) == [0.1, 0.2]
+
+
+def test_large_data_profile_only_when_the_user_set_none():
+    from xml.etree import ElementTree
+
+    from suit_ros.dds import LARGE_DATA_PROFILE, use_large_data_profile
+    env = {}
+    assert use_large_data_profile(env) == str(LARGE_DATA_PROFILE)
+    assert env == {'FASTRTPS_DEFAULT_PROFILES_FILE': str(LARGE_DATA_PROFILE)}
+    for name in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'):
+        env = {name: '/etc/mine.xml'}
+        assert use_large_data_profile(env) is None and env == {name: '/etc/mine.xml'}
+    ns = {'d': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
+    root = ElementTree.parse(LARGE_DATA_PROFILE).getroot()
+    shm = [t for t in root.iterfind('.//d:transport_descriptor', ns)
+           if t.findtext('d:type', namespaces=ns) == 'SHM']
+    assert int(shm[0].findtext('d:segment_size', namespaces=ns)) >= 32 * 2**20
