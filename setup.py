@@ -17,6 +17,7 @@ def _data_files() -> list:
         ('share/ament_index/resource_index/packages', ['resource/' + PACKAGE]),
         ('share/' + PACKAGE, ['package.xml']),
         ('share/' + PACKAGE + '/params', sorted(glob('params/*.yaml'))),
+        ('share/' + PACKAGE + '/dds', sorted(glob(PACKAGE + '/dds/*.xml'))),
     ]
     launch = sorted(glob('launch/*.py'))
     if launch:
@@ -37,7 +38,7 @@ setup(
     version=_version(),
     packages=find_packages(include=[PACKAGE, PACKAGE + '.*']),
     package_data={PACKAGE: ['checkpoints/*.safetensors', 'checkpoints/*.json',
-                            'checkpoints/*.md', 'py.typed'],
+                            'checkpoints/*.md', 'py.typed', 'dds/*.xml'],
                   PACKAGE + '.msg_adapters': ['py.typed']},
     data_files=_data_files(),
     install_requires=['setuptools', 'numpy', 'pyyaml'],

@@ -22,7 +22,7 @@ GT_FIELDS = ('num_points', 'instance_id')
 PALETTE = ((0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16),
            (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5))
 # visualization_msgs/Marker constants
-ARROW, CUBE, TEXT_VIEW_FACING = 0, 1, 9
+ARROW, CUBE, LINE_LIST, TEXT_VIEW_FACING = 0, 1, 5, 9
 ADD, DELETEALL = 0, 3
 
 
@@ -108,22 +108,45 @@ def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
     return out
 
 
+# the 12 edges of a box as pairs of corner indices (corners: bottom 0-3, top 4-7, same order)
+BOX_EDGES = np.array([[0, 1], [1, 2], [2, 3], [3, 0], [4, 5], [5, 6], [6, 7], [7, 4],
+                      [0, 4], [1, 5], [2, 6], [3, 7]])
+
+
+def box_corners(boxes: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Corners ``(N, 8, 3)`` of boxes ``(N, 7)``: bottom face counter-clockwise from
+    (+length/2, +width/2) in the box frame, then the top face in the same order."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    local = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], np.float64) * 0.5
+    xy = local[None] * b[:, None, 3:5]                               # (N, 4, 2)
+    c, s = np.cos(b[:, 6])[:, None], np.sin(b[:, 6])[:, None]
+    x = b[:, None, 0] + c * xy[..., 0] - s * xy[..., 1]
+    y = b[:, None, 1] + s * xy[..., 0] + c * xy[..., 1]
+    z0 = np.repeat((b[:, 2] - b[:, 5] * 0.5)[:, None], 4, 1)
+    z1 = z0 + b[:, 5:6]
+    bottom = np.stack([x, y, z0], -1)
+    top = np.stack([x, y, z1], -1)
+    return np.concatenate([bottom, top], 1)
+
+
 def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
                               scores: NDArray[Any], labels: NDArray[Any], header: Any,
                               class_names: tuple[str, ...] | list[str],
                               classes: MessageClasses, min_arrow_speed: float = 0.2,
-                              factory: MessageFactory | None = None) -> Any:
-    """A MarkerArray: DELETEALL, then per box a CUBE, a TEXT label and a velocity ARROW.
+                              factory: MessageFactory | None = None,
+                              line_width: float = 0.08) -> Any:
+    """A MarkerArray: DELETEALL, one LINE_LIST per class, one TEXT label per box.
 
-    The cube is oriented by the yaw and coloured by class (:data:`PALETTE`), the text reads
-    ``'<class> <score:.2f>'`` above the box, the arrow (only when the speed is at least
-    ``min_arrow_speed`` m/s) starts at the top of the box, points along the velocity and is as
-    long as the speed in m/s. Namespaces are ``<class>/box``, ``<class>/label`` and
-    ``<class>/velocity``, ids the box index (unique per namespace), ``lifetime`` 0 (the next
-    array's DELETEALL clears them); every marker carries ``header``.
+    The LINE_LIST of a class (namespace ``<class>/boxes``, id 0, coloured by class from
+    :data:`PALETTE`, ``scale.x`` the line width) holds the 12 edges of each of its boxes
+    (24 points per box, in the order of :func:`box_corners` and :data:`BOX_EDGES`) followed by
+    one velocity segment per box moving at ``min_arrow_speed`` m/s or more: from the centre of
+    the box's top face to where it will be in one second. The text (namespace
+    ``<class>/labels``, id the box index) reads ``'<class> <score:.2f>'`` above the box.
+    ``lifetime`` 0 (the next array's DELETEALL clears them); every marker carries ``header``.
 
-    Sub-messages that are equal between markers (the header, colours, lifetime, the text's
-    orientation and scale) are shared objects: treat the result as read-only.
+    Sub-messages equal between markers (the header, the lifetime, colours, the identity pose)
+    are shared objects: treat the result as read-only.
 
     :param boxes: ``(N, 7)`` x, y, z, length, width, height, yaw in ``header.frame_id``.
     :param velocities: ``(N, 2)`` vx, vy in m/s.
@@ -135,42 +158,36 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
     f = factory or message_factory(classes)
     b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
     lifetime = C.Duration(sec=0, nanosec=0)
-    ident = f.quaternion(0.0, 0.0, 0.0, 1.0)
-    clear = f.color(0.0, 0.0, 0.0, 0.0)
-    markers = [f.marker(header, '', 0, CUBE, DELETEALL, f.pose(f.point(0.0, 0.0, 0.0), ident),
-                        f.vector3(0.0, 0.0, 0.0), clear, lifetime)]
+    ident = f.pose(f.point(0.0, 0.0, 0.0), f.quaternion(0.0, 0.0, 0.0, 1.0))
+    markers = [f.marker(header, '', 0, LINE_LIST, DELETEALL, ident, f.vector3(0.0, 0.0, 0.0),
+                        f.color(0.0, 0.0, 0.0, 0.0), lifetime)]
     if not len(b):
         return C.MarkerArray(markers=markers)
+    corners = box_corners(b)
+    edges = corners[:, BOX_EDGES.reshape(-1)]                         # (N, 24, 3)
+    top = b[:, :3].copy()
+    top[:, 2] += b[:, 5] * 0.5
+    moving = np.hypot(v[:, 0], v[:, 1]) >= min_arrow_speed
     white = f.color(1.0, 1.0, 1.0, 1.0)
     text_scale = f.vector3(0.0, 0.0, 0.8)
-    half_yaw = b[:, 6] * 0.5
-    heading_half = np.arctan2(v[:, 1], v[:, 0]) * 0.5
-    speed = np.hypot(v[:, 0], v[:, 1])
-    top = b[:, 2] + b[:, 5] * 0.5
-    columns = (b[:, 0], b[:, 1], b[:, 2], b[:, 3], b[:, 4], b[:, 5], np.sin(half_yaw),
-               np.cos(half_yaw), top, top + 0.5, speed, np.sin(heading_half),
-               np.cos(heading_half))
-    rows = zip(*(c.tolist() for c in columns), lab.tolist(), s.tolist())
-    styles: dict[int, tuple[str, str, str, str, Any, Any]] = {}
-    for i, (x, y, z, length, width, height, qz, qw, z_top, z_text, speed_i, hz, hw, k,
-            score) in enumerate(rows):
-        style = styles.get(k)
-        if style is None:
-            name = class_names[k] if 0 <= k < len(class_names) else f'class{k}'
-            r, g, bl = PALETTE[k % len(PALETTE)]
-            style = styles[k] = (name, f'{name}/box', f'{name}/label', f'{name}/velocity',
-                                 f.color(r, g, bl, 0.45), f.color(r, g, bl, 1.0))
-        name, ns_box, ns_label, ns_velocity, box_color, arrow_color = style
-        markers.append(f.marker(
-            header, ns_box, i, CUBE, ADD,
-            f.pose(f.point(x, y, z), f.quaternion(0.0, 0.0, qz, qw)),
-            f.vector3(length, width, height), box_color, lifetime))
-        markers.append(f.marker(
-            header, ns_label, i, TEXT_VIEW_FACING, ADD, f.pose(f.point(x, y, z_text), ident),
-            text_scale, white, lifetime, f'{name} {score:.2f}'))
-        if speed_i >= min_arrow_speed:
-            markers.append(f.marker(
-                header, ns_velocity, i, ARROW, ADD,
-                f.pose(f.point(x, y, z_top), f.quaternion(0.0, 0.0, hz, hw)),
-                f.vector3(speed_i, 0.2, 0.2), arrow_color, lifetime))
+    names = {k: class_names[k] if 0 <= k < len(class_names) else f'class{k}'
+             for k in set(lab.tolist())}
+    for k in sorted(names):
+        idx = np.flatnonzero(lab == k)
+        ends = [edges[idx].reshape(-1, 3)]
+        go = idx[moving[idx]]
+        if len(go):
+            seg = np.stack([top[go], top[go] + np.c_[v[go], np.zeros(len(go))]], 1)
+            ends.append(seg.reshape(-1, 3))
+        points = [f.point(x, y, z) for x, y, z in np.concatenate(ends).tolist()]
+        r, g, bl = PALETTE[k % len(PALETTE)]
+        markers.append(f.marker(header, f'{names[k]}/boxes', 0, LINE_LIST, ADD, ident,
+                                f.vector3(line_width, 0.0, 0.0), f.color(r, g, bl, 1.0),
+                                lifetime, points=points))
+    z_text = (top[:, 2] + 0.5).tolist()
+    for i, (x, y, z, k, score) in enumerate(zip(b[:, 0].tolist(), b[:, 1].tolist(), z_text,
+                                                 lab.tolist(), s.tolist())):
+        markers.append(f.marker(header, f'{names[k]}/labels', i, TEXT_VIEW_FACING, ADD,
+                                f.pose(f.point(x, y, z), ident.orientation), text_scale, white,
+                                lifetime, f'{names[k]} {score:.2f}'))
     return C.MarkerArray(markers=markers)

@@ -1,7 +1,8 @@
 # Sourced by every project script: keep DDS on this machine, pick a per-run domain, use .venv.
 # shellcheck shell=bash
 export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
-export ROS_LOCALHOST_ONLY=1
+# not ROS_LOCALHOST_ONLY: deprecated, and it overrides the discovery range
+unset ROS_LOCALHOST_ONLY
 if [ -z "${SUIT_ROS_KEEP_DOMAIN:-}" ]; then
   # a per-run domain id (1..100; ROS domains above 101 collide with ephemeral ports)
   ROS_DOMAIN_ID=$(( ( $$ + $(date +%s) ) % 100 + 1 ))

@@ -40,8 +40,7 @@ def main() -> int:
     if not os.path.exists(bag):
         write_bag(bag, preset('demo-real', frames=100), 7, 'mcap')
     node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
-                             f'checkpoint:={default_checkpoint_path()}', '-p', 'threads:=2',
-                             '-p', 'qos_overrides./points.subscription.reliability:=reliable'],
+                             f'checkpoint:={default_checkpoint_path()}', '-p', 'threads:=2'],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctx = Context()
     rclpy.init(context=ctx)

@@ -33,8 +33,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
         write_bag(bag, preset('demo', frames=frames), seed, 'mcap')
     ckpt = checkpoint or str(default_checkpoint_path())
     node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
-                             f'checkpoint:={ckpt}', '-p', 'threads:=2', '-p',
-                             'qos_overrides./points.subscription.reliability:=reliable'],
+                             f'checkpoint:={ckpt}', '-p', 'threads:=2'],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctx = Context()
     rclpy.init(context=ctx)

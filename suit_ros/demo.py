@@ -32,10 +32,15 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def local_ros_env() -> dict[str, str]:
-    """This process's environment with DDS kept on this machine and a per-run domain."""
+    """The environment of the demo's (and the benchmark's) own private graph.
+
+    The demo starts its own node, player and recorder; unless the user chose otherwise, their
+    discovery stays on this machine in a per-run domain. The detector node and the other
+    commands set no discovery variable.
+    """
     env = dict(os.environ)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env['ROS_LOCALHOST_ONLY'] = '1'
+    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    env.pop('ROS_LOCALHOST_ONLY', None)   # deprecated; it overrides the range
     env.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 1))
     return env
 
@@ -56,8 +61,7 @@ def run(args: argparse.Namespace) -> int:
     read_metadata(ckpt)   # fail early with a clear message
     env = os.environ.copy()
     node = subprocess.Popen(
-        [sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p', f'checkpoint:={ckpt}',
-         '-p', 'qos_overrides./points.subscription.reliability:=reliable'],
+        [sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p', f'checkpoint:={ckpt}'],
         env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         return _record(args, bag, node, env, out)
@@ -109,6 +113,7 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
             if time.monotonic() > deadline:
                 raise SuitRosError('the detector node did not come up in time')
         print(f'[demo] playing {bag} at rate {args.rate} ...', flush=True)
+        # the player sets the large-data Fast DDS profile for itself (suit_ros.dds)
         player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
                                    '--rate', str(args.rate), '--start-delay', '1.0',
                                    '--wait-subscribers', '20'],

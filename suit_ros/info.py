@@ -50,6 +50,8 @@ def collect() -> dict[str, str]:
     info['ROS_DOMAIN_ID'] = os.environ.get('ROS_DOMAIN_ID', '(unset: 0)')
     info['ROS_AUTOMATIC_DISCOVERY_RANGE'] = os.environ.get(
         'ROS_AUTOMATIC_DISCOVERY_RANGE', '(unset: SUBNET)')
+    for name in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'):
+        info[name] = os.environ.get(name, '(unset)')
     return info
 
 

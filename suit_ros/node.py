@@ -1,15 +1,19 @@
 """The ``detector`` node: PointCloud2 + Odometry in, 3D detections out, SUIT memory kept inside.
 
-Subscribes (sensor-data QoS, keep last 1) to the cloud topic and to odometry; a worker thread runs
-the shared :class:`~suit_ros.pipeline.DetectionPipeline` on the newest cloud only (a cloud that
-arrives while the worker is busy replaces the waiting one and is counted as dropped), so the
-executor is never blocked by inference. Publishes ``~/detections`` (custom-field PointCloud2) and
-``~/markers`` (MarkerArray) with the input header, ``/diagnostics`` at 1 Hz, and serves
-``~/reset_memory`` (std_srvs/Trigger).
+Every parameter comes from :class:`~suit_ros.params.DetectorParams` (one owner of names,
+defaults, ranges and read-only flags). The points subscription keeps the last cloud only and
+adapts its reliability to what the publishers offer (``points_qos``). Clouds and odometry are
+taken by a multi-threaded executor in separate callback groups, so odometry keeps flowing while
+the model runs; a worker thread runs the shared :class:`~suit_ros.pipeline.DetectionPipeline`
+on the newest cloud only (a cloud that arrives while the worker is busy replaces the waiting
+one and is counted as dropped), first waiting up to ``odom_wait_s`` for odometry that covers
+the cloud's stamp. Publishes ``~/detections`` (custom-field PointCloud2) and ``~/markers``
+(MarkerArray) with the input header, ``/diagnostics``, and serves ``~/reset_memory``.
 """
 from __future__ import annotations
 
 import collections
+from dataclasses import dataclass
 import os
 import sys
 import threading
@@ -26,30 +30,65 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 import rclpy
-from rclpy.executors import ExternalShutdownException
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, QoSReliabilityPolicy
+from rclpy.qos import HistoryPolicy, QoSPolicyKind, QoSProfile, ReliabilityPolicy
 from rclpy.qos_overriding_options import QoSOverridingOptions
+from rclpy.subscription import Subscription
+from rclpy.utilities import try_shutdown
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
-from suit_ros.errors import SuitRosError
+from suit_ros.errors import ConfigError, SuitRosError
+from suit_ros.params import DetectorParams, parameter_descriptions
 
-READ_ONLY = ('checkpoint', 'device', 'threads', 'points_topic', 'odom_topic', 'class_names')
+# seconds between two log lines of the same input-contract reason
+REASON_LOG_PERIOD_S = 30.0
+# the input rate counts the clouds of this window (so it decays to 0 when the input stops)
+RATE_WINDOW_S = 5.0
+# how often the points publishers' QoS is re-checked
+QOS_CHECK_PERIOD_S = 1.0
+# the worker thread runs this much nicer than the executor threads, so that on a loaded
+# machine the OS runs the odometry and cloud callbacks before more inference
+WORKER_NICENESS = 5
+# a replaced points subscription lives on this long, so no cloud is lost while the new one
+# matches the publishers (duplicates are recognised by stamp and frame_id)
+QOS_OVERLAP_S = 3.0
 
 
-def _desc(text: str, read_only: bool = False, lo: float | None = None, hi: float | None = None,
-          integer: bool = False) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=read_only)
-    if lo is not None and hi is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+def descriptor(name: str) -> ParameterDescriptor:
+    """The ParameterDescriptor of a :class:`DetectorParams` field."""
+    m = parameter_descriptions()[name]
+    d = ParameterDescriptor(description=m['description'], read_only=m['read_only'])
+    if m['choices']:
+        d.additional_constraints = 'one of: ' + ', '.join(m['choices'])
+    if m['lo'] is not None:
+        if isinstance(getattr(DetectorParams, name), int):
+            d.integer_range = [IntegerRange(from_value=int(m['lo']), to_value=int(m['hi']),
+                                            step=1)]
         else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo),
-                                                         to_value=float(hi), step=0.0)]
+            d.floating_point_range = [FloatingPointRange(
+                from_value=float(m['lo']), to_value=float(m['hi']), step=0.0)]
     return d
+
+
+def torch_threads(requested: int) -> int:
+    """Torch threads for ``threads`` (0: every core this process may use but one)."""
+    if requested > 0:
+        return requested
+    return max(1, len(os.sched_getaffinity(0)) - 1)
+
+
+@dataclass
+class Received:
+    """A cloud and when it arrived (node clock ns and monotonic s)."""
+
+    msg: PointCloud2
+    clock_ns: int
+    monotonic: float
 
 
 class DetectorNode(Node):
@@ -57,67 +96,59 @@ class DetectorNode(Node):
 
     def __init__(self, **kwargs: Any) -> None:
         super().__init__('detector', **kwargs)
-        from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
-        from suit_ros.model.streaming import StreamingDetector
+        from suit_ros.pipeline import DetectionPipeline
+        for name, value in DetectorParams().ros_values().items():
+            self.declare_parameter(name, value, descriptor(name))
+        try:
+            params = DetectorParams.from_mapping(
+                {n: self.get_parameter(n).value for n in parameter_descriptions()})
+        except ConfigError as exc:
+            raise SuitRosError(f'invalid parameters: {exc}') from exc
+        self.detector = self._load_model(params)
+        self.class_names = tuple(self.detector.cfg.class_names)
+        try:
+            self.params = params.validate(len(self.class_names))
+        except ConfigError as exc:
+            raise SuitRosError(f'invalid parameters: {exc}') from exc
         from suit_ros.msg_adapters.classes import MessageClasses
-        from suit_ros.pipeline import DetectionPipeline, PipelineParams
-
-        p = self.declare_parameter
-        p('checkpoint', '', _desc('model checkpoint (.safetensors); empty: the shipped one',
-                                  True))
-        p('device', 'auto', _desc('auto | cpu | cuda', True))
-        p('threads', 0, _desc('torch CPU threads (0: torch default)', True, 0, 64, True))
-        p('points_topic', '/points', _desc('input PointCloud2 topic', True))
-        p('odom_topic', '/odom', _desc('input Odometry topic', True))
-        p('score_thresholds', [0.0], _desc('per-class score thresholds (one value: all '
-                                           'classes; [0.0]: the checkpoint default)'))
-        p('nms_iou_threshold', 0.2, _desc('BEV IoU NMS threshold', lo=0.0, hi=1.0))
-        p('max_detections', 200, _desc('detections per frame', lo=1, hi=1000, integer=True))
-        p('min_range', 1.0, _desc('drop points closer than this (m, xy)', lo=0.0, hi=50.0))
-        p('max_range', 80.0, _desc('drop points farther than this (m, xy)', lo=1.0, hi=500.0))
-        p('intensity_scale', 255.0, _desc('divide intensity by this to reach 0..1',
-                                          lo=1e-6, hi=1e6))
-        p('extrinsic_xyz', [0.9, 0.0, 1.8], _desc('base_link -> LiDAR translation (m)'))
-        p('extrinsic_rpy', [0.0, 0.0, 0.0], _desc('base_link -> LiDAR roll pitch yaw (rad)'))
-        p('odom_tolerance_s', 0.15, _desc('max time outside the odometry buffer for a pose',
-                                          lo=0.0, hi=5.0))
-        p('max_gap_s', 0.5, _desc('reset the memory after a longer gap between clouds',
-                                  lo=0.01, hi=60.0))
-        p('max_pose_jump_m', 5.0, _desc('reset the memory when the pose jumps farther',
-                                        lo=0.1, hi=1000.0))
-        p('diagnostics_period_s', 1.0, _desc('diagnostics publishing period', lo=0.05,
-                                             hi=60.0))
-
-        threads = self.get_parameter('threads').value
-        if threads:
-            import torch
-            torch.set_num_threads(int(threads))
-        ckpt = self.get_parameter('checkpoint').value or str(default_checkpoint_path())
-        device = self.get_parameter('device').value
-        if device not in ('auto', 'cpu', 'cuda'):
-            raise SuitRosError(f'parameter device must be auto, cpu or cuda, not {device!r}')
-        import torch
-        dev = 'cuda' if device == 'cuda' or (device == 'auto' and torch.cuda.is_available()) \
-            else 'cpu'
-        model, cfg, meta = load_checkpoint(ckpt, dev)
-        self.class_names = tuple(cfg.class_names)
-        self.detector = StreamingDetector(model, dev)
-        self.pipeline = DetectionPipeline(self.detector, self._pipeline_params(PipelineParams),
+        self.pipeline = DetectionPipeline(self.detector, self.params,
                                           MessageClasses.from_rclpy())
-        self._apply_thresholds()
-        self.get_logger().info(
-            f'loaded {ckpt} (temporal={cfg.temporal}, classes={list(self.class_names)}, '
-            f'code {meta.get("code_version")}) on {dev}; suit_ros from '
-            f'{os.path.dirname(os.path.abspath(__file__))}')
 
-        qos_points = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                                reliability=QoSReliabilityPolicy.BEST_EFFORT)
+        self._cv = threading.Condition()
+        self._slot: Received | None = None
+        self._odom: collections.deque[Odometry] = collections.deque(maxlen=10_000)
+        self._odom_latest_ns = -1
+        self._reset_request: str | None = None
+        self._pending: DetectorParams | None = None
+        self._stop = False
+        self._started = time.monotonic()
+        self.frames_in = 0
+        self.frames_out = 0
+        self.dropped = 0
+        self.frames_single = 0
+        self.single_reasons: collections.Counter[str] = collections.Counter()
+        self.odom_waits = 0
+        self.reason_counts: collections.Counter[str] = collections.Counter()
+        self._reason_logged: dict[str, float] = {}
+        self._arrivals: collections.deque[float] = collections.deque(maxlen=1000)
+        self._odom_delays: collections.deque[float] = collections.deque(maxlen=500)
+        self._stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
+        self._last: Any = None
+
+        self._points_group = MutuallyExclusiveCallbackGroup()
+        odom_group = MutuallyExclusiveCallbackGroup()
+        self._points_topic = self.resolve_topic_name(self.params.points_topic)
+        self._points_sub: Subscription | None = None
+        self._retiring: list[tuple[float, Subscription]] = []
+        self._recent: collections.deque[tuple[int, int, str]] = collections.deque(maxlen=8)
+        self.duplicates = 0
+        self.points_reliability = ReliabilityPolicy.BEST_EFFORT
+        self._reliability_fixed = False
+        self._reliability_fixed = self._create_points_subscription_first()
         overrides = QoSOverridingOptions.with_default_policies()
-        self.create_subscription(PointCloud2, self.get_parameter('points_topic').value,
-                                 self._on_cloud, qos_points, qos_overriding_options=overrides)
-        self.create_subscription(Odometry, self.get_parameter('odom_topic').value,
-                                 self._on_odom, QoSProfile(depth=100),
-                                 qos_overriding_options=overrides)
+        self.create_subscription(Odometry, self.params.odom_topic, self._on_odom,
+                                 QoSProfile(depth=100), qos_overriding_options=overrides,
+                                 callback_group=odom_group)
         self.pub_det = self.create_publisher(PointCloud2, '~/detections', 10,
                                              qos_overriding_options=overrides)
         self.pub_markers = self.create_publisher(MarkerArray, '~/markers', 10,
@@ -125,73 +156,132 @@ class DetectorNode(Node):
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_service(Trigger, '~/reset_memory', self._on_reset)
         self.add_on_set_parameters_callback(self._on_params)
-
-        self._cv = threading.Condition()
-        self._slot: PointCloud2 | None = None
-        self._odom: collections.deque[Odometry] = collections.deque(maxlen=1000)
-        self._reset_request: str | None = None
-        self._param_update = False
-        self._stop = False
-        self.frames_in = 0
-        self.frames_out = 0
-        self.dropped = 0
-        self._arrivals: collections.deque[float] = collections.deque(maxlen=50)
-        self._stats: collections.deque[dict[str, float]] = collections.deque(maxlen=100)
-        self._last: Any = None
         self._worker = threading.Thread(target=self._work, name='suit_ros_worker', daemon=True)
         self._worker.start()
-        self.create_timer(self.get_parameter('diagnostics_period_s').value, self._diagnostics)
+        self.create_timer(QOS_CHECK_PERIOD_S, self.update_points_qos)
+        self.create_timer(self.params.diagnostics_period_s, self._diagnostics)
+
+    def _load_model(self, params: DetectorParams) -> Any:
+        import torch
+
+        from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+        from suit_ros.model.streaming import StreamingDetector
+        torch.set_num_threads(torch_threads(params.threads))
+        ckpt = params.checkpoint or str(default_checkpoint_path())
+        dev = ('cuda' if params.device == 'cuda'
+               or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
+        model, cfg, meta = load_checkpoint(ckpt, dev)
+        self.get_logger().info(
+            f'loaded {ckpt} (temporal={cfg.temporal}, classes={list(cfg.class_names)}, '
+            f'code {meta.get("code_version")}) on {dev}, {torch.get_num_threads()} torch '
+            f'threads; suit_ros from {os.path.dirname(os.path.abspath(__file__))}')
+        return StreamingDetector(model, dev)
+
+    # ------------------------------------------------------------------ points QoS
+    def _points_qos(self, reliability: ReliabilityPolicy) -> QoSProfile:
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=reliability)
+
+    def _create_points_subscription_first(self) -> bool:
+        """Create the points subscription; True when the user fixed its reliability.
+
+        The first subscription declares the ``qos_overrides./points.subscription.*``
+        parameters with a ``system_default`` reliability: any other value there is the user's
+        override, honoured as given. Otherwise the reliability adapts
+        (:meth:`update_points_qos`).
+        """
+        self._points_sub = self.create_subscription(
+            PointCloud2, self._points_topic, self._on_cloud,
+            self._points_qos(ReliabilityPolicy.SYSTEM_DEFAULT),
+            qos_overriding_options=QoSOverridingOptions.with_default_policies(),
+            callback_group=self._points_group)
+        name = f'qos_overrides.{self._points_topic}.subscription.reliability'
+        chosen = str(self.get_parameter(name).value)
+        if chosen != 'system_default':
+            self.points_reliability = self._points_sub.qos_profile.reliability
+            self.get_logger().info(f'points reliability {chosen} (QoS override)')
+            return True
+        self.destroy_subscription(self._points_sub)
+        self._points_sub = None
+        self.update_points_qos()
+        return False
+
+    def points_reliability_wanted(self) -> ReliabilityPolicy:
+        """What ``points_qos`` asks for given the publishers on the topic now."""
+        mode = self.params.points_qos
+        if mode == 'reliable':
+            return ReliabilityPolicy.RELIABLE
+        if mode == 'sensor_data':
+            return ReliabilityPolicy.BEST_EFFORT
+        offered = [i.qos_profile.reliability
+                   for i in self.get_publishers_info_by_topic(self._points_topic)]
+        if not offered:      # nobody publishes: keep what we have (best effort matches all)
+            return self.points_reliability
+        if all(r == ReliabilityPolicy.RELIABLE for r in offered):
+            return ReliabilityPolicy.RELIABLE
+        return ReliabilityPolicy.BEST_EFFORT
+
+    def update_points_qos(self) -> None:
+        """Re-create the points subscription when the wanted reliability changed."""
+        now = time.monotonic()
+        for sub in [s for t, s in self._retiring if t <= now]:
+            self.destroy_subscription(sub)
+        self._retiring = [(t, s) for t, s in self._retiring if t > now]
+        if self._reliability_fixed and self._points_sub is not None:
+            return
+        wanted = self.points_reliability_wanted()
+        if self._points_sub is not None and wanted == self.points_reliability:
+            return
+        if self._points_sub is not None:
+            self._retiring.append((now + QOS_OVERLAP_S, self._points_sub))
+        self.points_reliability = wanted
+        # reliability is ours to choose; the other QoS overrides still apply
+        options = QoSOverridingOptions([QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH,
+                                        QoSPolicyKind.DURABILITY])
+        self._points_sub = self.create_subscription(
+            PointCloud2, self._points_topic, self._on_cloud, self._points_qos(wanted),
+            qos_overriding_options=options, callback_group=self._points_group)
+        self.get_logger().info(f'points subscription: {wanted.name.lower()} '
+                               f'(points_qos {self.params.points_qos})')
 
     # ------------------------------------------------------------------ parameters
-    def _pipeline_params(self, cls: Any) -> Any:
-        g = self.get_parameter
-        return cls(intensity_scale=g('intensity_scale').value,
-                   extrinsic_xyz=tuple(g('extrinsic_xyz').value),
-                   extrinsic_rpy=tuple(g('extrinsic_rpy').value),
-                   odom_tolerance_s=g('odom_tolerance_s').value,
-                   max_gap_s=g('max_gap_s').value, max_pose_jump_m=g('max_pose_jump_m').value,
-                   min_range=g('min_range').value, max_range=g('max_range').value)
-
-    def _apply_thresholds(self) -> None:
-        thr = list(self.get_parameter('score_thresholds').value)
-        K = len(self.class_names)
-        values = None if thr == [0.0] else (thr * K if len(thr) == 1 else thr)
-        self.detector.set_thresholds(values, self.get_parameter('nms_iou_threshold').value,
-                                     self.get_parameter('max_detections').value)
-
     def _on_params(self, params: list[Parameter]) -> SetParametersResult:
-        K = len(self.class_names)
-        for prm in params:
-            if prm.name in READ_ONLY:
-                return SetParametersResult(successful=False,
-                                           reason=f'{prm.name} is read-only (restart the node)')
-            if prm.name == 'score_thresholds':
-                v = list(prm.value)
-                if len(v) not in (1, K) or any(not 0.0 <= x <= 1.0 for x in v):
-                    return SetParametersResult(
-                        successful=False,
-                        reason=f'score_thresholds needs 1 or {K} values within 0..1')
-            if prm.name in ('extrinsic_xyz', 'extrinsic_rpy'):
-                v = list(prm.value)
-                if len(v) != 3 or not np.isfinite(v).all():
-                    return SetParametersResult(successful=False,
-                                               reason=f'{prm.name} needs 3 finite numbers')
+        names = parameter_descriptions()
+        values = {p.name: p.value for p in params if p.name in names}
+        if not values:
+            return SetParametersResult(successful=True)
+        try:
+            candidate = self.params.updated(values).validate(len(self.class_names))
+        except ConfigError as exc:
+            return SetParametersResult(successful=False, reason=str(exc))
         with self._cv:
-            self._param_update = True
+            self.params = candidate          # node-side settings take effect now
+            self._pending = candidate        # pipeline settings before the next frame
         return SetParametersResult(successful=True)
 
     # ------------------------------------------------------------------ callbacks
     def _on_cloud(self, msg: PointCloud2) -> None:
+        received = Received(msg, self.get_clock().now().nanoseconds, time.monotonic())
+        key = (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id)
         with self._cv:
+            if key in self._recent:      # the same cloud through a retiring subscription
+                self.duplicates += 1
+                return
+            self._recent.append(key)
             self.frames_in += 1
-            self._arrivals.append(time.monotonic())
+            self._arrivals.append(received.monotonic)
             if self._slot is not None:
                 self.dropped += 1
-            self._slot = msg
-            self._cv.notify()
+            self._slot = received
+            self._cv.notify_all()
 
     def _on_odom(self, msg: Odometry) -> None:
-        self._odom.append(msg)
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        delay = (self.get_clock().now().nanoseconds - stamp) * 1e-9
+        with self._cv:
+            self._odom_delays.append(delay)
+            self._odom.append(msg)
+            self._odom_latest_ns = max(self._odom_latest_ns, stamp)
+            self._cv.notify_all()
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
@@ -204,38 +294,66 @@ class DetectorNode(Node):
 
     # ------------------------------------------------------------------ the worker
     def _work(self) -> None:
-        from suit_ros.pipeline import PipelineParams
+        try:
+            tid = threading.get_native_id()
+            os.setpriority(os.PRIO_PROCESS, tid,
+                           os.getpriority(os.PRIO_PROCESS, tid) + WORKER_NICENESS)
+        except (AttributeError, OSError):    # not Linux: threads share the process priority
+            pass
         while True:
             with self._cv:
                 while self._slot is None and not self._stop:
                     self._cv.wait(0.5)
                 if self._stop:
                     return
-                msg, self._slot = self._slot, None
+                received, self._slot = self._slot, None
                 reset, self._reset_request = self._reset_request, None
-                update, self._param_update = self._param_update, False
-            while self._odom:
-                if not self.pipeline.add_odometry(self._odom.popleft()):
-                    self.get_logger().warn(f'odometry rejected: {self.pipeline.last_odom_error}',
-                                           throttle_duration_sec=5.0)
-            if update:
-                old = self.pipeline.params
-                new = self._pipeline_params(PipelineParams)
-                self.pipeline.params = new
-                if (old.extrinsic_xyz, old.extrinsic_rpy) != (new.extrinsic_xyz,
-                                                              new.extrinsic_rpy):
-                    self.pipeline.set_extrinsic(new.extrinsic_xyz, new.extrinsic_rpy)
-                self._apply_thresholds()
-            if reset:
-                self.pipeline.reset(reset)
+                pending, self._pending = self._pending, None
+            if received is None:
+                continue
             try:
-                self._process(msg)
+                if pending is not None:
+                    self.pipeline.configure(pending)
+                if reset:
+                    self.pipeline.reset(reset)
+                self._wait_for_odometry(received.msg)
+                self._drain_odometry()
+                self._process(received)
             except Exception as exc:  # keep the node alive; say what happened
                 self.get_logger().error(f'frame failed: {type(exc).__name__}: {exc}')
 
-    def _process(self, msg: PointCloud2) -> None:
-        # building ~3 markers per box costs more than the rest of the output: skip it when
-        # nobody subscribes to ~/markers
+    def _wait_for_odometry(self, msg: PointCloud2) -> None:
+        """Wait up to ``odom_wait_s`` for odometry at or after the cloud stamp (as a tf2
+        message filter would); no wait while nobody publishes odometry."""
+        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        deadline = time.monotonic() + self.params.odom_wait_s
+        with self._cv:
+            if self._odom_latest_ns >= stamp:
+                return
+        if self.params.odom_wait_s <= 0.0 or (
+                self._odom_latest_ns < 0 and self.count_publishers(self.params.odom_topic) == 0):
+            return                        # no waiting, or nobody publishes odometry
+        with self._cv:
+            self.odom_waits += 1
+            while self._odom_latest_ns < stamp and not self._stop:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return
+                self._cv.wait(left)
+
+    def _drain_odometry(self) -> None:
+        with self._cv:
+            batch = list(self._odom)
+            self._odom.clear()
+        for odom in batch:
+            if not self.pipeline.add_odometry(odom):
+                self._warn_reason('odometry_rejected',
+                                  f'odometry rejected: {self.pipeline.last_odom_error}')
+
+    def _process(self, received: Received) -> None:
+        msg = received.msg
+        # building the markers costs more than the rest of the output: skip it when nobody
+        # subscribes to ~/markers
         out = self.pipeline.process(msg, markers=self.pub_markers.get_subscription_count() > 0)
         t0 = time.perf_counter()
         self.pub_det.publish(out.detections_msg)
@@ -244,40 +362,83 @@ class DetectorNode(Node):
         publish = time.perf_counter() - t0
         now = self.get_clock().now().nanoseconds
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
+        skew = (received.clock_ns - stamp) * 1e-9
+        by_receive = abs(skew) > self.params.max_stamp_skew_s
         stats = {'convert': out.timings['convert'], 'model': out.timings['model'],
-                 'publish': out.timings['publish'] + publish, 'latency': (now - stamp) * 1e-9}
-        self.frames_out += 1
-        self._stats.append(stats)
-        self._last = out
+                 'publish': out.timings['publish'] + publish,
+                 'latency': (now - (received.clock_ns if by_receive else stamp)) * 1e-9,
+                 'by_receive': by_receive, 'skew': skew}
+        with self._cv:
+            self.frames_out += 1
+            if out.pose_source != 'odometry':
+                self.frames_single += 1
+                self.single_reasons['no_odometry' if 'no odometry' in out.pose_source
+                                    else 'outside_odometry'] += 1
+            self._stats.append(stats)
+            self._last = out
         if out.reset_reason:
             self.get_logger().info(f'memory reset: {out.reset_reason}')
-        if out.warning:
-            self.get_logger().warn(out.warning, throttle_duration_sec=2.0)
+        for key, text in out.warnings.items():
+            self._warn_reason(key, text)
+
+    def _warn_reason(self, key: str, text: str) -> None:
+        """Count a reason; log it the first time and then at most every 30 s (per reason)."""
+        self.reason_counts[key] += 1
+        now = time.monotonic()
+        last = self._reason_logged.get(key)
+        if last is None or now - last >= REASON_LOG_PERIOD_S:
+            self._reason_logged[key] = now
+            self.get_logger().warn(f'{text} [{key}: {self.reason_counts[key]} so far]')
 
     # ------------------------------------------------------------------ diagnostics
-    def _diagnostics(self) -> None:
-        status = DiagnosticStatus(name='suit_ros: detector', hardware_id='suit_ros')
-        values: dict[str, str] = {}
+    def diagnostic_status(self) -> DiagnosticStatus:
+        """The node's health now (what ``/diagnostics`` carries)."""
+        p = self.params
+        now = time.monotonic()
         with self._cv:
             arrivals = list(self._arrivals)
             stats = list(self._stats)
-        rate = ((len(arrivals) - 1) / (arrivals[-1] - arrivals[0])
-                if len(arrivals) > 1 and arrivals[-1] > arrivals[0] else 0.0)
-        values['input_rate_hz'] = f'{rate:.2f}'
-        values['frames_in'] = str(self.frames_in)
-        values['frames_out'] = str(self.frames_out)
-        values['dropped_frames'] = str(self.dropped)
+            odom_delays = list(self._odom_delays)
+            last = self._last
+        levels: list[tuple[bytes, str]] = []
+        values: dict[str, str] = {}
+        recent = [t for t in arrivals if t >= now - RATE_WINDOW_S]
+        window = max(min(RATE_WINDOW_S, now - self._started), 1e-3)
+        values['input_rate_hz'] = f'{len(recent) / window:.2f}'
+        period = float(np.median(np.diff(arrivals[-20:]))) if len(arrivals) >= 3 else None
+        values['input_period_ms'] = f'{period * 1e3:.1f}' if period else 'nan'
+        since = now - (arrivals[-1] if arrivals else self._started)
+        values['seconds_since_last_cloud'] = f'{since:.2f}' if arrivals else 'nan'
+        if since > p.input_timeout_s:
+            levels.append((DiagnosticStatus.ERROR,
+                           f'no point cloud for {since:.1f} s (input_timeout_s '
+                           f'{p.input_timeout_s:g})'))
+        elif not arrivals:
+            levels.append((DiagnosticStatus.WARN, 'no point cloud received yet'))
+        elif period and since > p.stale_periods * period:
+            levels.append((DiagnosticStatus.WARN,
+                           f'no point cloud for {since:.2f} s (expected every '
+                           f'{period:.2f} s)'))
+        values.update({'frames_in': str(self.frames_in), 'frames_out': str(self.frames_out),
+                       'dropped_frames': str(self.dropped),
+                       'frames_single_frame': str(self.frames_single),
+                       'odometry_waits': str(self.odom_waits),
+                       'points_reliability': self.points_reliability.name.lower()})
+        # odometry receive time minus its stamp (meaningful when both clocks agree)
+        values['odometry_delay_ms_p50'] = (f'{np.median(odom_delays) * 1e3:.1f}'
+                                           if odom_delays else 'nan')
+        values['odometry_delay_ms_max'] = (f'{max(odom_delays) * 1e3:.1f}'
+                                           if odom_delays else 'nan')
         for key in ('convert', 'model', 'publish'):
             arr = [s[key] for s in stats]
             values[f'{key}_ms_p50'] = f'{np.median(arr) * 1e3:.1f}' if arr else 'nan'
-        lat = [s['latency'] for s in stats]
-        values['latency_ms_p50'] = f'{np.median(lat) * 1e3:.1f}' if lat else 'nan'
-        values['latency_ms_p95'] = f'{np.percentile(lat, 95) * 1e3:.1f}' if lat else 'nan'
-        last = self._last
-        level, message = DiagnosticStatus.OK, 'running'
-        if last is None:
-            level, message = DiagnosticStatus.WARN, 'no point cloud received yet'
-        else:
+        processing = [s['convert'] + s['model'] + s['publish'] for s in stats]
+        if processing and period and float(np.median(processing)) > period:
+            levels.append((DiagnosticStatus.WARN,
+                           f'processing {np.median(processing) * 1e3:.0f} ms exceeds the input '
+                           f'period {period * 1e3:.0f} ms: clouds are dropped'))
+        self._latency_values(stats, values)
+        if last is not None:
             values.update({
                 'points_in': str(last.points_in), 'points_used': str(last.points_used),
                 'points_nonfinite': str(last.points_nonfinite),
@@ -288,17 +449,41 @@ class DetectorNode(Node):
                 'used_memory': str(last.used_memory),
                 'pose_source': last.pose_source,
                 'pose_age_s': f'{last.pose_age_s:.3f}',
+                'input_warnings': ','.join(last.warnings) or 'none',
                 'last_warning': last.warning or 'none'})
-            if last.warning:
-                level, message = DiagnosticStatus.WARN, last.warning
-            elif not last.pose_source.startswith('odometry'):
-                level, message = DiagnosticStatus.WARN, f'single-frame: {last.pose_source}'
+            for text in last.warnings.values():
+                levels.append((DiagnosticStatus.WARN, text))
+            if not last.pose_source.startswith('odometry'):
+                levels.append((DiagnosticStatus.WARN, f'single-frame: {last.pose_source}'))
+        for key, count in sorted(self.single_reasons.items()):
+            values[f'single_frame.{key}'] = str(count)
+        for key, count in sorted(self.reason_counts.items()):
+            values[f'warnings.{key}'] = str(count)
         values['last_reset_reason'] = self.pipeline.last_reset_reason
         values['memory_resets'] = str(self.pipeline.resets)
         values['odometry_rejected'] = str(self.pipeline.odom_rejected)
-        status.level, status.message = level, message
+        status = DiagnosticStatus(name='suit_ros: detector', hardware_id='suit_ros')
+        status.level = max((lvl for lvl, _ in levels), default=DiagnosticStatus.OK)
+        status.message = '; '.join(text for _, text in levels) or 'running'
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
-        arr = DiagnosticArray(status=[status])
+        return status
+
+    @staticmethod
+    def _latency_values(stats: list[dict[str, Any]], values: dict[str, str]) -> None:
+        """Latency p50/p95 of the frames measured like the last one, and against what."""
+        if not stats:
+            values.update(latency_ms_p50='nan', latency_ms_p95='nan', latency_reference='none')
+            return
+        ref = stats[-1]['by_receive']
+        lat = [s['latency'] for s in stats if s['by_receive'] == ref]
+        values['latency_ms_p50'] = f'{np.median(lat) * 1e3:.1f}'
+        values['latency_ms_p95'] = f'{np.percentile(lat, 95) * 1e3:.1f}'
+        values['latency_reference'] = (
+            f'receive time (header stamps {stats[-1]["skew"]:.1f} s from the node clock)'
+            if ref else 'header stamp')
+
+    def _diagnostics(self) -> None:
+        arr = DiagnosticArray(status=[self.diagnostic_status()])
         arr.header.stamp = self.get_clock().now().to_msg()
         self.pub_diag.publish(arr)
 
@@ -306,28 +491,30 @@ class DetectorNode(Node):
         """Stop the worker, then the node."""
         with self._cv:
             self._stop = True
-            self._cv.notify()
+            self._cv.notify_all()
         self._worker.join(timeout=5.0)
         super().destroy_node()
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``ros2 run suit_ros detector``."""
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
+    """Entry point of ``ros2 run suit_ros detector`` (sets no discovery variable)."""
     rclpy.init(args=args)
     try:
         node = DetectorNode()
     except SuitRosError as exc:
         print(f'[detector] cannot start: {exc}', file=sys.stderr)
-        rclpy.try_shutdown()
+        try_shutdown()
         return 1
+    executor = MultiThreadedExecutor(num_threads=3)
+    executor.add_node(node)
     try:
-        rclpy.spin(node)
+        executor.spin()
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
+        executor.shutdown()
         node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
     return 0
 
 

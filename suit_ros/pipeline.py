@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import time
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,22 +22,15 @@ from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
 from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_to_ns
 from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
 from suit_ros.ops.geometry import pose_from_xyz_rpy
+from suit_ros.params import DetectorParams
 from suit_ros.structures import Detections
 
+# the pipeline's settings are the node's: one owner (suit_ros.params)
+PipelineParams = DetectorParams
 
-@dataclass
-class PipelineParams:
-    """Pipeline settings (the node's parameters of the same names)."""
-
-    intensity_scale: float = 255.0
-    extrinsic_xyz: tuple[float, float, float] = (0.9, 0.0, 1.8)
-    extrinsic_rpy: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    odom_buffer_s: float = 10.0
-    odom_tolerance_s: float = 0.15
-    max_gap_s: float = 0.5
-    max_pose_jump_m: float = 5.0
-    min_range: float = 1.0
-    max_range: float = 80.0
+# input-contract reasons a frame can be flagged with (diagnostics and detect-bag count them)
+InputWarning = Literal['unusable_cloud', 'empty_cloud', 'no_intensity', 'intensity_range',
+                       'too_few_points', 'frame_changed']
 
 
 @dataclass
@@ -58,19 +51,24 @@ class PipelineOutput:
     memory_samples: int = 0
     memory_bytes: int = 0
     reset_reason: str = ''
-    warning: str = ''
+    warnings: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def warning(self) -> str:
+        """Every input-contract warning of this frame in one line ('' when none)."""
+        return '; '.join(self.warnings.values())
 
 
 class DetectionPipeline:
     """Stateful per-sensor pipeline; not thread-safe (the node runs it on one worker)."""
 
-    def __init__(self, detector: StreamingDetector, params: PipelineParams | None = None,
+    def __init__(self, detector: StreamingDetector, params: DetectorParams | None = None,
                  classes: MessageClasses | None = None) -> None:
         self.detector = detector
-        self.params = params or PipelineParams()
         self.classes = classes
         self.class_names = tuple(detector.cfg.class_names)
+        self.params = DetectorParams()
         self.poses = PoseBuffer(int(self.params.odom_buffer_s * 1e9),
                                 int(self.params.odom_tolerance_s * 1e9))
         self.T_base_lidar = pose_from_xyz_rpy(self.params.extrinsic_xyz,
@@ -82,6 +80,29 @@ class DetectionPipeline:
         self.resets = 0
         self.odom_rejected = 0
         self.last_odom_error = ''
+        self.configure(params or DetectorParams())
+
+    def configure(self, params: DetectorParams) -> None:
+        """Apply a parameter set; every runtime-changeable setting takes effect here.
+
+        Thresholds go to the model's decoder, the odometry buffer's age and tolerance are
+        updated in place (poses kept), a changed extrinsic resets the memory; the rest is read
+        per frame.
+
+        :raises ConfigError: an invalid set (nothing is applied then).
+        """
+        params.validate(len(self.class_names))
+        old = self.params
+        self.params = params
+        self.detector.set_thresholds(params.class_thresholds(len(self.class_names)),
+                                     params.nms_iou_threshold, params.max_detections,
+                                     params.candidates)
+        self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
+        self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
+        if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,
+                                                      params.extrinsic_rpy):
+            self.T_base_lidar = pose_from_xyz_rpy(params.extrinsic_xyz, params.extrinsic_rpy)
+            self.reset('extrinsic changed')
 
     # ------------------------------------------------------------------ inputs
     def add_odometry(self, msg: Any) -> bool:
@@ -105,8 +126,7 @@ class DetectionPipeline:
     def set_extrinsic(self, xyz: tuple[float, float, float],
                       rpy: tuple[float, float, float]) -> None:
         """Change the LiDAR extrinsic (resets the memory)."""
-        self.T_base_lidar = pose_from_xyz_rpy(xyz, rpy)
-        self.reset('extrinsic changed')
+        self.configure(self.params.updated({'extrinsic_xyz': xyz, 'extrinsic_rpy': rpy}))
 
     # ------------------------------------------------------------------ the step
     def process(self, cloud: Any, markers: bool = True) -> PipelineOutput:
@@ -114,42 +134,27 @@ class DetectionPipeline:
 
         :param markers: build the MarkerArray too (the node skips it when nobody listens).
         """
-        p = self.params
         t0 = time.perf_counter()
         header = cloud.header
         stamp_ns = stamp_to_ns(header.stamp)
         frame_id = str(header.frame_id)
         out = PipelineOutput(header, Detections.empty())
-        try:
-            xyzi = pointcloud2_to_xyzi(cloud)
-            points = xyzi.points
-            out.points_in = xyzi.num_input
-            out.points_nonfinite = xyzi.num_nonfinite
-            out.has_intensity = xyzi.has_intensity
-        except MessageError as exc:
-            out.warning = f'unusable cloud: {exc}'
-            points = np.zeros((0, 4), np.float32)
-        if len(points):
-            r = np.hypot(points[:, 0], points[:, 1])
-            points = points[(r >= p.min_range) & (r <= p.max_range)]
-            if p.intensity_scale != 1.0:
-                points = points.copy() if not points.flags.writeable else points
-                points[:, 3] *= 1.0 / p.intensity_scale
-        out.points_used = len(points)
+        points = self._points(cloud, out)
         t1 = time.perf_counter()
         reason = self._reset_reason(stamp_ns, frame_id)
+        if self.last_frame_id is not None and frame_id != self.last_frame_id:
+            out.warnings['frame_changed'] = (f'frame_id changed from {self.last_frame_id!r} '
+                                             f'to {frame_id!r} (memory reset)')
         pose, out.pose_source, out.pose_age_s = self._pose(stamp_ns)
         if reason is None and pose is not None and self.last_pose is not None:
             jump = float(np.linalg.norm(pose[:3, 3] - self.last_pose[:3, 3]))
-            if jump > p.max_pose_jump_m:
+            if jump > self.params.max_pose_jump_m:
                 reason = f'pose jumped {jump:.1f} m between frames'
         if reason is not None:
             self.reset(reason)
             out.reset_reason = reason
         self.last_stamp_ns, self.last_frame_id = stamp_ns, frame_id
         self.last_pose = pose
-        if out.warning == '' and len(points) == 0:
-            out.warning = 'empty cloud (no finite points in range)'
         t2 = time.perf_counter()
         model_timings: dict[str, float] = {}
         if len(points):
@@ -175,6 +180,62 @@ class DetectionPipeline:
         out.timings.update({f'model.{k}': v for k, v in model_timings.items()})
         return out
 
+    def _points(self, cloud: Any, out: PipelineOutput) -> NDArray[np.float32]:
+        """``(N, 4)`` filtered, scaled points; input-contract warnings into ``out``."""
+        p = self.params
+        try:
+            xyzi = pointcloud2_to_xyzi(cloud)
+        except MessageError as exc:
+            out.warnings['unusable_cloud'] = f'unusable cloud: {exc}'
+            return np.zeros((0, 4), np.float32)
+        points = xyzi.points
+        out.points_in = xyzi.num_input
+        out.points_nonfinite = xyzi.num_nonfinite
+        out.has_intensity = xyzi.has_intensity
+        if not xyzi.has_intensity and xyzi.num_input:
+            out.warnings['no_intensity'] = ('cloud has no intensity field (intensity, i or '
+                                            'reflectivity): intensity set to 0, detections '
+                                            'degrade')
+        if len(points):
+            r = np.hypot(points[:, 0], points[:, 1])
+            keep = (r >= p.min_range) & (r <= p.max_range)
+            if p.ego_box_enabled:
+                keep &= ~self._in_ego_box(points)
+            points = points[keep]
+        if xyzi.has_intensity and len(points):
+            self._check_intensity(points[:, 3], out)
+            if p.intensity_scale != 1.0:
+                points[:, 3] *= 1.0 / p.intensity_scale      # a fresh array after the mask
+        out.points_used = len(points)
+        if 'unusable_cloud' not in out.warnings and len(points) == 0:
+            out.warnings['empty_cloud'] = 'empty cloud (no finite points in range)'
+        elif len(points) < p.min_points:
+            out.warnings['too_few_points'] = (f'only {len(points)} points after filtering '
+                                              f'(min_points {p.min_points})')
+        return points
+
+    def _in_ego_box(self, points: NDArray[np.float32]) -> NDArray[np.bool_]:
+        """Points (LiDAR frame) that fall inside the ego crop box (base_link)."""
+        T = self.T_base_lidar
+        base = points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
+        lo = np.asarray(self.params.ego_box_min)
+        hi = np.asarray(self.params.ego_box_max)
+        inside: NDArray[np.bool_] = ((base >= lo) & (base <= hi)).all(axis=1)
+        return inside
+
+    def _check_intensity(self, intensity: NDArray[np.float32], out: PipelineOutput) -> None:
+        """Warn when the raw intensities do not fit ``intensity_scale``."""
+        scale = self.params.intensity_scale
+        top = float(intensity.max())
+        if top > scale * 1.001:
+            out.warnings['intensity_range'] = (
+                f'intensity up to {top:.3g} exceeds intensity_scale {scale:g}: set '
+                'intensity_scale to the sensor maximum')
+        elif scale > 1.0 and 0.0 < top <= 1.0:
+            out.warnings['intensity_range'] = (
+                f'intensity within 0..{top:.3g} but intensity_scale is {scale:g}: likely 0..1 '
+                'reflectance, set intensity_scale to 1')
+
     def _reset_reason(self, stamp_ns: int, frame_id: str) -> str | None:
         if self.last_stamp_ns is None:
             return None
@@ -188,6 +249,11 @@ class DetectionPipeline:
         if frame_id != self.last_frame_id:
             return f'frame_id changed from {self.last_frame_id!r} to {frame_id!r}'
         return None
+
+    def odometry_covers(self, stamp_ns: int) -> bool:
+        """Whether buffered odometry reaches ``stamp_ns`` (interpolation, not extrapolation)."""
+        span = self.poses.span()
+        return span is not None and span[1] >= stamp_ns
 
     def _pose(self, stamp_ns: int) -> tuple[NDArray[np.float64] | None, str, float]:
         span = self.poses.span()

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import collections
+import math
 from pathlib import Path
 import sys
 import time
@@ -15,122 +16,206 @@ from typing import Any
 
 import numpy as np
 
-from suit_ros.errors import BagError
+from suit_ros.errors import BagError, ConfigError
+from suit_ros.params import DetectorParams
 
 DET_TOPIC = '/detector/detections'
 MARKER_TOPIC = '/detector/markers'
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
-    """Add ``detect-bag`` options."""
+    """Add ``detect-bag`` options (the flags override ``--params``, which overrides defaults)."""
     parser.add_argument('input', help='input bag (sqlite3 or mcap)')
     parser.add_argument('output', help='output bag (must not exist)')
-    parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
+    parser.add_argument('--checkpoint', default=None, help='default: the shipped checkpoint')
     parser.add_argument('--params', help='node parameter YAML (params/detector.yaml layout)')
-    parser.add_argument('--points-topic', default='/points')
-    parser.add_argument('--odom-topic', default='/odom')
+    parser.add_argument('--points-topic', default=None, help='default: /points')
+    parser.add_argument('--odom-topic', default=None, help='default: /odom')
     parser.add_argument('--gt-topic', default='/gt/objects')
     parser.add_argument('--storage', choices=['mcap', 'sqlite3'], default='mcap')
     parser.add_argument('--copy-inputs', action='store_true',
                         help='also copy every input topic into OUT')
-    parser.add_argument('--device', default='auto', choices=['auto', 'cpu', 'cuda'])
+    parser.add_argument('--device', default=None, choices=['auto', 'cpu', 'cuda'])
+    parser.add_argument('--intensity-scale', type=float,
+                        help='intensity / scale -> 0..1 (1 for 0..1 reflectance)')
+    parser.add_argument('--score-threshold', type=float, nargs='+', metavar='T',
+                        help='one threshold for every class, or one per class')
+    parser.add_argument('--min-range', type=float, help='m')
+    parser.add_argument('--max-range', type=float, help='m')
+    parser.add_argument('--extrinsic-xyz', type=float, nargs=3, metavar=('X', 'Y', 'Z'),
+                        help='base_link -> LiDAR translation (m)')
+    parser.add_argument('--extrinsic-rpy', type=float, nargs=3, metavar=('R', 'P', 'Y'),
+                        help='base_link -> LiDAR roll pitch yaw (rad)')
+    parser.add_argument('--extrinsic-from-tf', action='store_true',
+                        help="read the extrinsic from the bag's /tf_static (base frame -> the "
+                        "cloud's frame)")
+    parser.add_argument('--base-frame', default='base_link',
+                        help='vehicle frame for --extrinsic-from-tf')
 
 
-def load_node_params(path: str | None) -> dict[str, Any]:
-    """The ``detector: ros__parameters`` mapping of a node parameter file (or {})."""
-    if not path:
-        return {}
-    import yaml
-    with open(path, encoding='utf-8') as f:
-        data = yaml.safe_load(f) or {}
-    for key in ('detector', '/detector', '/**'):
-        if key in data and 'ros__parameters' in data[key]:
-            return dict(data[key]['ros__parameters'])
-    return {}
+FLAG_PARAMS = {'checkpoint': 'checkpoint', 'device': 'device', 'points_topic': 'points_topic',
+               'odom_topic': 'odom_topic', 'intensity_scale': 'intensity_scale',
+               'score_threshold': 'score_thresholds', 'min_range': 'min_range',
+               'max_range': 'max_range', 'extrinsic_xyz': 'extrinsic_xyz',
+               'extrinsic_rpy': 'extrinsic_rpy'}
 
 
-def build_pipeline(checkpoint: str, device: str, params: dict[str, Any], classes: Any) -> Any:
+def params_from_args(args: argparse.Namespace) -> DetectorParams:
+    """Defaults, then ``--params`` YAML, then the flags given."""
+    params = DetectorParams.from_yaml(args.params) if args.params else DetectorParams()
+    flags = {name: getattr(args, flag) for flag, name in FLAG_PARAMS.items()
+             if getattr(args, flag, None) is not None}
+    return params.updated(flags).validate()
+
+
+def extrinsic_from_tf_static(reader: Any, base_frame: str, lidar_frame: str
+                             ) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+    """``(xyz, rpy)`` of ``base_frame -> lidar_frame`` from the bag's ``/tf_static``.
+
+    :raises BagError: no such transform in the bag (a direct one; chains are not composed).
+    """
+    from suit_ros.data.bag import messages
+    from suit_ros.msg_adapters.odometry import quaternion_to_matrix
+    conns = [c for c in reader.connections if c.topic == '/tf_static']
+    seen = []
+    for conn, _, raw in messages(reader, conns):
+        for tf in reader.deserialize(raw, conn.msgtype).transforms:
+            parent = str(tf.header.frame_id).lstrip('/')
+            child = str(tf.child_frame_id).lstrip('/')
+            seen.append(f'{parent} -> {child}')
+            if (parent, child) == (base_frame.lstrip('/'), lidar_frame.lstrip('/')):
+                t, q = tf.transform.translation, tf.transform.rotation
+                R = quaternion_to_matrix(q.x, q.y, q.z, q.w)
+                rpy = (math.atan2(R[2, 1], R[2, 2]), -math.asin(max(-1.0, min(1.0, R[2, 0]))),
+                       math.atan2(R[1, 0], R[0, 0]))
+                return (float(t.x), float(t.y), float(t.z)), rpy
+    raise BagError(f'no {base_frame} -> {lidar_frame} transform in /tf_static (found: '
+                   f'{seen or "no /tf_static"}); give --extrinsic-xyz/--extrinsic-rpy')
+
+
+def build_pipeline(params: DetectorParams, classes: Any) -> Any:
     """The pipeline the node would build from the same parameters."""
     import torch
 
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     from suit_ros.model.streaming import StreamingDetector
-    from suit_ros.pipeline import DetectionPipeline, PipelineParams
-    dev = 'cuda' if device == 'cuda' or (device == 'auto' and torch.cuda.is_available()) \
-        else 'cpu'
-    model, cfg, _ = load_checkpoint(checkpoint or default_checkpoint_path(), dev)
-    det = StreamingDetector(model, dev)
-    keys = PipelineParams.__dataclass_fields__
-    pp = PipelineParams(**{k: (tuple(v) if isinstance(v, list) else v)
-                           for k, v in params.items() if k in keys})
-    thr = params.get('score_thresholds', [0.0])
-    K = len(cfg.class_names)
-    det.set_thresholds(None if list(thr) == [0.0] else (list(thr) * K if len(thr) == 1
-                                                         else list(thr)),
-                       params.get('nms_iou_threshold'), params.get('max_detections'))
-    return DetectionPipeline(det, pp, classes)
+    from suit_ros.pipeline import DetectionPipeline
+    dev = ('cuda' if params.device == 'cuda'
+           or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
+    model, cfg, _ = load_checkpoint(params.checkpoint or default_checkpoint_path(), dev)
+    try:
+        params.validate(len(cfg.class_names))
+    except ConfigError as exc:
+        raise ConfigError(f'{exc} (the checkpoint has classes {list(cfg.class_names)})'
+                          ) from exc
+    return DetectionPipeline(StreamingDetector(model, dev), params, classes)
+
+
+def _cloud_frame(reader: Any, points_topic: str) -> str:
+    from suit_ros.data.bag import messages
+    conns = [c for c in reader.connections if c.topic == points_topic]
+    for conn, _, raw in messages(reader, conns):
+        return str(reader.deserialize(raw, conn.msgtype).header.frame_id)
+    raise BagError(f'no message on {points_topic}')
 
 
 def run(args: argparse.Namespace) -> int:
     """Process the bag; print a summary."""
-    from suit_ros.data.bag import messages, open_reader, open_writer
-    from suit_ros.evaluate import evaluate
+    from suit_ros.data.bag import open_reader, open_writer
     from suit_ros.msg_adapters.classes import MessageClasses
-    from suit_ros.msg_adapters.detections import pointcloud2_to_detections
-    from suit_ros.msg_adapters.odometry import stamp_to_ns
-    from suit_ros.structures import Detections
     out_path = Path(args.output)
-    if out_path.exists():
-        raise BagError(f'{out_path} already exists; choose a new output path')
+    params = params_from_args(args)
     t0 = time.monotonic()
     with open_reader(args.input) as reader:
+        if out_path.exists():
+            raise BagError(f'{out_path} already exists; choose a new output path')
         topics = {c.topic: c for c in reader.connections}
-        if args.points_topic not in topics:
-            raise BagError(f'{args.input} has no {args.points_topic} topic; topics: '
+        if params.points_topic not in topics:
+            raise BagError(f'{args.input} has no {params.points_topic} topic; topics: '
                            f'{sorted(topics)} (use --points-topic)')
+        if args.extrinsic_from_tf:
+            xyz, rpy = extrinsic_from_tf_static(reader, args.base_frame,
+                                                _cloud_frame(reader, params.points_topic))
+            params = params.updated({'extrinsic_xyz': xyz, 'extrinsic_rpy': rpy})
+            print(f'detect-bag: extrinsic from /tf_static: xyz {[round(v, 4) for v in xyz]}, '
+                  f'rpy {[round(v, 4) for v in rpy]}')
         with open_writer(out_path, args.storage) as bag:
-            pipe = build_pipeline(args.checkpoint, args.device, load_node_params(args.params),
-                                  MessageClasses.from_rosbags(bag.store))
-            names = pipe.class_names
-            counts: collections.Counter[str] = collections.Counter()
-            gts: dict[int, Any] = {}
-            dets: dict[int, Any] = {}
-            model_ms = []
-            frames = 0
-            warnings = 0
-            for conn, log_ns, raw in messages(reader):
-                if args.copy_inputs:
-                    bag.write(conn.topic, conn.msgtype, log_ns, bytes(raw))
-                if conn.topic == args.odom_topic:
-                    pipe.add_odometry(reader.deserialize(raw, conn.msgtype))
-                elif conn.topic == args.gt_topic:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                    gts[stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
-                elif conn.topic == args.points_topic:
-                    msg = reader.deserialize(raw, conn.msgtype)
-                    out = pipe.process(msg)
-                    stamp = stamp_to_ns(msg.header.stamp)
-                    bag.write(DET_TOPIC, 'sensor_msgs/msg/PointCloud2', stamp,
-                              out.detections_msg)
-                    bag.write(MARKER_TOPIC, 'visualization_msgs/msg/MarkerArray', stamp,
-                              out.markers_msg)
-                    frames += 1
-                    warnings += bool(out.warning)
-                    model_ms.append(out.timings['model'] * 1e3)
-                    dets[stamp] = out.detections
-                    counts.update(names[int(k)] for k in out.detections.labels)
-    dt = time.monotonic() - t0
-    print(f'detect-bag: {frames} frames in {dt:.1f} s ({frames / max(dt, 1e-9):.1f} frames/s), '
-          f'model p50 {np.median(model_ms) if model_ms else float("nan"):.1f} ms, '
-          f'{warnings} frames with warnings')
-    print('detections per class: ' + ', '.join(f'{c} {counts[c]}' for c in names))
-    paired = [s for s in dets if s in gts]
-    if paired:
-        g = [Detections(gts[s]['boxes'], gts[s]['velocities'], gts[s]['scores'],
-                        gts[s]['labels']) for s in paired]
-        result = evaluate(g, [dets[s] for s in paired], names,
-                          num_points=[gts[s].get('num_points') for s in paired])
-        print(result.table())
+            pipe = build_pipeline(params, MessageClasses.from_rosbags(bag.store))
+            summary = _process_bag(args, params, reader, bag, pipe)
+    summary.print(time.monotonic() - t0, pipe.class_names)
     print(f'wrote {out_path} ({DET_TOPIC}, {MARKER_TOPIC}'
           f'{", inputs copied" if args.copy_inputs else ""})', file=sys.stderr)
     return 0
+
+
+class Summary:
+    """What ``detect-bag`` saw: frames, per-class counts, warnings per reason, GT pairs."""
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.model_ms: list[float] = []
+        self.classes: collections.Counter[int] = collections.Counter()
+        self.warnings: collections.Counter[str] = collections.Counter()
+        self.examples: dict[str, str] = {}
+        self.resets: collections.Counter[str] = collections.Counter()
+        self.gts: dict[int, Any] = {}
+        self.dets: dict[int, Any] = {}
+
+    def add(self, stamp: int, out: Any) -> None:
+        """Count one frame's output."""
+        self.frames += 1
+        self.model_ms.append(out.timings['model'] * 1e3)
+        self.dets[stamp] = out.detections
+        self.classes.update(int(k) for k in out.detections.labels)
+        for key, text in out.warnings.items():
+            self.warnings[key] += 1
+            self.examples.setdefault(key, text)
+        if out.reset_reason:
+            self.resets[out.reset_reason.split(' (')[0]] += 1
+
+    def print(self, seconds: float, names: tuple[str, ...]) -> None:
+        """The summary on stdout (and the evaluation when the bag has GT)."""
+        from suit_ros.evaluate import evaluate
+        from suit_ros.structures import Detections
+        model = np.median(self.model_ms) if self.model_ms else float('nan')
+        print(f'detect-bag: {self.frames} frames in {seconds:.1f} s '
+              f'({self.frames / max(seconds, 1e-9):.1f} frames/s), model p50 {model:.1f} ms, '
+              f'{sum(self.warnings.values())} warnings')
+        for key, count in self.warnings.most_common():
+            print(f'  warning {key}: {count} frames, e.g. {self.examples[key]}')
+        for reason, count in self.resets.most_common():
+            print(f'  memory reset: {reason}: {count}')
+        print('detections per class: ' + ', '.join(
+            f'{c} {self.classes[i]}' for i, c in enumerate(names)))
+        paired = [s for s in self.dets if s in self.gts]
+        if paired:
+            g = [Detections(self.gts[s]['boxes'], self.gts[s]['velocities'],
+                            self.gts[s]['scores'], self.gts[s]['labels']) for s in paired]
+            result = evaluate(g, [self.dets[s] for s in paired], names,
+                              num_points=[self.gts[s].get('num_points') for s in paired])
+            print(result.table())
+
+
+def _process_bag(args: argparse.Namespace, params: DetectorParams, reader: Any, bag: Any,
+                 pipe: Any) -> Summary:
+    from suit_ros.data.bag import messages
+    from suit_ros.msg_adapters.detections import pointcloud2_to_detections
+    from suit_ros.msg_adapters.odometry import stamp_to_ns
+    summary = Summary()
+    for conn, log_ns, raw in messages(reader):
+        if args.copy_inputs:
+            bag.write(conn.topic, conn.msgtype, log_ns, bytes(raw))
+        if conn.topic == params.odom_topic:
+            pipe.add_odometry(reader.deserialize(raw, conn.msgtype))
+        elif conn.topic == args.gt_topic:
+            msg = reader.deserialize(raw, conn.msgtype)
+            summary.gts[stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
+        elif conn.topic == params.points_topic:
+            msg = reader.deserialize(raw, conn.msgtype)
+            out = pipe.process(msg)
+            stamp = stamp_to_ns(msg.header.stamp)
+            bag.write(DET_TOPIC, 'sensor_msgs/msg/PointCloud2', stamp, out.detections_msg)
+            bag.write(MARKER_TOPIC, 'visualization_msgs/msg/MarkerArray', stamp,
+                      out.markers_msg)
+            summary.add(stamp, out)
+    return summary

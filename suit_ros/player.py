@@ -13,6 +13,8 @@ from typing import Any
 
 from suit_ros.errors import BagError
 
+POINT_CLOUD = 'sensor_msgs/msg/PointCloud2'
+
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Add ``play`` options."""
@@ -26,6 +28,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--max-messages', type=int, default=0, help='stop after N (0: all)')
     parser.add_argument('--wait-subscribers', type=float, default=0.0, metavar='SECONDS',
                         help='first wait up to this long until every topic has a subscriber')
+    parser.add_argument('--reliability', choices=['reliable', 'best_effort'],
+                        default='reliable',
+                        help='QoS reliability of the PointCloud2 publishers (LiDAR drivers often '
+                        'use best_effort); other topics are published reliably')
 
 
 def message_class(msgtype: str) -> Any:
@@ -40,37 +46,45 @@ def message_class(msgtype: str) -> Any:
 def run(args: argparse.Namespace) -> int:
     """Play the bag."""
     import rclpy
-    from rclpy.qos import DurabilityPolicy, QoSProfile
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.utilities import try_shutdown
     from rosgraph_msgs.msg import Clock
 
     from suit_ros.data.bag import messages, open_reader
+    from suit_ros.dds import use_large_data_profile
     if args.rate <= 0:
         raise BagError('--rate must be > 0')
-    os.environ.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
     with open_reader(args.bag) as reader:
         conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
         if not conns:
             raise BagError(f'none of {args.topics} is in {args.bag}')
-        messages = [(c.topic, c.msgtype, t, bytes(raw))
+        recorded = [(c.topic, c.msgtype, t, bytes(raw))
                     for c, t, raw in messages(reader, conns)]
-    if not messages:
+    if not recorded:
         raise BagError(f'{args.bag} has no messages on the selected topics')
+    profile = use_large_data_profile(os.environ)   # before rclpy creates the participant
+    if profile:
+        print(f'play: Fast DDS profile {profile} (large messages over shared memory)')
     rclpy.init()
     node = rclpy.create_node('suit_ros_player')
     pubs = {}
-    for topic, msgtype in sorted({(m[0], m[1]) for m in messages}):
+    for topic, msgtype in sorted({(m[0], m[1]) for m in recorded}):
         try:
             cls = message_class(msgtype)
         except BagError as exc:
             print(f'play: skipping {topic}: {exc}')
             continue
         latched = topic == '/tf_static'
+        best_effort = args.reliability == 'best_effort' and msgtype == POINT_CLOUD
         qos = QoSProfile(depth=10, durability=(DurabilityPolicy.TRANSIENT_LOCAL if latched
-                                               else DurabilityPolicy.VOLATILE))
+                                               else DurabilityPolicy.VOLATILE),
+                         reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
+                                      else ReliabilityPolicy.RELIABLE))
         pubs[topic] = node.create_publisher(cls, topic, qos)
-    messages = [m for m in messages if m[0] in pubs]
+    recorded = [m for m in recorded if m[0] in pubs]
     clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
     sent = 0
+    late_max = 0.0
     try:
         end = time.monotonic() + args.wait_subscribers
         while time.monotonic() < end and any(p.get_subscription_count() == 0
@@ -78,13 +92,15 @@ def run(args: argparse.Namespace) -> int:
             time.sleep(0.05)
         time.sleep(args.start_delay)
         while True:
-            t_bag0 = messages[0][2]
+            t_bag0 = recorded[0][2]
             t_wall0 = time.monotonic()
-            for topic, _, t, data in messages:
+            for topic, _, t, data in recorded:
                 due = t_wall0 + (t - t_bag0) * 1e-9 / args.rate
                 delay = due - time.monotonic()
                 if delay > 0:
                     time.sleep(delay)
+                else:             # behind the recorded pace (a loaded machine): say how far
+                    late_max = max(late_max, -delay)
                 if clock_pub is not None:
                     clock = Clock()
                     clock.clock.sec, clock.clock.nanosec = divmod(t, 10**9)
@@ -98,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        print(f'play: published {sent} messages')
+        print(f'play: published {sent} messages; at most {late_max * 1e3:.0f} ms behind the '
+              'recorded pace')
         node.destroy_node()
-        rclpy.try_shutdown()
+        try_shutdown()
     return 0

@@ -16,17 +16,16 @@ def ros_env() -> dict[str, str]:
     """Environment for child processes: DDS on localhost, this run's domain."""
     env = dict(os.environ)
     env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env['ROS_LOCALHOST_ONLY'] = '1'
+    env.pop('ROS_LOCALHOST_ONLY', None)
     env['PYTHONUNBUFFERED'] = '1'
     return env
 
 
 def start_node(checkpoint: str, *params: str, cmd: list[str] | None = None
                ) -> subprocess.Popen[str]:
-    """Start the detector node in its own process (reliable QoS override for big clouds)."""
+    """Start the detector node in its own process (every other parameter at its default)."""
     args = (cmd or [sys.executable, '-m', 'suit_ros.node']) + [
-        '--ros-args', '-p', f'checkpoint:={checkpoint}',
-        '-p', 'qos_overrides./points.subscription.reliability:=reliable']
+        '--ros-args', '-p', f'checkpoint:={checkpoint}']
     for p in params:
         args += ['-p', p]
     return subprocess.Popen(args, env=ros_env(), stdout=subprocess.PIPE,

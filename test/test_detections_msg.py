@@ -6,14 +6,11 @@ import pytest
 from rclpy.serialization import deserialize_message, serialize_message
 from rosbags.typesys import Stores, get_typestore
 from sensor_msgs.msg import PointCloud2
-from visualization_msgs.msg import MarkerArray
 
-from suit_ros.msg_adapters.builders import MessageFactory, message_factory
 from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.detections import (
-    ARROW,
-    CUBE,
     DELETEALL,
+    LINE_LIST,
     PALETTE,
     TEXT_VIEW_FACING,
     detections_to_markerarray,
@@ -98,11 +95,23 @@ def test_empty_detections(C):
     assert len(ma.markers) == 1 and ma.markers[0].action == DELETEALL
 
 
+def reference_corners(box):
+    """The 8 corners of one box, written out independently of box_corners."""
+    x, y, z, length, width, height, yaw = box
+    out = []
+    for dz in (-height / 2, height / 2):
+        for sx, sy in ((1, 1), (-1, 1), (-1, -1), (1, -1)):
+            lx, ly = sx * length / 2, sy * width / 2
+            out.append((x + lx * np.cos(yaw) - ly * np.sin(yaw),
+                        y + lx * np.sin(yaw) + ly * np.cos(yaw), z + dz))
+    return np.array(out)
+
+
 @pytest.mark.parametrize('C', BOTH, **KIND)
 def test_markers(C):
     boxes, vel, scores, labels = random_boxes(25, 3)
     vel[0] = 0.0
-    vel[1] = [0.1, -0.15]                                  # 0.18 m/s: no arrow
+    vel[1] = [0.1, -0.15]                                  # 0.18 m/s: no velocity segment
     header = C.header(123_000_000_456, 'lidar')
     ma = detections_to_markerarray(boxes, vel, scores, labels, header, NAMES, C)
     m = ma.markers
@@ -110,34 +119,35 @@ def test_markers(C):
     assert all(x.header.frame_id == 'lidar' and x.header.stamp.sec == 123
                and x.header.stamp.nanosec == 456 for x in m)
     assert all(x.lifetime.sec == 0 and x.lifetime.nanosec == 0 for x in m)
-    cubes = [x for x in m[1:] if x.type == CUBE]
+    lines = [x for x in m[1:] if x.type == LINE_LIST]
     texts = [x for x in m[1:] if x.type == TEXT_VIEW_FACING]
-    arrows = {x.id: x for x in m[1:] if x.type == ARROW}
-    assert len(m) == 1 + 25 + 25 + 23 and len(cubes) == 25 and len(texts) == 25
-    assert sorted(arrows) == list(range(2, 25))
-    for i, c in enumerate(cubes):
+    present = sorted(set(labels.tolist()))
+    assert len(m) == 1 + len(present) + 25 and len(lines) == len(present)
+    moving = np.hypot(vel[:, 0], vel[:, 1]) >= 0.2
+    for line, k in zip(lines, present):
+        idx = np.flatnonzero(labels == k)
+        assert line.ns == f'{NAMES[k]}/boxes' and line.id == 0 and line.action == 0
+        assert (line.color.r, line.color.g, line.color.b) == PALETTE[k] and line.color.a == 1
+        assert line.scale.x > 0 and line.pose.orientation.w == 1.0
+        pts = np.array([[p.x, p.y, p.z] for p in line.points])
+        assert len(pts) == 24 * len(idx) + 2 * moving[idx].sum()
+        for n, i in enumerate(idx):
+            segs = pts[24 * n:24 * (n + 1)].reshape(12, 2, 3)
+            ref = reference_corners(boxes[i])
+            # every edge joins two corners, and every corner pair that is an edge appears
+            got = {tuple(sorted((tuple(np.round(a, 9)), tuple(np.round(b, 9))))) for a, b in segs}
+            want = {tuple(sorted((tuple(np.round(ref[a], 9)), tuple(np.round(ref[b], 9)))))
+                    for a, b in [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7),
+                                 (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]}
+            assert got == want
+        tail = pts[24 * len(idx):].reshape(-1, 2, 3)
+        for (start, end), i in zip(tail, idx[moving[idx]]):
+            np.testing.assert_allclose(start, [*boxes[i, :2], boxes[i, 2] + boxes[i, 5] / 2])
+            np.testing.assert_allclose(end[:2] - start[:2], vel[i])
+    for i, t in enumerate(texts):
         name = NAMES[labels[i]]
-        assert c.ns == f'{name}/box' and c.id == i and c.action == 0
-        q = c.pose.orientation
-        assert np.isclose(q.x ** 2 + q.y ** 2 + q.z ** 2 + q.w ** 2, 1.0)
-        assert q.x == 0 and q.y == 0
-        yaw = 2 * np.arctan2(q.z, q.w)
-        assert np.isclose(np.cos(yaw - boxes[i, 6]), 1.0, atol=1e-12)
-        assert np.isclose(np.sin(yaw - boxes[i, 6]), 0.0, atol=1e-12)
-        assert [c.pose.position.x, c.pose.position.y, c.pose.position.z] == list(boxes[i, :3])
-        assert [c.scale.x, c.scale.y, c.scale.z] == list(boxes[i, 3:6])
-        assert (c.color.r, c.color.g, c.color.b) == PALETTE[labels[i]] and 0 < c.color.a < 1
-        t = texts[i]
-        assert t.ns == f'{name}/label' and t.text == f'{name} {scores[i]:.2f}'
+        assert t.ns == f'{name}/labels' and t.id == i and t.text == f'{name} {scores[i]:.2f}'
         assert t.pose.position.z > boxes[i, 2] + boxes[i, 5] / 2
-        if i in arrows:
-            a = arrows[i]
-            assert a.ns == f'{name}/velocity'
-            assert np.isclose(a.scale.x, np.hypot(*vel[i]))
-            heading = 2 * np.arctan2(a.pose.orientation.z, a.pose.orientation.w)
-            np.testing.assert_allclose([np.cos(heading), np.sin(heading)],
-                                       vel[i] / np.hypot(*vel[i]), atol=1e-12)
-            assert (a.color.r, a.color.g, a.color.b) == PALETTE[labels[i]]
     keys = {(x.ns, x.id) for x in m[1:]}
     assert len(keys) == len(m) - 1                      # unique ids per namespace
 
@@ -146,55 +156,46 @@ def test_markers_unknown_label_and_input_checks():
     boxes, vel, scores, _ = random_boxes(2)
     ma = detections_to_markerarray(boxes, vel, scores, np.array([0, 9]), RCLPY.header(0, 'l'),
                                    NAMES, RCLPY)
-    assert {x.ns for x in ma.markers[1:]} >= {'car/box', 'class9/box'}
+    assert {x.ns for x in ma.markers[1:]} >= {'car/boxes', 'class9/boxes', 'class9/labels'}
     with pytest.raises(MessageError, match='velocities'):
         detections_to_markerarray(boxes, vel[:1], scores, np.zeros(2, int),
                                   RCLPY.header(0, 'l'), NAMES, RCLPY)
 
 
-def test_fast_factories_build_what_the_constructors_build():
-    """The slot/dict factories against the plain constructors: same bytes on the wire."""
-    assert type(message_factory(RCLPY)) is not MessageFactory
-    assert type(message_factory(ROSBAGS)) is not MessageFactory
+def test_markers_cross_between_rclpy_and_rosbags():
+    """The same MarkerArray from both bundles: rclpy's CDR reads back in rosbags equal."""
     boxes, vel, scores, labels = random_boxes(30, 9)
-    for C in BOTH:
-        header = C.header(5_000_000_007, 'lidar')
-        fast = detections_to_markerarray(boxes, vel, scores, labels, header, NAMES, C)
-        ref = detections_to_markerarray(boxes, vel, scores, labels, header, NAMES, C,
-                                        factory=MessageFactory(C))
-        if C.kind == 'rclpy':
-            assert fast == ref
-            wire = serialize_message(fast)
-            assert (deserialize_message(wire, MarkerArray)
-                    == deserialize_message(serialize_message(ref), MarkerArray))
-            decoded = STORE.deserialize_cdr(wire, MARKER_ARRAY)     # readable by rosbags too
-            assert [x.text for x in decoded.markers] == [x.text for x in ref.markers]
-        else:
-            assert (bytes(STORE.serialize_cdr(fast, MARKER_ARRAY))
-                    == bytes(STORE.serialize_cdr(ref, MARKER_ARRAY)))
+    a = detections_to_markerarray(boxes, vel, scores, labels, RCLPY.header(5, 'lidar'), NAMES,
+                                  RCLPY)
+    b = detections_to_markerarray(boxes, vel, scores, labels, ROSBAGS.header(5, 'lidar'),
+                                  NAMES, ROSBAGS)
+    decoded = STORE.deserialize_cdr(serialize_message(a), MARKER_ARRAY)
+    from_rosbags = STORE.deserialize_cdr(STORE.serialize_cdr(b, MARKER_ARRAY), MARKER_ARRAY)
+
+    def summary(ma):
+        return [(x.ns, x.id, x.type, x.action, x.text, x.scale.x, np.float32(x.color.r),
+                 [(p.x, p.y, p.z) for p in x.points]) for x in ma.markers]
+    assert summary(decoded) == summary(from_rosbags) == summary(a)
 
 
-def test_checked_fields_use_the_constructors():
-    """With ROS_PYTHON_CHECK_FIELDS=1 rclpy checks every field; the factory then goes through
-    the generated constructors, and the markers still pass those checks."""
+def test_checked_fields_pass():
+    """With ROS_PYTHON_CHECK_FIELDS=1 rclpy checks every field the constructors get."""
     import os
     import subprocess
     import sys
     code = ('import numpy as np\n'
-            'from suit_ros.msg_adapters.builders import MessageFactory, message_factory\n'
             'from suit_ros.msg_adapters.classes import MessageClasses\n'
             'from suit_ros.msg_adapters.detections import detections_to_markerarray\n'
             'C = MessageClasses.from_rclpy()\n'
-            'assert type(message_factory(C)) is MessageFactory\n'
             'b = np.array([[1.0, 2, 0, 4, 2, 1.5, 0.3]])\n'
             "m = detections_to_markerarray(b, [[1.0, 0.0]], [0.9], [0], C.header(1, 'l'),\n"
             "                              ('car',), C)\n"
-            'print(len(m.markers), m.markers[2].text)\n')
+            'print(len(m.markers), len(m.markers[1].points), m.markers[2].text)\n')
     env = dict(os.environ, ROS_PYTHON_CHECK_FIELDS='1')
     out = subprocess.run([sys.executable, '-c', code], env=env, capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == '4 car 0.90'
+    assert out.stdout.strip() == '3 26 car 0.90'
 
 
 def test_cloud_shape_errors():

@@ -39,6 +39,7 @@ def test_install_layout(install):
     installed = {p.name for p in (install / 'share/suit_ros/params').glob('*.yaml')}
     assert installed == {p.name for p in (REPO / 'params').glob('*.yaml')}
     assert (install / 'share/suit_ros/launch/detector.launch.py').is_file()
+    assert (install / 'share/suit_ros/dds/fastdds_large_data.xml').is_file()
     sp = site_packages(install)
     adapters = sp / 'suit_ros' / 'msg_adapters'
     assert adapters.is_dir() and not adapters.is_symlink()

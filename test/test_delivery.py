@@ -1,0 +1,72 @@
+"""Delivery with every default: a 100-frame bag of ~1.2 MB clouds played into the node.
+
+Separate processes over real DDS: the detector (every parameter at its default, no QoS
+override), ``suit-ros play`` (which uses the shipped large-data Fast DDS profile for itself),
+and a probe. Run once with the player's default reliable publishers and once with best-effort
+publishers, as LiDAR drivers use.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+from rosgraph import Probe, diag_values, node_checkpoint, ros_env, start_node, stop
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+
+FRAMES = 100
+
+
+@pytest.fixture(scope='module')
+def big_bag(tmp_path_factory):
+    from suit_ros.data.sim import preset
+    from suit_ros.data.simulate_cli import write_bag
+    path = tmp_path_factory.mktemp('big') / 'bag'
+    write_bag(path, preset('demo', frames=FRAMES), 7, 'mcap')
+    return path
+
+
+@pytest.fixture(scope='module')
+def checkpoint(tmp_path_factory):
+    return node_checkpoint(tmp_path_factory.mktemp('ckpt'))
+
+
+@pytest.mark.parametrize('reliability', ['reliable', 'best_effort'])
+def test_default_node_gets_the_clouds_of_a_played_bag(big_bag, checkpoint, reliability):
+    from diagnostic_msgs.msg import DiagnosticArray
+    from sensor_msgs.msg import PointCloud2
+    node = start_node(checkpoint)
+    probe = Probe()
+    dets, diags = [], []
+    probe.node.create_subscription(PointCloud2, '/detector/detections', dets.append, 200)
+    probe.node.create_subscription(DiagnosticArray, '/diagnostics',
+                                   lambda m: diags.append(diag_values(m)), 50)
+    player_out = ''
+    try:
+        assert probe.spin_until(lambda: bool(diags) or node.poll() is not None, 90.0)
+        assert node.poll() is None, stop(node)
+        player = subprocess.Popen(
+            [sys.executable, '-m', 'suit_ros.cli', 'play', str(big_bag), '--topics', '/points',
+             '/odom', '--wait-subscribers', '20', '--start-delay', '1.5',
+             '--reliability', reliability],
+            env=ros_env(), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        probe.spin_until(lambda: player.poll() is not None, 120.0)
+        player_out = stop(player)
+        n = len(diags)
+        probe.spin_until(lambda: len(diags) > n + 2, 10.0)
+    finally:
+        probe.close()
+        node_out = stop(node)
+    last = diags[-1]
+    frames_in, frames_out = int(last['frames_in']), int(last['frames_out'])
+    dropped = int(last['dropped_frames'])
+    print(f'{reliability} publisher: node received {frames_in}/{FRAMES}, processed '
+          f'{frames_out}, dropped (busy) {dropped}, detections at the probe {len(dets)}; '
+          f'subscription {last["points_reliability"]}; {player_out.strip().splitlines()[-1]}')
+    assert 'large-data' in player_out or 'fastdds_large_data' in player_out, player_out
+    expected = 'reliable' if reliability == 'reliable' else 'best_effort'
+    assert last['points_reliability'] == expected, node_out[-2000:]
+    assert frames_in >= 0.95 * FRAMES, node_out[-2000:]
+    assert frames_out + dropped == frames_in
+    assert len(dets) == frames_out

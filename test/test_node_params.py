@@ -1,0 +1,246 @@
+"""The node's own runtime parameters and its QoS choice, on a real node in this process.
+
+A private rclpy Context; parameters are changed through ``set_parameters`` (the same callback
+a ``ros2 param set`` reaches); the points QoS is decided from publishers discovered over DDS.
+"""
+from __future__ import annotations
+
+import time
+
+import pytest
+from rosgraph import node_checkpoint
+
+pytestmark = pytest.mark.ros
+
+S = 10**9
+
+
+@pytest.fixture(scope='module')
+def checkpoint(tmp_path_factory):
+    return node_checkpoint(tmp_path_factory.mktemp('ckpt'))
+
+
+@pytest.fixture()
+def make_node(checkpoint):
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.parameter import Parameter
+
+    from suit_ros.node import DetectorNode
+    made = []
+
+    def make(**params):
+        ctx = Context()
+        rclpy.init(context=ctx)
+        overrides = [Parameter('checkpoint', value=checkpoint)]
+        overrides += [Parameter(k.replace('__', '.'), value=v) for k, v in params.items()]
+        node = DetectorNode(context=ctx, parameter_overrides=overrides)
+        made.append((ctx, node))
+        return node
+    yield make
+    for ctx, node in made:
+        node.destroy_node()
+        rclpy.try_shutdown(context=ctx)
+
+
+def set_param(node, name, value):
+    from rclpy.parameter import Parameter
+    result = node.set_parameters([Parameter(name, value=value)])[0]
+    assert result.successful, result.reason
+
+
+def cloud(stamp_ns, n=3000):
+    import numpy as np
+
+    from suit_ros.msg_adapters.classes import MessageClasses
+    from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2
+    C = MessageClasses.from_rclpy()
+    rng = np.random.default_rng(stamp_ns % 1000)
+    a = np.zeros(n, [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity', '<f4')])
+    a['x'], a['y'] = rng.uniform(-30, 30, n), rng.uniform(-30, 30, n)
+    a['intensity'] = rng.uniform(0, 200, n)
+    return array_to_pointcloud2(a, C.header(stamp_ns, 'lidar'), C)
+
+
+def odom(stamp_ns):
+    from nav_msgs.msg import Odometry
+    m = Odometry()
+    m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp_ns, S)
+    m.pose.pose.orientation.w = 1.0
+    return m
+
+
+def wait_frames(node, n, timeout=30.0):
+    end = time.monotonic() + timeout
+    while node.frames_out < n and time.monotonic() < end:
+        time.sleep(0.02)
+    assert node.frames_out >= n
+
+
+def diag(node):
+    st = node.diagnostic_status()
+    return st.level, st.message, {kv.key: kv.value for kv in st.values}
+
+
+def test_stale_input_warns_then_errors(make_node):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    node = make_node()
+    level, message, _ = diag(node)
+    assert level == DiagnosticStatus.WARN and 'no point cloud received yet' in message
+    now = node.get_clock().now().nanoseconds
+    for k in range(5):                               # 10 Hz input
+        node._on_cloud(cloud(now + k * S // 10))
+        time.sleep(0.1)
+    wait_frames(node, 1)
+    set_param(node, 'input_timeout_s', 30.0)
+    time.sleep(0.5)                                  # > 3 periods of 0.1 s
+    level, message, values = diag(node)
+    assert level == DiagnosticStatus.WARN and 'no point cloud for' in message, message
+    assert 'expected every 0.10 s' in message
+    set_param(node, 'stale_periods', 100.0)
+    level, message, _ = diag(node)
+    assert 'no point cloud for' not in message
+    set_param(node, 'input_timeout_s', 0.3)
+    level, message, values = diag(node)
+    assert level == DiagnosticStatus.ERROR and 'input_timeout_s 0.3' in message
+    rate = float(values['input_rate_hz'])
+    time.sleep(1.0)
+    assert float(diag(node)[2]['input_rate_hz']) < rate          # decays without input
+
+
+def test_latency_reference_follows_max_stamp_skew_s(make_node):
+    node = make_node()
+    node._on_cloud(cloud(1_600_000_000 * S))            # a 2020 stamp: far from the clock
+    wait_frames(node, 1)
+    values = diag(node)[2]
+    assert values['latency_reference'].startswith('receive time (header stamps')
+    assert float(values['latency_ms_p50']) < 60_000
+    set_param(node, 'max_stamp_skew_s', 1e9)
+    time.sleep(0.05)
+    node._on_cloud(cloud(1_600_000_000 * S + S // 10))
+    wait_frames(node, 2)
+    values = diag(node)[2]
+    assert values['latency_reference'] == 'header stamp'
+    assert float(values['latency_ms_p50']) > 1e9                  # years, in ms
+
+
+def test_odom_wait_s_waits_for_covering_odometry(make_node):
+    node = make_node(odom_tolerance_s=0.0, odom_wait_s=0.0)
+    t = node.get_clock().now().nanoseconds
+    node._on_odom(odom(t - S // 2))
+    node._on_odom(odom(t - S // 20))
+    node._on_cloud(cloud(t))                             # odometry ends 50 ms before
+    wait_frames(node, 1)
+    assert node._last.pose_source.startswith('none')
+    set_param(node, 'odom_wait_s', 2.0)
+    node._on_cloud(cloud(t + S // 10))
+    time.sleep(0.3)
+    assert node.frames_out == 1                          # still waiting for odometry
+    node._on_odom(odom(t + S // 10 + S // 50))
+    wait_frames(node, 2)
+    assert node._last.pose_source == 'odometry' and node.odom_waits == 1
+
+
+def _publisher(node, reliability):
+    from rclpy.qos import QoSProfile
+    from sensor_msgs.msg import PointCloud2
+    return node.create_publisher(PointCloud2, '/points',
+                                 QoSProfile(depth=1, reliability=reliability))
+
+
+def _until(cond, timeout=10.0):
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.05)
+    return cond()
+
+
+def test_points_qos_auto_follows_the_publishers(make_node):
+    from rclpy.qos import ReliabilityPolicy as R
+    node = make_node()
+    assert node.points_reliability == R.BEST_EFFORT      # nobody publishes yet
+    other = make_node(points_topic='/unused')
+    reliable = _publisher(other, R.RELIABLE)
+
+    def check(expected):
+        node.update_points_qos()
+        return node.points_reliability == expected
+    assert _until(lambda: check(R.RELIABLE))
+    best_effort = _publisher(other, R.BEST_EFFORT)
+    assert _until(lambda: check(R.BEST_EFFORT))
+    other.destroy_publisher(best_effort)
+    assert _until(lambda: check(R.RELIABLE))
+    other.destroy_publisher(reliable)
+
+
+@pytest.mark.parametrize('params,expected', [
+    ({'points_qos': 'sensor_data'}, 'BEST_EFFORT'),
+    ({'points_qos': 'reliable'}, 'RELIABLE'),
+    ({'qos_overrides__/points__subscription__reliability': 'reliable'}, 'RELIABLE'),
+])
+def test_fixed_points_qos(make_node, params, expected):
+    from rclpy.qos import ReliabilityPolicy as R
+    node = make_node(**params)
+    other = make_node(points_topic='/unused')
+    pub = _publisher(other, R.BEST_EFFORT if expected == 'RELIABLE' else R.RELIABLE)
+    assert _until(lambda: node.count_publishers('/points') > 0)
+    node.update_points_qos()
+    assert node.points_reliability == getattr(R, expected)
+    other.destroy_publisher(pub)
+
+
+def test_read_only_parameters_are_refused_by_rclpy(make_node):
+    from rclpy.parameter import Parameter
+    node = make_node()
+    result = node.set_parameters([Parameter('checkpoint', value='x')])[0]
+    assert not result.successful
+    result = node.set_parameters([Parameter('score_thresholds', value=[2.0])])[0]
+    assert not result.successful and 'score_thresholds' in result.reason
+
+
+def test_each_input_contract_case_raises_its_diagnostic(make_node):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    node = make_node()
+    t = node.get_clock().now().nanoseconds
+    no_x = cloud(t + 5 * S // 10)
+    no_x.fields = [f for f in no_x.fields if f.name != 'x']
+    no_i = cloud(t + S // 10)
+    no_i.fields = [f for f in no_i.fields if f.name != 'intensity']
+    other_frame = cloud(t + 6 * S // 10)
+    other_frame.header.frame_id = 'velodyne'
+    cases = [('no_intensity', no_i, 'no intensity field'),
+             ('too_few_points', cloud(t + 2 * S // 10, n=50), 'only 50 points'),
+             ('empty_cloud', cloud(t + 3 * S // 10, n=0), 'empty cloud'),
+             ('unusable_cloud', no_x, 'unusable cloud'),
+             ('frame_changed', other_frame, "frame_id changed from 'lidar' to 'velodyne'")]
+    node._on_cloud(cloud(t))
+    wait_frames(node, 1)
+    level, message, values = diag(node)
+    assert values['input_warnings'] == 'none'
+    for n, (reason, msg, text) in enumerate(cases, start=2):
+        node._on_cloud(msg)
+        wait_frames(node, n)
+        level, message, values = diag(node)
+        assert level == DiagnosticStatus.WARN and text in message, (reason, message)
+        assert values['input_warnings'] == reason and values[f'warnings.{reason}'] == '1'
+    node._on_cloud(no_i)                              # the same reason again: counted
+    no_i2 = cloud(t + 7 * S // 10)
+    no_i2.fields = [f for f in no_i2.fields if f.name != 'intensity']
+    no_i2.header.frame_id = 'velodyne'
+    node._on_cloud(no_i2)
+    wait_frames(node, len(cases) + 2)
+    assert diag(node)[2]['warnings.no_intensity'] == '2'
+    assert set(node._reason_logged) == {r for r, _, _ in cases}   # one log line per reason
+
+
+def test_intensity_as_reflectance_raises_its_diagnostic(make_node):
+    import numpy as np
+    node = make_node()
+    msg = cloud(node.get_clock().now().nanoseconds)
+    data = np.frombuffer(bytes(msg.data), np.float32).reshape(-1, 4).copy()
+    data[:, 3] /= 255.0                                          # 0..1 reflectance
+    msg.data = data.tobytes()
+    node._on_cloud(msg)
+    wait_frames(node, 1)
+    level, message, values = diag(node)
+    assert 'likely 0..1 reflectance' in message and values['input_warnings'] == 'intensity_range'

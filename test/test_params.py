@@ -1,0 +1,85 @@
+"""DetectorParams: one owner of the node's settings (defaults, YAML, validation)."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import pytest
+from rosgraph import REPO
+
+from suit_ros.errors import ConfigError
+from suit_ros.params import DetectorParams, render_yaml, runtime_parameters
+
+
+def test_params_yaml_is_generated_from_the_dataclass():
+    # regenerate with: python -m suit_ros.params > params/detector.yaml
+    assert (REPO / 'params' / 'detector.yaml').read_text() == render_yaml()
+    assert DetectorParams.from_yaml(str(REPO / 'params' / 'detector.yaml')) == DetectorParams()
+
+
+def test_yaml_values_override_defaults_and_unknown_keys_fail(tmp_path):
+    path = tmp_path / 'p.yaml'
+    path.write_text('detector:\n  ros__parameters:\n    intensity_scale: 1\n'
+                    '    score_thresholds: [0.3]\n    points_qos: reliable\n')
+    p = DetectorParams.from_yaml(str(path))
+    assert p.intensity_scale == 1.0 and isinstance(p.intensity_scale, float)
+    assert p.score_thresholds == (0.3,) and p.points_qos == 'reliable'
+    path.write_text('detector:\n  ros__parameters:\n    max_time_gap: 1.0\n')
+    with pytest.raises(ConfigError, match='unknown detector parameter'):
+        DetectorParams.from_yaml(str(path))
+
+
+@pytest.mark.parametrize('change,match', [
+    ({'points_qos': 'fast'}, 'points_qos must be one of'),
+    ({'device': 'tpu'}, 'device must be one of'),
+    ({'extrinsic_xyz': (0.0, 1.0)}, 'extrinsic_xyz needs 3'),
+    ({'extrinsic_rpy': (0.0, float('nan'), 0.0)}, 'extrinsic_rpy needs 3'),
+    ({'min_range': 10.0, 'max_range': 5.0}, 'min_range'),
+    ({'nms_iou_threshold': 1.5}, 'nms_iou_threshold must be within'),
+    ({'score_thresholds': (0.2, 0.3)}, 'score_thresholds needs 1 or 4'),
+    ({'score_thresholds': (1.2,)}, 'score_thresholds'),
+    ({'odom_wait_s': -1.0}, 'odom_wait_s'),
+])
+def test_invalid_values_are_named(change, match):
+    with pytest.raises(ConfigError, match=match):
+        replace(DetectorParams(), **change).validate(num_classes=4)
+
+
+@pytest.mark.parametrize('values,match', [
+    ({'max_detections': 2.5}, 'max_detections must be an integer'),
+    ({'min_points': True}, 'min_points must be an integer'),
+    ({'points_topic': 3}, 'points_topic must be a string'),
+    ({'min_range': 'near'}, 'min_range must be a number'),
+])
+def test_wrong_types_are_refused(values, match):
+    with pytest.raises(ConfigError, match=match):
+        DetectorParams().updated(values)
+
+
+def test_read_only_and_runtime_sets():
+    runtime = set(runtime_parameters())
+    assert {'checkpoint', 'device', 'threads', 'points_topic', 'odom_topic', 'points_qos',
+            'diagnostics_period_s'}.isdisjoint(runtime)
+    assert {'odom_tolerance_s', 'max_gap_s', 'intensity_scale', 'score_thresholds'} <= runtime
+
+
+def test_class_thresholds():
+    assert DetectorParams().class_thresholds(4) is None
+    assert DetectorParams(score_thresholds=(0.3,)).class_thresholds(3) == [0.3, 0.3, 0.3]
+    assert DetectorParams(score_thresholds=(0.1, 0.2)).class_thresholds(2) == [0.1, 0.2]
+
+
+def test_large_data_profile_only_when_the_user_set_none():
+    from xml.etree import ElementTree
+
+    from suit_ros.dds import LARGE_DATA_PROFILE, use_large_data_profile
+    env = {}
+    assert use_large_data_profile(env) == str(LARGE_DATA_PROFILE)
+    assert env == {'FASTRTPS_DEFAULT_PROFILES_FILE': str(LARGE_DATA_PROFILE)}
+    for name in ('FASTRTPS_DEFAULT_PROFILES_FILE', 'FASTDDS_DEFAULT_PROFILES_FILE'):
+        env = {name: '/etc/mine.xml'}
+        assert use_large_data_profile(env) is None and env == {name: '/etc/mine.xml'}
+    ns = {'d': 'http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles'}
+    root = ElementTree.parse(LARGE_DATA_PROFILE).getroot()
+    shm = [t for t in root.iterfind('.//d:transport_descriptor', ns)
+           if t.findtext('d:type', namespaces=ns) == 'SHM']
+    assert int(shm[0].findtext('d:segment_size', namespaces=ns)) >= 32 * 2**20

@@ -1,0 +1,217 @@
+"""The pipeline: every runtime parameter takes effect; every input-contract case is flagged.
+
+A real model (the shipped checkpoint, or an untrained real one), real rclpy message classes.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from rosgraph import node_checkpoint
+
+from suit_ros.params import DetectorParams, runtime_parameters
+
+S = 10**9
+T0 = 1_700_000_000 * S
+
+
+@pytest.fixture(scope='module')
+def classes():
+    from suit_ros.msg_adapters.classes import MessageClasses
+    return MessageClasses.from_rclpy()
+
+
+@pytest.fixture(scope='module')
+def model(tmp_path_factory):
+    from suit_ros.checkpoint import load_checkpoint
+    model, _, _ = load_checkpoint(node_checkpoint(tmp_path_factory.mktemp('ckpt')), 'cpu')
+    return model
+
+
+@pytest.fixture(scope='module')
+def scene():
+    """A synthetic frame with objects: ``(structured cloud array, stamp)``."""
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.scene import Simulation
+    f = Simulation(preset('test', frames=3), 5).render(2)
+    return f.cloud
+
+
+def make_pipeline(model, classes, **changes):
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.pipeline import DetectionPipeline
+    return DetectionPipeline(StreamingDetector(model, 'cpu'),
+                             replace(DetectorParams(), **changes), classes)
+
+
+def cloud(classes, stamp, array=None, n=3000, frame='lidar', intensity=100.0, fields='xyzi'):
+    from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2
+    if array is None:
+        rng = np.random.default_rng(stamp % 997)
+        names = list(fields)
+        array = np.zeros(n, [(k if k != 'i' else 'intensity', '<f4') for k in names])
+        array['x'] = rng.uniform(-30, 30, n)
+        array['y'] = rng.uniform(-30, 30, n)
+        array['z'] = rng.uniform(-1.5, 0.5, n)
+        if 'i' in names:
+            array['intensity'] = rng.uniform(0, 1, n) * intensity
+    return array_to_pointcloud2(array, classes.header(stamp, frame), classes)
+
+
+def odom(stamp, x=0.0):
+    from nav_msgs.msg import Odometry
+    m = Odometry()
+    m.header.stamp.sec, m.header.stamp.nanosec = divmod(stamp, S)
+    m.header.frame_id, m.child_frame_id = 'odom', 'base_link'
+    m.pose.pose.position.x = float(x)
+    m.pose.pose.orientation.w = 1.0
+    return m
+
+
+def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
+    for t in range(start, end + 1, step):
+        assert pipe.add_odometry(odom(t, speed * (t - T0) / S))
+
+
+# ------------------------------------------------------------------ runtime parameters
+RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
+                       'min_range',
+                       'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
+                       'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
+                       'odom_tolerance_s', 'max_gap_s', 'max_pose_jump_m'}
+RUNTIME_TESTED_IN_NODE = {'odom_wait_s', 'max_stamp_skew_s', 'stale_periods',
+                          'input_timeout_s'}
+
+
+def test_every_runtime_parameter_has_a_behaviour_test():
+    assert set(runtime_parameters()) == RUNTIME_TESTED_HERE | RUNTIME_TESTED_IN_NODE
+
+
+def test_score_thresholds_and_max_detections(model, classes, scene):
+    pipe = make_pipeline(model, classes, score_thresholds=(0.05,))
+    many = len(pipe.process(cloud(classes, T0, scene)).detections)
+    assert many >= 3
+    pipe.configure(replace(pipe.params, max_detections=2))
+    assert len(pipe.process(cloud(classes, T0 + S // 10, scene)).detections) == 2
+    pipe.configure(replace(pipe.params, max_detections=200, score_thresholds=(0.999,)))
+    assert len(pipe.process(cloud(classes, T0 + 2 * S // 10, scene)).detections) < many
+
+
+def test_candidates_bound_the_detections_before_the_threshold(model, classes, scene):
+    pipe = make_pipeline(model, classes, score_thresholds=(0.0,))
+    pipe.configure(replace(pipe.params, score_thresholds=(1e-6,), candidates=3))
+    assert pipe.detector.candidates == 3
+    assert len(pipe.process(cloud(classes, T0, scene)).detections) <= 3
+    pipe.configure(replace(pipe.params, candidates=400))
+    assert len(pipe.process(cloud(classes, T0 + S // 10, scene)).detections) > 3
+
+
+def test_nms_iou_threshold_reaches_the_decoder(model, classes, scene):
+    pipe = make_pipeline(model, classes, score_thresholds=(0.05,))
+    pipe.configure(replace(pipe.params, nms_iou_threshold=0.7))
+    assert pipe.detector.nms_iou_threshold == pytest.approx(0.7)
+    pipe.configure(replace(pipe.params, nms_iou_threshold=0.05))
+    assert pipe.detector.nms_iou_threshold == pytest.approx(0.05)
+
+
+def test_ranges_and_ego_box_drop_points(model, classes):
+    pipe = make_pipeline(model, classes)
+    msg = cloud(classes, T0, n=4000)
+    full = pipe.process(msg).points_used
+    pipe.configure(replace(pipe.params, max_range=10.0))
+    near = pipe.process(cloud(classes, T0 + S // 10, n=4000)).points_used
+    assert near < full / 3
+    pipe.configure(replace(pipe.params, max_range=80.0, min_range=20.0))
+    far = pipe.process(cloud(classes, T0 + 2 * S // 10, n=4000)).points_used
+    assert far < full
+    # an ego box around base_link: x -1..3, y -1..1, z -1..3; the LiDAR is 1.8 m above it
+    pipe.configure(replace(pipe.params, min_range=0.0, max_range=80.0))
+    a = np.zeros(4, [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity', '<f4')])
+    a['x'] = [0.5, 1.0, 20.0, -25.0]       # LiDAR frame; base_link x = LiDAR x + 0.9
+    a['z'] = [-1.0, -1.5, -1.0, -1.0]
+    assert pipe.process(cloud(classes, T0 + 3 * S // 10, a)).points_used == 4
+    pipe.configure(replace(pipe.params, ego_box_min=(-1.0, -1.0, -1.0),
+                           ego_box_max=(3.0, 1.0, 3.0)))
+    assert pipe.process(cloud(classes, T0 + 4 * S // 10, a)).points_used == 2
+
+
+def test_intensity_scale_and_min_points(model, classes):
+    pipe = make_pipeline(model, classes)
+    out = pipe.process(cloud(classes, T0, intensity=1.0))          # 0..1 reflectance
+    assert 'intensity_range' in out.warnings and 'reflectance' in out.warnings['intensity_range']
+    pipe.configure(replace(pipe.params, intensity_scale=1.0))
+    assert 'intensity_range' not in pipe.process(cloud(classes, T0 + S // 10,
+                                                        intensity=1.0)).warnings
+    out = pipe.process(cloud(classes, T0 + 2 * S // 10, intensity=255.0))
+    assert 'exceeds intensity_scale' in out.warnings['intensity_range']
+    assert 'too_few_points' not in out.warnings
+    pipe.configure(replace(pipe.params, min_points=5000))
+    out = pipe.process(cloud(classes, T0 + 3 * S // 10, intensity=255.0))
+    assert 'only' in out.warnings['too_few_points']
+
+
+def test_extrinsic_change_resets_and_moves_the_pose(model, classes):
+    pipe = make_pipeline(model, classes)
+    feed_odometry(pipe, T0 - S, T0 + S)
+    pipe.process(cloud(classes, T0))
+    z0 = pipe.last_pose[2, 3]
+    resets = pipe.resets
+    pipe.configure(replace(pipe.params, extrinsic_xyz=(0.9, 0.0, 2.5)))
+    assert pipe.resets == resets + 1 and pipe.last_reset_reason == 'extrinsic changed'
+    pipe.process(cloud(classes, T0 + S // 10))
+    assert pipe.last_pose[2, 3] == pytest.approx(z0 + 0.7)
+    pipe.configure(replace(pipe.params, extrinsic_rpy=(0.0, 0.0, 0.5)))
+    assert pipe.resets == resets + 2
+    pipe.process(cloud(classes, T0 + 2 * S // 10))
+    assert np.arctan2(pipe.last_pose[1, 0], pipe.last_pose[0, 0]) == pytest.approx(0.5)
+
+
+def test_odometry_tolerance_and_buffer(model, classes):
+    pipe = make_pipeline(model, classes)
+    feed_odometry(pipe, T0, T0 + S)
+    late = T0 + S + 3 * S // 10                       # 0.3 s after the newest odometry
+    assert pipe.process(cloud(classes, late)).pose_source.startswith('none')
+    pipe.configure(replace(pipe.params, odom_tolerance_s=0.5))
+    assert pipe.process(cloud(classes, late + 1)).pose_source == 'odometry'
+    # a 0.5 s buffer keeps only the newest half second of odometry
+    pipe.configure(replace(pipe.params, odom_buffer_s=0.5, odom_tolerance_s=0.0))
+    feed_odometry(pipe, T0 + S + S // 50, T0 + 2 * S)
+    assert pipe.poses.span()[0] >= T0 + 3 * S // 2 - 1
+    assert pipe.process(cloud(classes, T0 + S + 2 * S // 10)).pose_source.startswith('none')
+
+
+def test_max_gap_s_is_the_one_staleness_threshold(model, classes):
+    pipe = make_pipeline(model, classes)
+    pipe.process(cloud(classes, T0))
+    assert 'max_gap_s' in pipe.process(cloud(classes, T0 + 8 * S // 10)).reset_reason
+    pipe.configure(replace(pipe.params, max_gap_s=1.0))
+    assert pipe.process(cloud(classes, T0 + 16 * S // 10)).reset_reason == ''
+
+
+def test_max_pose_jump_m(model, classes):
+    pipe = make_pipeline(model, classes)
+    feed_odometry(pipe, T0, T0 + 2 * S, speed=30.0)   # 3 m per 0.1 s
+    pipe.process(cloud(classes, T0))
+    assert pipe.process(cloud(classes, T0 + S // 10)).reset_reason == ''
+    pipe.configure(replace(pipe.params, max_pose_jump_m=2.0))
+    assert 'jumped 3.0 m' in pipe.process(cloud(classes, T0 + 2 * S // 10)).reset_reason
+
+
+# ------------------------------------------------------------------ the input contract
+def test_input_contract_cases(model, classes):
+    pipe = make_pipeline(model, classes)
+    assert pipe.process(cloud(classes, T0)).warnings == {}
+    out = pipe.process(cloud(classes, T0 + S // 10, fields='xyz'))
+    assert set(out.warnings) == {'no_intensity'} and not out.has_intensity
+    out = pipe.process(cloud(classes, T0 + 2 * S // 10, n=0))
+    assert set(out.warnings) == {'empty_cloud'}
+    out = pipe.process(cloud(classes, T0 + 3 * S // 10, n=50))
+    assert set(out.warnings) == {'too_few_points'}
+    out = pipe.process(cloud(classes, T0 + 4 * S // 10, frame='velodyne'))
+    assert set(out.warnings) == {'frame_changed'} and 'frame_id changed' in out.reset_reason
+    bad = cloud(classes, T0 + 5 * S // 10, frame='velodyne')
+    bad.fields = [f for f in bad.fields if f.name != 'x']
+    out = pipe.process(bad)
+    assert set(out.warnings) == {'unusable_cloud'} and out.detections_msg.width == 0
+    assert out.warning == out.warnings['unusable_cloud']
