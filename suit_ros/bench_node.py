@@ -30,7 +30,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f')
     if not os.path.exists(bag):
         os.makedirs(workdir, exist_ok=True)
-        write_bag(bag, preset('demo', frames=frames), seed, 'mcap')
+        write_bag(bag, preset('demo-real', frames=frames), seed, 'mcap')
     ckpt = checkpoint or str(default_checkpoint_path())
     node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
                              f'checkpoint:={ckpt}', '-p', 'threads:=2'],

@@ -55,7 +55,7 @@ def run(args: argparse.Namespace) -> int:
         from suit_ros.data.sim import preset
         from suit_ros.data.simulate_cli import write_bag
         print(f'[demo] simulating {args.frames} frames into {bag} ...', flush=True)
-        write_bag(bag, preset('demo', frames=args.frames), args.seed, 'mcap', progress=True)
+        write_bag(bag, preset('demo-real', frames=args.frames), args.seed, 'mcap', progress=True)
     from suit_ros.checkpoint import default_checkpoint_path, read_metadata
     ckpt = args.checkpoint or str(default_checkpoint_path())
     read_metadata(ckpt)   # fail early with a clear message
