@@ -81,7 +81,7 @@ def main() -> int:
     parser.add_argument('--drives', type=int, default=16)
     parser.add_argument('--heldout-drives', type=int, default=4)
     parser.add_argument('--frames', type=int, default=40)
-    parser.add_argument('--resamples', type=int, default=200)
+    parser.add_argument('--resamples', type=int, default=100)
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--out', default='docs')
     parser.add_argument('--quick', action='store_true', help='single and suit only')
@@ -101,7 +101,6 @@ def main() -> int:
         runs['suit, memory dropped'] = run_model(suit, val, drop_memory=True)
         runs['suit, zero displacement'] = run_model(_load(args.suit, 'sparse'), val)
         runs['suit, no intensity'] = run_model(suit, val, transform=_no_intensity)
-        runs['single, no intensity'] = run_model(single, val, transform=_no_intensity)
     print(f'[ablation] ran {len(runs)} variants in {(time.monotonic() - t0) / 60:.1f} min',
           flush=True)
     pairs = [p for p in PAIRS if p[0] in runs and p[1] in runs]

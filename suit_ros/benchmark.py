@@ -12,14 +12,21 @@ recompute each metric on the resampled set; differences between two runs use the
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.evaluate import ModelRun, evaluate
+from suit_ros.evaluate import (
+    DIST_THRESHOLDS,
+    FrameMatches,
+    ModelRun,
+    filter_frames,
+    match_frame,
+    result_from_matches,
+)
 from suit_ros.structures import Detections, Frame
 
 IGNORE_DIST = 2.0
@@ -63,26 +70,117 @@ def bucket_view(gt: Detections, det: Detections, num_points: NDArray[np.uint32] 
             None if num_points is None else num_points[keep])
 
 
+class RunMetrics:
+    """Every metric of a run over any selection of its frames, from matches computed once.
+
+    Frames are matched once per bucket, class and distance threshold
+    (:func:`suit_ros.evaluate.match_frame`); a selection (a bootstrap resample, frames may
+    repeat) only re-accumulates the curves.
+    """
+
+    def __init__(self, run: ModelRun, class_names: Sequence[str]) -> None:
+        self.class_names = tuple(class_names)
+        self.num_frames = len(run.gt)
+        gts, dets, npts = filter_frames(run.gt, run.det, class_names, num_points=run.num_points)
+        labels = range(len(class_names))
+        self.flat: dict[tuple[Bucket, int, float], _Flat] = {}
+        for bucket in BUCKETS:
+            views = [bucket_view(g, d, n, bucket)[:2] for g, d, n in zip(gts, dets, npts)]
+            for label in labels:
+                for th in DIST_THRESHOLDS:
+                    self.flat[bucket, label, th] = _Flat(
+                        [match_frame(g, d, label, th) for g, d in views])
+        car = self.class_names.index('car') if 'car' in self.class_names else 0
+        self.motion = [car_motion_frame(g, d, car) for g, d in zip(run.gt, run.det)]
+
+    def __call__(self, frames: Sequence[int] | None = None) -> dict[str, float]:
+        """mAP, NDS, the mTP errors, AP per class, mAP per bucket and the car motion figures
+        over ``frames`` (all when None)."""
+        idx = np.arange(self.num_frames) if frames is None else np.asarray(frames, np.int64)
+        out: dict[str, float] = {}
+        for bucket in BUCKETS:
+            res = result_from_matches(
+                self.class_names,
+                {label: {th: [self.flat[bucket, label, th].select(idx)]
+                         for th in DIST_THRESHOLDS}
+                 for label in range(len(self.class_names))}, len(idx))
+            if bucket == 'all':
+                out.update({'mAP': res.mean_ap, 'NDS': res.nds, **res.mean_tp})
+                out.update({f'AP {c}': v for c, v in res.class_ap.items()})
+            else:
+                present = [c for c in self.class_names if res.num_gt[c] > 0]
+                out[f'mAP {bucket}'] = (float(np.mean([res.class_ap[c] for c in present]))
+                                        if present else float('nan'))
+        out.update(car_motion_summary([self.motion[i] for i in idx]))
+        return out
+
+
+class _Flat:
+    """The matches of every frame in flat arrays, for fast selections of frames."""
+
+    def __init__(self, matches: Sequence[FrameMatches]) -> None:
+        self.scores = np.concatenate([m.scores for m in matches])
+        self.tp = np.concatenate([m.tp for m in matches])
+        self.errors = np.concatenate([m.errors for m in matches])
+        self.offsets = np.cumsum([0] + [len(m.scores) for m in matches])
+        self.npos = np.array([m.npos for m in matches], np.int64)
+
+    def select(self, frames: NDArray[np.int64]) -> FrameMatches:
+        """The frames' matches as one (frames may repeat; order kept)."""
+        lens = self.offsets[frames + 1] - self.offsets[frames]
+        idx = (np.arange(int(lens.sum())) - np.repeat(np.cumsum(lens) - lens, lens)
+               + np.repeat(self.offsets[frames], lens))
+        return FrameMatches(self.scores[idx], self.tp[idx], self.errors[idx],
+                            int(self.npos[frames].sum()))
+
+
 def bucket_metrics(run: ModelRun, class_names: Sequence[str], frames: Sequence[int] | None = None
                    ) -> dict[str, float]:
     """mAP, NDS, the mTP errors and AP per bucket over the given frames (all when None)."""
-    idx = range(len(run.gt)) if frames is None else frames
-    gt = [run.gt[i] for i in idx]
-    det = [run.det[i] for i in idx]
-    npts = [run.num_points[i] for i in idx]
-    res = evaluate(gt, det, class_names, num_points=npts)
-    out = {'mAP': res.mean_ap, 'NDS': res.nds, **res.mean_tp}
-    out.update({f'AP {c}': v for c, v in res.class_ap.items()})
-    for bucket in BUCKETS[1:]:
-        views = [bucket_view(g, d, n, bucket) for g, d, n in zip(gt, det, npts)]
-        sub = evaluate([v[0] for v in views], [v[1] for v in views], class_names,
-                       num_points=[v[2] for v in views])
-        present = [c for c in class_names if sub.num_gt[c] > 0]
-        out[f'mAP {bucket}'] = (float(np.mean([sub.class_ap[c] for c in present]))
-                                if present else float('nan'))
-    out.update(car_motion(gt, det, list(class_names).index('car')
-                          if 'car' in class_names else 0))
-    return out
+    return RunMetrics(run, class_names)(frames)
+
+
+MotionFrame = tuple[list[float], list[float], list[float]]
+
+
+def car_motion_frame(g: Detections, d: Detections, car: int, min_score: float = 0.3,
+                     max_dist: float = 2.0) -> MotionFrame:
+    """One frame's matched cars: heading errors, moving-car velocity errors, speed ratios."""
+    head: list[float] = []
+    vel_moving: list[float] = []
+    speed: list[float] = []
+    gm = np.nonzero(g.labels == car)[0]
+    dm = np.nonzero((d.labels == car) & (d.scores >= min_score))[0]
+    dm = dm[np.argsort(-d.scores[dm], kind='stable')]
+    taken = np.zeros(len(gm), bool)
+    for j in dm:
+        if len(gm) == 0:
+            break
+        dist = np.hypot(g.boxes[gm, 0] - d.boxes[j, 0], g.boxes[gm, 1] - d.boxes[j, 1])
+        dist[taken] = np.inf
+        k = int(np.argmin(dist))
+        if dist[k] >= max_dist:
+            continue
+        taken[k] = True
+        err = (d.boxes[j, 6] - g.boxes[gm[k], 6] + np.pi) % (2 * np.pi) - np.pi
+        head.append(float(abs(err)))
+        v = g.velocities[gm[k]]
+        if np.hypot(*v) > MOVING_SPEED:
+            vel_moving.append(float(np.hypot(*(d.velocities[j] - v))))
+            speed.append(float(np.hypot(*d.velocities[j])) / float(np.hypot(*v)))
+    return head, vel_moving, speed
+
+
+def car_motion_summary(frames: Sequence[MotionFrame]) -> dict[str, float]:
+    """Mean heading error, flipped share (> 135 deg), moving-car velocity error and median
+    speed ratio over frames."""
+    h = np.asarray([x for f in frames for x in f[0]])
+    vel = [x for f in frames for x in f[1]]
+    speed = [x for f in frames for x in f[2]]
+    return {'car heading err': float(h.mean()) if len(h) else float('nan'),
+            'car flipped %': float(100 * (h > 0.75 * np.pi).mean()) if len(h) else float('nan'),
+            'moving car vel err': float(np.mean(vel)) if vel else float('nan'),
+            'moving car speed ratio': float(np.median(speed)) if speed else float('nan')}
 
 
 def car_motion(gt: Sequence[Detections], det: Sequence[Detections], car: int,
@@ -90,32 +188,8 @@ def car_motion(gt: Sequence[Detections], det: Sequence[Detections], car: int,
     """Car heading error over the full circle, flipped share (error > 135 deg), and velocity
     error of moving cars, on detections with score >= ``min_score`` matched greedily within
     ``max_dist`` m (BEV centre distance)."""
-    head, vel_moving, speed = [], [], []
-    for g, d in zip(gt, det):
-        gm = np.nonzero(g.labels == car)[0]
-        dm = np.nonzero((d.labels == car) & (d.scores >= min_score))[0]
-        dm = dm[np.argsort(-d.scores[dm], kind='stable')]
-        taken = np.zeros(len(gm), bool)
-        for j in dm:
-            if len(gm) == 0:
-                break
-            dist = np.hypot(g.boxes[gm, 0] - d.boxes[j, 0], g.boxes[gm, 1] - d.boxes[j, 1])
-            dist[taken] = np.inf
-            k = int(np.argmin(dist))
-            if dist[k] >= max_dist:
-                continue
-            taken[k] = True
-            err = (d.boxes[j, 6] - g.boxes[gm[k], 6] + np.pi) % (2 * np.pi) - np.pi
-            head.append(abs(err))
-            v = g.velocities[gm[k]]
-            if np.hypot(*v) > MOVING_SPEED:
-                vel_moving.append(float(np.hypot(*(d.velocities[j] - v))))
-                speed.append(float(np.hypot(*d.velocities[j])) / float(np.hypot(*v)))
-    h = np.asarray(head)
-    return {'car heading err': float(h.mean()) if len(h) else float('nan'),
-            'car flipped %': float(100 * (h > 0.75 * np.pi).mean()) if len(h) else float('nan'),
-            'moving car vel err': float(np.mean(vel_moving)) if vel_moving else float('nan'),
-            'moving car speed ratio': float(np.median(speed)) if speed else float('nan')}
+    return car_motion_summary([car_motion_frame(g, d, car, min_score, max_dist)
+                               for g, d in zip(gt, det)])
 
 
 def past_share(model: Any, sequences: Sequence[Sequence[Frame]], class_index: int = 0
@@ -178,8 +252,7 @@ def drive_frames(run: ModelRun) -> list[list[int]]:
 
 
 def bootstrap(runs: dict[str, ModelRun], class_names: Sequence[str],
-              pairs: Sequence[tuple[str, str]] = (), resamples: int = 200, seed: int = 0,
-              metric: Callable[..., dict[str, float]] = bucket_metrics
+              pairs: Sequence[tuple[str, str]] = (), resamples: int = 200, seed: int = 0
               ) -> tuple[dict[str, dict[str, Interval]], dict[str, dict[str, Interval]]]:
     """Per-drive bootstrap of every metric of every run, and of paired differences ``a - b``.
 
@@ -188,14 +261,15 @@ def bootstrap(runs: dict[str, ModelRun], class_names: Sequence[str],
     """
     names = list(runs)
     drives = drive_frames(runs[names[0]])
-    point = {n: metric(runs[n], class_names) for n in names}
+    metrics = {n: RunMetrics(runs[n], class_names) for n in names}
+    point = {n: metrics[n]() for n in names}
     rng = np.random.default_rng(seed)
     samples: dict[str, list[dict[str, float]]] = {n: [] for n in names}
     for _ in range(resamples):
         pick = rng.integers(0, len(drives), len(drives))
         frames = [i for k in pick for i in drives[k]]
         for n in names:
-            samples[n].append(metric(runs[n], class_names, frames))
+            samples[n].append(metrics[n](frames))
 
     def interval(values: list[float], value: float) -> Interval:
         v = np.asarray(values, np.float64)

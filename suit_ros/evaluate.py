@@ -9,7 +9,7 @@ devkit computes them. NDS here has no attribute term: NDS = (5 mAP + sum of the 
 """
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 import json
 from typing import Any
@@ -160,50 +160,63 @@ def _wrap_abs(a: NDArray[np.float64]) -> NDArray[np.float64]:
     return np.asarray(np.abs(d), np.float64)
 
 
-def _accumulate(gt: Sequence[Detections], det: Sequence[Detections], label: int,
-                dist_th: float) -> tuple[ClassCurve, int]:
-    gts = [g.boxes[g.labels == label] for g in gt]
-    gvs = [g.velocities[g.labels == label] for g in gt]
-    npos = int(sum(len(b) for b in gts))
-    frame_idx, boxes, vels, scores = [], [], [], []
-    for i, d in enumerate(det):
-        m = d.labels == label
-        frame_idx.append(np.full(int(m.sum()), i))
-        boxes.append(d.boxes[m])
-        vels.append(d.velocities[m])
-        scores.append(d.scores[m])
+@dataclass
+class FrameMatches:
+    """One frame's detections of one class matched to its GT at one distance threshold.
+
+    Greedy matching by descending score only depends on the frame's own detections (a GT box
+    is taken within its frame), so frames can be matched once and combined in any selection:
+    what the per-drive bootstrap does.
+    """
+
+    scores: NDArray[np.float64]       # (n,)
+    tp: NDArray[np.bool_]             # (n,)
+    errors: NDArray[np.float64]       # (n, 4) TP errors in TP_METRICS order (nan if not TP)
+    npos: int
+
+
+def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> FrameMatches:
+    """Greedy nuScenes matching of one frame's class-``label`` detections (descending score,
+    nearest free GT by BEV centre distance below ``dist_th``)."""
+    gm = g.labels == label
+    gb, gv = g.boxes[gm].astype(np.float64), g.velocities[gm].astype(np.float64)
+    dm = d.labels == label
+    pb, pv = d.boxes[dm].astype(np.float64), d.velocities[dm].astype(np.float64)
+    ps = d.scores[dm].astype(np.float64)
+    n = len(ps)
+    tp = np.zeros(n, bool)
+    errors = np.full((n, len(TP_METRICS)), np.nan)
+    if len(gb) and n:
+        dist = np.hypot(pb[:, None, 0] - gb[None, :, 0], pb[:, None, 1] - gb[None, :, 1])
+        taken = np.zeros(len(gb), bool)
+        for j in np.argsort(-ps, kind='stable'):
+            row = np.where(taken, np.inf, dist[j])
+            k = int(np.argmin(row))
+            if row[k] < dist_th:
+                taken[k] = True
+                tp[j] = True
+                inter = np.prod(np.minimum(gb[k, 3:6], pb[j, 3:6]))
+                union = np.prod(gb[k, 3:6]) + np.prod(pb[j, 3:6]) - inter
+                errors[j] = (row[k], 1 - inter / union,
+                             float(_wrap_abs(np.array(pb[j, 6] - gb[k, 6]))),
+                             float(np.hypot(*(pv[j] - gv[k]))))
+    return FrameMatches(ps, tp, errors, int(len(gb)))
+
+
+def curve_from(matches: Sequence[FrameMatches]) -> tuple[ClassCurve, int]:
+    """The class curve of a set of matched frames (frames may repeat)."""
+    npos = int(sum(m.npos for m in matches))
     rec_interp = np.linspace(0, 1, 101)
     empty = ClassCurve(rec_interp, np.zeros(101), np.zeros(101),
                        {k: np.ones(101) for k in TP_METRICS})
     if npos == 0:
         return empty, 0
-    fi = np.concatenate(frame_idx) if frame_idx else np.zeros(0, int)
-    pb = np.concatenate(boxes) if boxes else np.zeros((0, 7))
-    pv = np.concatenate(vels) if vels else np.zeros((0, 2))
-    ps = np.concatenate(scores) if scores else np.zeros(0)
+    ps = np.concatenate([m.scores for m in matches]) if matches else np.zeros(0)
+    tp_all = np.concatenate([m.tp for m in matches]) if matches else np.zeros(0, bool)
+    err_all = (np.concatenate([m.errors for m in matches]) if matches
+               else np.zeros((0, len(TP_METRICS))))
     order = np.argsort(-ps, kind='stable')
-    taken = [np.zeros(len(b), bool) for b in gts]
-    tp = np.zeros(len(order))
-    errs: dict[str, list[float]] = {k: [] for k in TP_METRICS}
-    conf_tp: list[float] = []
-    for n, j in enumerate(order):
-        g = gts[fi[j]]
-        if len(g) == 0:
-            continue
-        d = np.hypot(g[:, 0] - pb[j, 0], g[:, 1] - pb[j, 1])
-        d[taken[fi[j]]] = np.inf
-        k = int(np.argmin(d))
-        if d[k] < dist_th:
-            taken[fi[j]][k] = True
-            tp[n] = 1
-            gb = g[k]
-            errs['trans_err'].append(float(d[k]))
-            errs['vel_err'].append(float(np.hypot(*(pv[j] - gvs[fi[j]][k]))))
-            inter = np.prod(np.minimum(gb[3:6], pb[j, 3:6]))
-            union = np.prod(gb[3:6]) + np.prod(pb[j, 3:6]) - inter
-            errs['scale_err'].append(float(1 - inter / union))
-            errs['orient_err'].append(float(_wrap_abs(np.array(pb[j, 6] - gb[6]))))
-            conf_tp.append(float(ps[j]))
+    tp = tp_all[order].astype(np.float64)
     if tp.sum() == 0:
         return empty, npos
     ctp = np.cumsum(tp)
@@ -213,10 +226,12 @@ def _accumulate(gt: Sequence[Detections], det: Sequence[Detections], label: int,
     conf = ps[order]
     precision = np.interp(rec_interp, rec, prec, right=0)
     confidence = np.interp(rec_interp, rec, conf, right=0)
-    ctp_conf = np.array(conf_tp)
+    hit = tp_all[order]
+    ctp_conf = conf[hit]
+    errs = err_all[order][hit]
     errors = {}
-    for key in TP_METRICS:
-        tmp = _cummean(np.array(errs[key]))
+    for i, key in enumerate(TP_METRICS):
+        tmp = _cummean(errs[:, i])
         errors[key] = np.interp(confidence[::-1], ctp_conf[::-1], tmp[::-1])[::-1]
     return ClassCurve(rec_interp, precision, confidence, errors), npos
 
@@ -237,25 +252,36 @@ def _tp(curve: ClassCurve, key: str) -> float:
     return float(np.mean(curve.errors[key][first:last + 1]))
 
 
-def evaluate(gt: Sequence[Detections], det: Sequence[Detections],
-             class_names: Sequence[str] = CLASS_NAMES,
-             ranges: dict[str, float] | None = None,
-             num_points: Sequence[NDArray[np.uint32] | None] | None = None,
-             max_boxes_per_frame: int = 500) -> EvalResult:
-    """Evaluate detections against GT, frame by frame (both in each frame's sensor frame)."""
+def filter_frames(gt: Sequence[Detections], det: Sequence[Detections],
+                  class_names: Sequence[str] = CLASS_NAMES,
+                  ranges: dict[str, float] | None = None,
+                  num_points: Sequence[NDArray[np.uint32] | None] | None = None,
+                  max_boxes_per_frame: int = 500
+                  ) -> tuple[list[Detections], list[Detections], list[NDArray[np.uint32] | None]]:
+    """What is scored: GT and detections within the class ranges, GT with LiDAR returns,
+    at most ``max_boxes_per_frame`` detections (the highest scores); ``num_points`` follows."""
     if len(gt) != len(det):
         raise ValueError(f'{len(gt)} GT frames but {len(det)} detection frames')
-    names = tuple(class_names)
     rng = ranges or CLASS_RANGES
-    r = np.array([rng.get(c, 50.0) for c in names])
-    gts, dets = [], []
+    r = np.array([rng.get(c, 50.0) for c in class_names])
+    gts, dets, npts_out = [], [], []
     for i, (g, d) in enumerate(zip(gt, det)):
         npts = num_points[i] if num_points is not None else None
-        gts.append(g.select(_filter(g, r, npts)))
+        keep = _filter(g, r, npts)
+        gts.append(g.select(keep))
+        npts_out.append(None if npts is None else npts[keep])
         d = d.select(_filter(d, r, None))
         if len(d) > max_boxes_per_frame:
             d = d.select(np.argsort(-d.scores, kind='stable')[:max_boxes_per_frame])
         dets.append(d)
+    return gts, dets, npts_out
+
+
+def result_from_matches(class_names: Sequence[str],
+                        matches: Mapping[int, Mapping[float, Sequence[FrameMatches]]],
+                        num_frames: int) -> EvalResult:
+    """AP, TP errors, mAP and NDS from matched frames (``matches[label][threshold]``)."""
+    names = tuple(class_names)
     ap: dict[str, dict[float, float]] = {}
     tp: dict[str, dict[str, float]] = {}
     curves: dict[str, dict[float, ClassCurve]] = {}
@@ -264,12 +290,24 @@ def evaluate(gt: Sequence[Detections], det: Sequence[Detections],
         curves[c] = {}
         ap[c] = {}
         for th in DIST_THRESHOLDS:
-            curve, npos = _accumulate(gts, dets, label, th)
+            curve, npos = curve_from(matches[label][th])
             curves[c][th] = curve
             ap[c][th] = _ap(curve)
             num_gt[c] = npos
         tp[c] = {k: _tp(curves[c][TP_DIST], k) for k in TP_METRICS}
-    return EvalResult(names, ap, tp, curves, num_gt, len(gt))
+    return EvalResult(names, ap, tp, curves, num_gt, num_frames)
+
+
+def evaluate(gt: Sequence[Detections], det: Sequence[Detections],
+             class_names: Sequence[str] = CLASS_NAMES,
+             ranges: dict[str, float] | None = None,
+             num_points: Sequence[NDArray[np.uint32] | None] | None = None,
+             max_boxes_per_frame: int = 500) -> EvalResult:
+    """Evaluate detections against GT, frame by frame (both in each frame's sensor frame)."""
+    gts, dets, _ = filter_frames(gt, det, class_names, ranges, num_points, max_boxes_per_frame)
+    matches = {label: {th: [match_frame(g, d, label, th) for g, d in zip(gts, dets)]
+                       for th in DIST_THRESHOLDS} for label in range(len(class_names))}
+    return result_from_matches(class_names, matches, len(gt))
 
 
 @dataclass

@@ -127,3 +127,23 @@ def test_past_share_is_zero_at_init_and_grows_with_the_past_weights():
         model.fusion.past.weight.copy_(torch.eye(model.fusion.past.weight.shape[0]))
     grown = past_share(model, [frames])
     assert grown['past share'] > 0.0
+
+
+def test_cached_matches_equal_a_fresh_evaluation_on_any_selection():
+    from suit_ros.benchmark import RunMetrics
+    from suit_ros.evaluate import evaluate
+    run = make_run(True, drives=3, frames=4, seed=3)
+    rng = np.random.default_rng(1)
+    for i in range(len(run.det)):          # some misses, some far detections
+        d = run.det[i]
+        run.det[i] = dets(d.boxes + rng.normal(0, 1.2, d.boxes.shape) * [1, 1, 0, 0, 0, 0, 0],
+                          vel=d.velocities, scores=rng.uniform(0.1, 1, len(d)))
+    cached = RunMetrics(run, NAMES)
+    for frames in (None, [0, 1, 2, 3], [5, 5, 7, 11, 0]):
+        idx = range(len(run.gt)) if frames is None else frames
+        fresh = evaluate([run.gt[i] for i in idx], [run.det[i] for i in idx], NAMES,
+                         num_points=[run.num_points[i] for i in idx])
+        got = cached(frames)
+        assert got['mAP'] == pytest.approx(fresh.mean_ap, abs=1e-12)
+        assert got['NDS'] == pytest.approx(fresh.nds, abs=1e-12)
+        assert got['mATE'] == pytest.approx(fresh.mean_tp['mATE'], abs=1e-12)
