@@ -191,7 +191,7 @@ def _convert_fields(msg: Any, names: list[str]) -> tuple[NDArray[np.float32], in
     return pts, len(arr) - kept
 
 
-def pointcloud2_to_xyzi(msg: Any) -> XYZI:
+def pointcloud2_to_xyzi(msg: Any, intensity_field: str = '') -> XYZI:
     """The detector's input: ``(N, 4)`` float32 x, y, z, intensity, non-finite points dropped.
 
     Intensity comes from a field named ``intensity``, ``i`` or ``reflectivity`` (0 and
@@ -199,6 +199,8 @@ def pointcloud2_to_xyzi(msg: Any) -> XYZI:
     numeric datatype are converted; the common FLOAT32 layout takes a fast path.
 
     :param msg: a sensor_msgs/PointCloud2 (rclpy or rosbags); never modified.
+    :param intensity_field: ``''``: the first of the usual names; ``'none'``: ignore intensity
+        (all 0); any other name: that field, which must exist.
     :return: :class:`XYZI` with ``points (N, 4)`` float32 C-contiguous.
     :raises PointCloudError: missing x/y/z, an invalid field table, or truncated data.
     """
@@ -207,7 +209,15 @@ def pointcloud2_to_xyzi(msg: Any) -> XYZI:
     if missing:
         raise PointCloudError(f'cloud has no {"/".join(missing)} field(s); fields are '
                               f'{sorted(fields)}: x, y and z are required')
-    intensity = next((n for n in INTENSITY_NAMES if n in fields), None)
+    if intensity_field == 'none':
+        intensity = None
+    elif intensity_field:
+        if intensity_field not in fields:
+            raise PointCloudError(f'cloud has no {intensity_field!r} field (intensity_field); '
+                                  f'fields are {sorted(fields)}')
+        intensity = intensity_field
+    else:
+        intensity = next((n for n in INTENSITY_NAMES if n in fields), None)
     names = ['x', 'y', 'z'] + ([intensity] if intensity else [])
     buf = _buffer(msg)
     height, width, point_step, row_step = _check_layout(msg, buf)

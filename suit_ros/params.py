@@ -62,6 +62,9 @@ class DetectorParams:
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
     max_range: float = field(default=80.0, metadata=_spec(
         'drop points farther than this (m, xy, LiDAR frame)', lo=1.0, hi=500.0))
+    intensity_field: str = field(default='', metadata=_spec(
+        "intensity field: '' the first of intensity, i, reflectivity; 'none' no intensity "
+        '(the model works from geometry); or a field name'))
     intensity_scale: float = field(default=255.0, metadata=_spec(
         'intensity / scale -> 0..1 (255: Velodyne-style 0..255; 1: 0..1 reflectance)',
         lo=1e-6, hi=1e6))

@@ -184,7 +184,7 @@ class DetectionPipeline:
         """``(N, 4)`` filtered, scaled points; input-contract warnings into ``out``."""
         p = self.params
         try:
-            xyzi = pointcloud2_to_xyzi(cloud)
+            xyzi = pointcloud2_to_xyzi(cloud, p.intensity_field)
         except MessageError as exc:
             out.warnings['unusable_cloud'] = f'unusable cloud: {exc}'
             return np.zeros((0, 4), np.float32)
@@ -192,7 +192,7 @@ class DetectionPipeline:
         out.points_in = xyzi.num_input
         out.points_nonfinite = xyzi.num_nonfinite
         out.has_intensity = xyzi.has_intensity
-        if not xyzi.has_intensity and xyzi.num_input:
+        if not xyzi.has_intensity and xyzi.num_input and p.intensity_field != 'none':
             out.warnings['no_intensity'] = ('cloud has no intensity field (intensity, i or '
                                             'reflectivity): intensity set to 0, detections '
                                             'degrade')

@@ -46,6 +46,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='base_link -> LiDAR translation (m)')
     parser.add_argument('--extrinsic-rpy', type=float, nargs=3, metavar=('R', 'P', 'Y'),
                         help='base_link -> LiDAR roll pitch yaw (rad)')
+    parser.add_argument('--intensity-field',
+                        help="intensity field name, or 'none' to ignore intensity")
     parser.add_argument('--extrinsic-from-tf', action='store_true',
                         help="read the extrinsic from the bag's /tf_static (base frame -> the "
                         "cloud's frame)")
@@ -55,6 +57,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 FLAG_PARAMS = {'checkpoint': 'checkpoint', 'device': 'device', 'points_topic': 'points_topic',
                'odom_topic': 'odom_topic', 'intensity_scale': 'intensity_scale',
+               'intensity_field': 'intensity_field',
                'score_threshold': 'score_thresholds', 'min_range': 'min_range',
                'max_range': 'max_range', 'extrinsic_xyz': 'extrinsic_xyz',
                'extrinsic_rpy': 'extrinsic_rpy'}

@@ -76,6 +76,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
+                       'intensity_field',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -113,6 +114,18 @@ def test_nms_iou_threshold_reaches_the_decoder(model, classes, scene):
     assert pipe.detector.nms_iou_threshold == pytest.approx(0.7)
     pipe.configure(replace(pipe.params, nms_iou_threshold=0.05))
     assert pipe.detector.nms_iou_threshold == pytest.approx(0.05)
+
+
+def test_intensity_field_chooses_or_ignores_intensity(model, classes):
+    pipe = make_pipeline(model, classes)
+    out = pipe.process(cloud(classes, T0))
+    assert out.has_intensity and 'no_intensity' not in out.warnings
+    pipe.configure(replace(pipe.params, intensity_field='none'))
+    out = pipe.process(cloud(classes, T0 + S // 10))
+    assert not out.has_intensity and 'no_intensity' not in out.warnings   # chosen, no warning
+    pipe.configure(replace(pipe.params, intensity_field='reflectivity'))
+    out = pipe.process(cloud(classes, T0 + 2 * S // 10))
+    assert 'reflectivity' in out.warnings['unusable_cloud'] and out.points_used == 0
 
 
 def test_ranges_and_ego_box_drop_points(model, classes):
