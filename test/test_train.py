@@ -122,3 +122,23 @@ def test_distributed_gradients_agree_across_ranks(tmp_path):
     r1 = torch.load(tmp_path / 'rank1.pt', weights_only=True)
     assert not torch.equal(r0['loss'], r1['loss'])           # different data per rank
     torch.testing.assert_close(r0['grads'], r1['grads'])     # all-reduced gradients agree
+
+
+def test_one_cycle_matches_torch_and_ends_annealed():
+    import torch
+
+    from suit_ros.train import one_cycle
+    opt = torch.optim.AdamW([torch.nn.Parameter(torch.zeros(1))], lr=1e-3, betas=(0.95, 0.99))
+    sched = torch.optim.lr_scheduler.OneCycleLR(
+        opt, max_lr=1e-3, total_steps=101, pct_start=0.3, base_momentum=0.85,
+        max_momentum=0.95, div_factor=10.0, final_div_factor=100.0)
+    for k in range(101):
+        lr, beta1 = one_cycle(k / 100, 1e-3)
+        # torch puts the peak at step round(0.3 * 101) - 1; ours at progress 0.3 exactly
+        assert lr == pytest.approx(sched.get_last_lr()[0], rel=0.08, abs=2e-5)
+        assert beta1 == pytest.approx(opt.param_groups[0]['betas'][0], abs=0.01)
+        opt.step()
+        sched.step()
+    assert one_cycle(1.0, 1e-3) == pytest.approx((1e-6, 0.95))
+    assert one_cycle(0.0, 1e-3) == pytest.approx((1e-4, 0.95))
+    assert one_cycle(0.3, 1e-3)[0] == pytest.approx(1e-3)
