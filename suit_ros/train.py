@@ -208,7 +208,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     bar = tqdm(total=tc.steps, initial=step, disable=rank != 0, dynamic_ncols=True,
                desc=f'train[{mcfg.temporal}]')
     model.train()
-    while progress() < 1.0:
+    while True:                      # at least one step per call, then until the budget is spent
         lr, beta1 = one_cycle(progress(), tc.lr)
         for group in opt.param_groups:
             group['lr'] = lr * group['lr_scale']
@@ -242,6 +242,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
                             {'snapshot': True})
             if log_file:
                 log_file.flush()
+        if finished:
+            break
     bar.close()
     if tc.max_minutes and step < tc.steps:
         print(f'[train] time budget reached at step {step}')

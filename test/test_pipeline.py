@@ -164,20 +164,28 @@ def test_intensity_scale_and_min_points(model, classes):
     assert 'only' in out.warnings['too_few_points']
 
 
-def test_extrinsic_change_resets_and_moves_the_pose(model, classes):
+def test_extrinsic_change_resets_and_moves_the_model_input(model, classes):
     pipe = make_pipeline(model, classes)
     feed_odometry(pipe, T0 - S, T0 + S)
     pipe.process(cloud(classes, T0))
     z0 = pipe.last_pose[2, 3]
+    assert len(pipe.detector.sweeps) == 1
     resets = pipe.resets
     pipe.configure(replace(pipe.params, extrinsic_xyz=(0.9, 0.0, 2.5)))
     assert pipe.resets == resets + 1 and pipe.last_reset_reason == 'extrinsic changed'
+    assert len(pipe.detector.sweeps) == 0 and pipe.detector.memory is None
+    assert pipe.T_base_lidar[2, 3] == pytest.approx(2.5)
     pipe.process(cloud(classes, T0 + S // 10))
-    assert pipe.last_pose[2, 3] == pytest.approx(z0 + 0.7)
+    # the vehicle pose does not depend on the extrinsic; the model input (base_link) does
+    assert pipe.last_pose[2, 3] == pytest.approx(z0)
+    buffered = pipe.detector.sweeps.past[-1]
+    np.testing.assert_allclose(buffered.T_odom_lidar[2, 3], z0 + 2.5)
+    yaw0 = np.arctan2(pipe.last_pose[1, 0], pipe.last_pose[0, 0])
     pipe.configure(replace(pipe.params, extrinsic_rpy=(0.0, 0.0, 0.5)))
     assert pipe.resets == resets + 2
+    assert np.arctan2(pipe.T_base_lidar[1, 0], pipe.T_base_lidar[0, 0]) == pytest.approx(0.5)
     pipe.process(cloud(classes, T0 + 2 * S // 10))
-    assert np.arctan2(pipe.last_pose[1, 0], pipe.last_pose[0, 0]) == pytest.approx(0.5)
+    assert np.arctan2(pipe.last_pose[1, 0], pipe.last_pose[0, 0]) == pytest.approx(yaw0)
 
 
 def test_odometry_tolerance_and_buffer(model, classes):
