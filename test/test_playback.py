@@ -64,7 +64,7 @@ def test_detect_bag_matches_live_node(bag, checkpoint, tmp_path):
     try:
         probe.spin_for(6.0)
         player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
-                                   '--rate', '0.25', '--start-delay', '1.0',
+                                   '--rate', '0.25', '--start-delay', '2.5',
                                    '--wait-subscribers', '20'], env=ros_env(),
                                   stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         probe.spin_until(lambda: player.poll() is not None, 90.0)
