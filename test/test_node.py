@@ -67,10 +67,10 @@ def test_plays_bag_and_publishes_stamped_detections(node_and_recorder, bag):
     # start after the node's points QoS follows the player (re-checked every second): clouds
     # published while the subscription is being replaced can be lost (see the README)
     player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
-                               '--rate', '0.5', '--start-delay', '2.5',
+                               '--rate', '0.25', '--start-delay', '2.5',
                                '--wait-subscribers', '20'], env=ros_env(),
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    rec.p.spin_until(lambda: player.poll() is not None, 60.0)
+    rec.p.spin_until(lambda: player.poll() is not None, 90.0)
     rec.p.spin_until(lambda: len(rec.dets) >= 12, 10.0)
     stop(player)
     from suit_ros.data.bag import open_reader
