@@ -82,3 +82,25 @@ def test_stage2_initialisation_from_single_frame(tmp_path):
     assert fresh and all(k.startswith(('fusion.', 'geonet.')) for k in fresh)
     for k, v in single.state_dict().items():
         assert torch.equal(suit.state_dict()[k], v)
+
+
+@pytest.mark.parametrize('name, temporal', [('suit_default', 'suit'),
+                                            ('centerpoint_single', 'none')])
+def test_shipped_checkpoints_load_and_detect(name, temporal):
+    """Both shipped checkpoints: <= 10 MB, 3 sweeps, and a streaming step on a real frame."""
+    import numpy as np
+
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.data.sim import preset, sim_frames
+    from suit_ros.evaluate import step_inputs
+    from suit_ros.model.streaming import StreamingDetector
+    path = default_checkpoint_path().with_name(f'{name}.safetensors')
+    assert path.stat().st_size <= 10e6
+    model, cfg, _ = load_checkpoint(path, 'cpu')
+    assert cfg.temporal == temporal and cfg.sweeps == 3
+    runner = StreamingDetector(model)
+    frames = list(sim_frames(preset('test-real', frames=3), 5))
+    results = [runner.step(*step_inputs(f)) for f in frames]
+    assert results[-1].model_points > len(frames[-1].points)       # sweeps accumulated
+    assert results[-1].used_memory == (temporal == 'suit')
+    assert all(np.isfinite(r.detections.boxes).all() for r in results)
