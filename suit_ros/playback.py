@@ -77,8 +77,7 @@ def extrinsic_from_tf_static(reader: Any, base_frame: str, lidar_frame: str
 
     :raises BagError: no such transform in the bag (a direct one; chains are not composed).
     """
-    from suit_ros.data.bag import messages
-    from suit_ros.msg_adapters.odometry import quaternion_to_matrix
+    from suit_ros.data.bag import messages, transform_to_matrix
     conns = [c for c in reader.connections if c.topic == '/tf_static']
     seen = []
     for conn, _, raw in messages(reader, conns):
@@ -87,11 +86,11 @@ def extrinsic_from_tf_static(reader: Any, base_frame: str, lidar_frame: str
             child = str(tf.child_frame_id).lstrip('/')
             seen.append(f'{parent} -> {child}')
             if (parent, child) == (base_frame.lstrip('/'), lidar_frame.lstrip('/')):
-                t, q = tf.transform.translation, tf.transform.rotation
-                R = quaternion_to_matrix(q.x, q.y, q.z, q.w)
+                T = transform_to_matrix(tf.transform)
+                R = T[:3, :3]
                 rpy = (math.atan2(R[2, 1], R[2, 2]), -math.asin(max(-1.0, min(1.0, R[2, 0]))),
                        math.atan2(R[1, 0], R[0, 0]))
-                return (float(t.x), float(t.y), float(t.z)), rpy
+                return (float(T[0, 3]), float(T[1, 3]), float(T[2, 3])), rpy
     raise BagError(f'no {base_frame} -> {lidar_frame} transform in /tf_static (found: '
                    f'{seen or "no /tf_static"}); give --extrinsic-xyz/--extrinsic-rpy')
 

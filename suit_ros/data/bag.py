@@ -128,7 +128,7 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
                 gts[stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
             elif conn.topic == '/tf_static':
                 for tf in msg.transforms:
-                    extr = _transform_to_matrix(tf.transform)
+                    extr = transform_to_matrix(tf.transform)
             else:
                 clouds.append(msg)
         for msg in clouds:
@@ -144,7 +144,8 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
                         str(path), extr.copy())
 
 
-def _transform_to_matrix(tr: Any) -> np.ndarray:
+def transform_to_matrix(tr: Any) -> np.ndarray:
+    """A geometry_msgs/Transform as a ``(4, 4)`` matrix."""
     from suit_ros.msg_adapters.odometry import quaternion_to_matrix
     T = np.eye(4)
     q = tr.rotation
