@@ -14,6 +14,10 @@ from typing import Any
 from suit_ros.errors import BagError
 
 POINT_CLOUD = 'sensor_msgs/msg/PointCloud2'
+# at the end, reliable publishers wait this long for every reader to acknowledge
+ACK_TIMEOUT_S = 5.0
+# at the end, best-effort publishers stay this long so the last sample can leave
+BEST_EFFORT_LINGER_S = 0.5
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -41,6 +45,30 @@ def message_class(msgtype: str) -> Any:
         return getattr(importlib.import_module(f'{pkg}.{kind}'), name)
     except (ImportError, AttributeError) as exc:
         raise BagError(f'message type {msgtype} is not installed here ({exc})') from exc
+
+
+def flush(pubs: dict[str, Any], timeout_s: float) -> list[str]:
+    """Keep the publishers alive until their last messages are delivered.
+
+    A writer destroyed right after its last ``publish`` takes the samples its readers have not
+    received yet with it (a 1.2 MB cloud is still in flight): reliable publishers wait until
+    every reader acknowledged (up to ``timeout_s``), best-effort ones linger
+    :data:`BEST_EFFORT_LINGER_S`. Returns the topics still unacknowledged.
+    """
+    from rclpy.duration import Duration
+    from rclpy.qos import ReliabilityPolicy
+    deadline = time.monotonic() + timeout_s
+    unacked, best_effort = [], False
+    for topic, pub in pubs.items():
+        if pub.qos_profile.reliability != ReliabilityPolicy.RELIABLE:
+            best_effort = True
+            continue
+        left = max(deadline - time.monotonic(), 0.0)
+        if not pub.wait_for_all_acked(Duration(nanoseconds=int(left * 1e9))):
+            unacked.append(topic)
+    if best_effort:
+        time.sleep(BEST_EFFORT_LINGER_S)
+    return unacked
 
 
 def run(args: argparse.Namespace) -> int:
@@ -114,8 +142,10 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
+        unacked = flush(pubs, ACK_TIMEOUT_S)
         print(f'play: published {sent} messages; at most {late_max * 1e3:.0f} ms behind the '
-              'recorded pace')
+              'recorded pace' + (f'; not acknowledged by every reliable subscriber within '
+                                 f'{ACK_TIMEOUT_S:g} s: {", ".join(unacked)}' if unacked else ''))
         node.destroy_node()
         try_shutdown()
     return 0

@@ -62,10 +62,6 @@ def stamp_ns(msg):
     return msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
 
 
-@pytest.mark.xfail(strict=False, reason=(
-    'known defect, open: under load the node sometimes loses clouds without counting them '
-    '(6-10 of 12 received in 4 of 6 runs on the 2-core machine; passes alone); suspected: the '
-    'keep-last-1 reader overwritten while the executor thread is starved'))
 def test_plays_bag_and_publishes_stamped_detections(node_and_recorder, bag):
     proc, rec = node_and_recorder
     # start after the node's points QoS follows the player (re-checked every second): clouds

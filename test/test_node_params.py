@@ -89,7 +89,7 @@ def test_stale_input_warns_then_errors(make_node):
     assert level == DiagnosticStatus.WARN and 'no point cloud received yet' in message
     now = node.get_clock().now().nanoseconds
     for k in range(5):                               # 10 Hz input
-        node._on_cloud(cloud(now + k * S // 10))
+        node._on_cloud(cloud(now + k * S // 10), None)
         time.sleep(0.1)
     wait_frames(node, 1)
     set_param(node, 'input_timeout_s', 30.0)
@@ -110,14 +110,14 @@ def test_stale_input_warns_then_errors(make_node):
 
 def test_latency_reference_follows_max_stamp_skew_s(make_node):
     node = make_node()
-    node._on_cloud(cloud(1_600_000_000 * S))            # a 2020 stamp: far from the clock
+    node._on_cloud(cloud(1_600_000_000 * S), None)            # a 2020 stamp: far from the clock
     wait_frames(node, 1)
     values = diag(node)[2]
     assert values['latency_reference'].startswith('receive time (header stamps')
     assert float(values['latency_ms_p50']) < 60_000
     set_param(node, 'max_stamp_skew_s', 1e9)
     time.sleep(0.05)
-    node._on_cloud(cloud(1_600_000_000 * S + S // 10))
+    node._on_cloud(cloud(1_600_000_000 * S + S // 10), None)
     wait_frames(node, 2)
     values = diag(node)[2]
     assert values['latency_reference'] == 'header stamp'
@@ -129,11 +129,11 @@ def test_odom_wait_s_waits_for_covering_odometry(make_node):
     t = node.get_clock().now().nanoseconds
     node._on_odom(odom(t - S // 2))
     node._on_odom(odom(t - S // 20))
-    node._on_cloud(cloud(t))                             # odometry ends 50 ms before
+    node._on_cloud(cloud(t), None)                             # odometry ends 50 ms before
     wait_frames(node, 1)
     assert node._last.pose_source.startswith('none')
     set_param(node, 'odom_wait_s', 2.0)
-    node._on_cloud(cloud(t + S // 10))
+    node._on_cloud(cloud(t + S // 10), None)
     time.sleep(0.3)
     assert node.frames_out == 1                          # still waiting for odometry
     node._on_odom(odom(t + S // 10 + S // 50))
@@ -213,21 +213,21 @@ def test_each_input_contract_case_raises_its_diagnostic(make_node):
              ('empty_cloud', cloud(t + 3 * S // 10, n=0), 'empty cloud'),
              ('unusable_cloud', no_x, 'unusable cloud'),
              ('frame_changed', other_frame, "frame_id changed from 'lidar' to 'velodyne'")]
-    node._on_cloud(cloud(t))
+    node._on_cloud(cloud(t), None)
     wait_frames(node, 1)
     level, message, values = diag(node)
     assert values['input_warnings'] == 'none'
     for n, (reason, msg, text) in enumerate(cases, start=2):
-        node._on_cloud(msg)
+        node._on_cloud(msg, None)
         wait_frames(node, n)
         level, message, values = diag(node)
         assert level == DiagnosticStatus.WARN and text in message, (reason, message)
         assert values['input_warnings'] == reason and values[f'warnings.{reason}'] == '1'
-    node._on_cloud(no_i)                              # the same reason again: counted
+    node._on_cloud(no_i, None)                              # the same reason again: counted
     no_i2 = cloud(t + 7 * S // 10)
     no_i2.fields = [f for f in no_i2.fields if f.name != 'intensity']
     no_i2.header.frame_id = 'velodyne'
-    node._on_cloud(no_i2)
+    node._on_cloud(no_i2, None)
     wait_frames(node, len(cases) + 2)
     assert diag(node)[2]['warnings.no_intensity'] == '2'
     assert set(node._reason_logged) == {r for r, _, _ in cases}   # one log line per reason
@@ -240,7 +240,31 @@ def test_intensity_as_reflectance_raises_its_diagnostic(make_node):
     data = np.frombuffer(bytes(msg.data), np.float32).reshape(-1, 4).copy()
     data[:, 3] /= 255.0                                          # 0..1 reflectance
     msg.data = data.tobytes()
-    node._on_cloud(msg)
+    node._on_cloud(msg, None)
     wait_frames(node, 1)
     level, message, values = diag(node)
     assert 'likely 0..1 reflectance' in message and values['input_warnings'] == 'intensity_range'
+
+
+def test_clouds_lost_before_the_callback_are_counted_and_raise_a_warning(make_node):
+    from diagnostic_msgs.msg import DiagnosticStatus
+    node = make_node()
+    t = node.get_clock().now().nanoseconds
+    now_ns = time.time_ns()
+
+    def info(seq):
+        return {'publication_sequence_number': seq, 'received_timestamp': now_ns - 3_000_000,
+                'source_timestamp': now_ns - 4_000_000, 'reception_sequence_number': None}
+    node._on_cloud(cloud(t), info(1))
+    node._on_cloud(cloud(t + S // 10), info(2))
+    wait_frames(node, 1)
+    level, message, values = diag(node)
+    assert values['lost_before_callback'] == '0' and 'never received' not in message
+    assert float(values['reader_delay_ms_p50']) >= 3.0       # receive time -> callback
+    node._on_cloud(cloud(t + 5 * S // 10), info(5))           # 3 and 4 never arrived
+    level, message, values = diag(node)
+    assert values['lost_before_callback'] == '2'
+    assert level >= DiagnosticStatus.WARN and '2 clouds published but never received' in message
+    node._on_cloud(cloud(t + 6 * S // 10), info(1))           # a restarted publisher: no gap
+    node._on_cloud(cloud(t + 7 * S // 10), None)              # a middleware without numbers
+    assert diag(node)[2]['lost_before_callback'] == '2'
