@@ -10,6 +10,7 @@ from rosgraph import REPO, ros_env
 pytestmark = pytest.mark.ros
 
 
+@pytest.mark.slow
 def test_demo_runs_and_reports(tmp_path):
     from suit_ros.checkpoint import default_checkpoint_path, save_checkpoint
     ckpt = default_checkpoint_path()

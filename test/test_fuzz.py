@@ -90,7 +90,10 @@ def plausible_clouds(draw):
     return msg
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=list(HealthCheck))
+ADAPTER_EXAMPLES = 120
+
+
+@settings(max_examples=ADAPTER_EXAMPLES, deadline=None, suppress_health_check=list(HealthCheck))
 @given(lying_clouds())
 def test_adapters_process_or_reject(msg):
     before = bytes(msg.data)
@@ -162,4 +165,4 @@ def test_report_counts():
           f'{COUNTS["rejected"]} rejected with a package error, 0 crashes; pipeline: '
           f'{COUNTS["pipeline_ok"]} processed, {COUNTS["pipeline_warned"]} answered with a '
           'warning and an empty result')
-    assert total >= 300 and COUNTS['rejected'] > 0 and COUNTS['processed'] > 0
+    assert total >= ADAPTER_EXAMPLES and COUNTS['rejected'] > 0 and COUNTS['processed'] > 0

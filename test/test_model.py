@@ -251,6 +251,7 @@ def test_memory_size_constant_over_frames_and_reset():
     assert d.memory_bytes > sizes[10]
 
 
+@pytest.mark.slow
 def test_optimisation_reduces_every_loss():
     torch.manual_seed(0)
     model = SUITDetector(small_config('suit'))
@@ -313,6 +314,7 @@ def test_streaming_candidates_and_literal_modes():
         model_config_from_dict({'sweeps': 0})
 
 
+@pytest.mark.slow
 def test_geonet_learns_bins_from_the_head_velocity():
     """With velocity_input the displacement bin is learnable from the velocity alone."""
     torch.manual_seed(0)

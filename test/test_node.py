@@ -9,7 +9,8 @@ import pytest
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
 from rosgraph import Probe, diag_values, node_checkpoint, ros_env, start_node, stop, synthetic_bag
 
-pytestmark = pytest.mark.ros
+# separate processes over DDS: integration tests, outside the fast unit loop
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 @pytest.fixture(scope='module')

@@ -209,7 +209,7 @@ def test_each_input_contract_case_raises_its_diagnostic(make_node):
     other_frame = cloud(t + 6 * S // 10)
     other_frame.header.frame_id = 'velodyne'
     cases = [('no_intensity', no_i, 'no intensity field'),
-             ('too_few_points', cloud(t + 2 * S // 10, n=50), 'only 50 points'),
+             ('too_few_points', cloud(t + 2 * S // 10, n=50), 'points after filtering'),
              ('empty_cloud', cloud(t + 3 * S // 10, n=0), 'empty cloud'),
              ('unusable_cloud', no_x, 'unusable cloud'),
              ('frame_changed', other_frame, "frame_id changed from 'lidar' to 'velodyne'")]

@@ -9,6 +9,9 @@ import sys
 import pytest
 from rosgraph import Probe, start_node, stop
 
+# a colcon build and installed executables in separate processes: outside the fast unit loop
+pytestmark = pytest.mark.slow
+
 REPO = Path(__file__).resolve().parents[1]
 
 

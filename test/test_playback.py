@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 from rosgraph import Probe, node_checkpoint, ros_env, start_node, stop, synthetic_bag
 
-pytestmark = pytest.mark.ros
+# separate processes over DDS: integration tests, outside the fast unit loop
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
 
 
 @pytest.fixture(scope='module')

@@ -59,6 +59,7 @@ def tiny(tmp_path, **kw) -> TrainConfig:
                                checkpoint_every=2, batch_size=1, clip_lengths=(2,)), **kw)
 
 
+@pytest.mark.slow
 def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monkeypatch):
     from suit_ros.checkpoint import load_checkpoint
     import suit_ros.data.sequences as seqs
@@ -115,6 +116,7 @@ def _ddp_worker(rank, world, port, out):
     dist.destroy_process_group()
 
 
+@pytest.mark.slow
 def test_distributed_gradients_agree_across_ranks(tmp_path):
     import torch.multiprocessing as mp
     mp.spawn(_ddp_worker, args=(2, _free_port(), tmp_path), nprocs=2, join=True)
