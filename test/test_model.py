@@ -347,3 +347,35 @@ def test_voxelize_equals_torch_unique_over_batches():
     assert torch.equal(keys, want_keys) and torch.equal(inverse, want_inverse)
     empty = enc.voxelize(torch.zeros(0, 6))
     assert empty[0].shape[0] == 0 and empty[2].numel() == 0
+
+
+def test_inference_copy_folds_batch_norms_exactly():
+    from suit_ros.model.inference import fold_batchnorm, inference_copy
+    torch.manual_seed(0)
+    model = SUITDetector(small_config())
+    # non-trivial running statistics and affine parameters, as after training
+    for m in model.modules():
+        if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
+            m.running_mean.uniform_(-0.5, 0.5)
+            m.running_var.uniform_(0.5, 2.0)
+            m.weight.data.uniform_(0.5, 1.5)
+            m.bias.data.uniform_(-0.2, 0.2)
+    model.eval()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    fast = inference_copy(model)
+    n_bn = sum(isinstance(m, torch.nn.modules.batchnorm._BatchNorm) for m in model.modules())
+    assert n_bn > 0 and not any(isinstance(m, torch.nn.modules.batchnorm._BatchNorm)
+                                for m in fast.modules())
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())  # untouched
+    rng = np.random.default_rng(0)
+    pts = np.c_[rng.uniform(-20, 20, (3000, 2)), rng.uniform(-1, 2, (3000, 1)),
+                rng.uniform(0, 1, (3000, 1)), np.zeros((3000, 1))].astype(np.float32)
+    with torch.no_grad():
+        a = model.encode([torch.from_numpy(pts)])
+        b = fast.encode([torch.from_numpy(pts)])
+        assert torch.allclose(a, b, atol=1e-4, rtol=1e-4)
+        pa, pb = model.head(a), fast.head(b)
+        for k in pa:
+            assert torch.allclose(pa[k], pb[k], atol=1e-4, rtol=1e-4), k
+    with pytest.raises(ValueError, match='eval mode'):
+        fold_batchnorm(SUITDetector(small_config()).train())

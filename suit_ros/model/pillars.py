@@ -27,7 +27,10 @@ class PillarEncoder(nn.Module):
         self.in_channels = in_channels
         self.out_channels = channels
         self.linear = nn.Linear(in_channels + 5, channels, bias=False)
-        self.norm = nn.BatchNorm1d(channels, eps=1e-3, momentum=0.01)
+        self.norm: nn.Module = nn.BatchNorm1d(channels, eps=1e-3, momentum=0.01)
+
+    # (layer, norm) attribute pairs an inference copy may fold (suit_ros.model.inference)
+    fold_pairs = (('linear', 'norm'),)
 
     def voxelize(self, points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Assign points to pillars.

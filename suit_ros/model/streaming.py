@@ -7,12 +7,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import time
+from typing import cast
 
 import numpy as np
 from numpy.typing import NDArray
 import torch
 
 from suit_ros.model.detector import Memory, SUITDetector
+from suit_ros.model.inference import inference_copy
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.structures import Detections
 
@@ -46,7 +48,8 @@ class StreamingDetector:
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
                  candidates: int | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
-        self.model = model.to(self.device).eval()
+        # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
+        self.model = cast(SUITDetector, inference_copy(model.to(self.device)))
         self.cfg = model.cfg
         self.memory: Memory | None = None
         self.sweeps = SweepBuffer(self.cfg.sweeps)
