@@ -45,7 +45,7 @@ class PillarEncoder(nn.Module):
         xyz = points[:, 1:4]
         inside = ((xyz[:, 0] >= x0) & (xyz[:, 0] < x1) & (xyz[:, 1] >= y0) & (xyz[:, 1] < y1)
                   & (xyz[:, 2] >= z0) & (xyz[:, 2] < z1))
-        pts = points[inside]
+        pts = points if bool(inside.all()) else points[inside]
         ix = ((pts[:, 1] - x0) / g.pillar_size).long().clamp_(0, g.nx - 1)
         iy = ((pts[:, 2] - y0) / g.pillar_size).long().clamp_(0, g.ny - 1)
         key = (pts[:, 0].long() * g.ny + iy) * g.nx + ix
@@ -55,6 +55,31 @@ class PillarEncoder(nn.Module):
         keys = torch.nonzero(occupied, as_tuple=True)[0]
         inverse = (torch.cumsum(occupied, 0) - 1)[key]
         return pts, inverse, keys
+
+    def _folded_pillars(self, feats: Tensor, inverse: Tensor, mean: Tensor, centre_x: Tensor,
+                        centre_y: Tensor) -> Tensor:
+        """The same pillar features when the norm is folded into ``linear`` (inference copy),
+        without building the decorated points: the linear map of the offsets from the pillar's
+        mean and centre splits into a per-point and a per-pillar term; the max over a pillar's
+        points is taken on the per-point term, then the per-pillar term is subtracted and the
+        ReLU applied (both commute with that max)."""
+        C = feats.shape[1]
+        W = self.linear.weight
+        A = W[:, :C].clone()
+        A[:, :3] += W[:, C:C + 3]
+        A[:, 0] += W[:, C + 3]
+        A[:, 1] += W[:, C + 4]
+        per_pillar = (mean @ W[:, C:C + 3].T + centre_x[:, None] * W[:, C + 3]
+                      + centre_y[:, None] * W[:, C + 4])
+        if self.linear.bias is not None:
+            per_pillar = per_pillar - self.linear.bias
+        z = feats @ A.T
+        pillar = torch.empty(per_pillar.shape, dtype=z.dtype, device=z.device)
+        pillar = pillar.scatter_reduce_(0, inverse[:, None].expand_as(z), z, 'amax',
+                                        include_self=False)
+        # the per-pillar term is the same for every point of the pillar: subtract it after
+        # the max
+        return torch.relu_(pillar.sub_(per_pillar))
 
     def forward(self, points: Tensor, batch_size: int) -> Tensor:
         """Encode ``(P, 1 + in_channels)`` points into ``(B, C, ny, nx)``."""
@@ -71,17 +96,20 @@ class PillarEncoder(nn.Module):
         iy = ((keys // g.nx) % g.ny).to(feats.dtype)
         centre_x = (ix + 0.5) * g.pillar_size + g.point_range[0]
         centre_y = (iy + 0.5) * g.pillar_size + g.point_range[1]
-        decorated = torch.cat([
-            feats,
-            feats[:, :3] - mean[inverse],
-            (feats[:, 0] - centre_x[inverse])[:, None],
-            (feats[:, 1] - centre_y[inverse])[:, None],
-        ], dim=1)
-        x = torch.relu(self.norm(self.linear(decorated)))
-        pillar = torch.zeros(U, self.out_channels, dtype=x.dtype, device=x.device)
-        pillar = pillar.scatter_reduce_(0, inverse[:, None].expand_as(x), x, 'amax',
-                                        include_self=False)
-        canvas = torch.zeros(batch_size * g.ny * g.nx, self.out_channels, dtype=x.dtype,
-                             device=x.device)
+        if self.training or not isinstance(self.norm, nn.Identity):
+            decorated = torch.cat([
+                feats,
+                feats[:, :3] - mean[inverse],
+                (feats[:, 0] - centre_x[inverse])[:, None],
+                (feats[:, 1] - centre_y[inverse])[:, None],
+            ], dim=1)
+            x = torch.relu(self.norm(self.linear(decorated)))
+            pillar = torch.zeros(U, self.out_channels, dtype=x.dtype, device=x.device)
+            pillar = pillar.scatter_reduce_(0, inverse[:, None].expand_as(x), x, 'amax',
+                                            include_self=False)
+        else:
+            pillar = self._folded_pillars(feats, inverse, mean, centre_x, centre_y)
+        canvas = torch.zeros(batch_size * g.ny * g.nx, self.out_channels, dtype=pillar.dtype,
+                             device=pillar.device)
         canvas[keys] = pillar
         return canvas.view(batch_size, g.ny, g.nx, self.out_channels).permute(0, 3, 1, 2)

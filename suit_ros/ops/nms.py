@@ -1,8 +1,9 @@
 """Non-maximum suppression in pure torch: circle NMS (centre distance) and rotated BEV-IoU NMS.
 
 Both are greedy in descending score order, like their CUDA counterparts, but vectorised: the
-pairwise suppression matrix is computed once, then a short loop over the kept boxes resolves
-it (N is at most a few hundred after top-K).
+pairwise suppression matrix is computed once (rotated IoU only for the pairs the greedy pass
+reads: a later box of the same class whose circumscribed circle meets), then a short loop over
+the kept boxes resolves it (N is at most a few hundred after top-K).
 """
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from suit_ros.ops.iou import bev_iou
+from suit_ros.ops.iou import paired_bev_iou
 
 
 def greedy_suppression(suppress: Tensor, order: Tensor) -> Tensor:
@@ -46,14 +47,27 @@ def circle_nms(centers: Tensor, scores: Tensor, radius: float | Tensor) -> Tenso
     return greedy_suppression(suppress, order)
 
 
+def _rotated_suppression(b: Tensor, candidates: Tensor, iou_threshold: float) -> Tensor:
+    """``(N, N)`` IoU > threshold of boxes in score order, computed only for the pairs a
+    greedy pass reads (``i < j``, ``candidates[i, j]``) whose circumscribed circles meet."""
+    N = b.shape[0]
+    r = 0.5 * torch.hypot(b[:, 3], b[:, 4]).double()
+    near = torch.cdist(b[:, :2].double(), b[:, :2].double()) < r[:, None] + r[None]
+    i, j = torch.nonzero(torch.triu(near & candidates, diagonal=1), as_tuple=True)
+    suppress = torch.zeros((N, N), dtype=torch.bool, device=b.device)
+    if len(i):
+        suppress[i, j] = paired_bev_iou(b[i], b[j]) > iou_threshold
+    return suppress
+
+
 def rotated_nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
     """Greedy NMS on rotated BEV IoU of ``(N, 7)`` boxes; returns kept indices."""
     if boxes.shape[0] == 0:
         return torch.zeros(0, dtype=torch.long, device=boxes.device)
     order = torch.argsort(scores, descending=True, stable=True)
     b = boxes[order]
-    suppress = bev_iou(b, b) > iou_threshold
-    suppress.fill_diagonal_(False)
+    full = torch.ones((b.shape[0], b.shape[0]), dtype=torch.bool, device=b.device)
+    suppress = _rotated_suppression(b, full, iou_threshold)
     return greedy_suppression(suppress, order)
 
 
@@ -71,7 +85,7 @@ def batched_nms(boxes: Tensor, scores: Tensor, labels: Tensor, kind: str = 'rota
     b, lab = boxes[order], labels[order]
     same = lab[:, None] == lab[None, :]
     if kind == 'rotated':
-        suppress = (bev_iou(b, b) > iou_threshold) & same
+        suppress = _rotated_suppression(b, same, iou_threshold)
     elif kind == 'circle':
         if radius is None:
             raise ValueError('circle NMS needs per-class radii')
