@@ -62,6 +62,34 @@ def test_rotated_nms_matches_brute_force(seed):
     assert rotated_nms(boxes, scores, 0.2).tolist() == brute_nms(boxes, scores.numpy(), 0.2)
 
 
+@pytest.mark.parametrize('seed', [5, 6])
+def test_batched_and_refined_nms_match_brute_force(seed):
+    from suit_ros.model.sampling import refined_nms
+    rng = np.random.default_rng(seed)
+    boxes = random_boxes(60, seed)
+    scores = rng.uniform(size=60)
+    labels = rng.integers(0, 3, 60)
+    iou = shapely_iou(boxes, boxes)
+    order = np.argsort(-scores, kind='stable')
+    keep = []
+    for i in order:
+        if all(labels[i] != labels[k] or iou[i, k] <= 0.2 for k in keep):
+            keep.append(i)
+    got = batched_nms(boxes, torch.tensor(scores, dtype=torch.float32), torch.tensor(labels),
+                      'rotated', 0.2)
+    assert got.tolist() == keep
+    # refined NMS: per frame (labels as frames here), IoU or centre distance suppresses
+    dist = np.hypot(*(boxes[:, None, :2].numpy() - boxes[None, :, :2].numpy()).transpose(2, 0, 1))
+    keep = []
+    for i in order:
+        if all(labels[i] != labels[k] or (iou[i, k] <= 0.3 and dist[i, k] >= 1.5)
+               for k in keep):
+            keep.append(i)
+    got = refined_nms(boxes, torch.tensor(scores, dtype=torch.float32), torch.tensor(labels),
+                      0.3, 1.5)
+    assert got.tolist() == keep
+
+
 def test_circle_nms_and_class_awareness():
     centers = torch.tensor([[0.0, 0.0], [0.5, 0.0], [3.0, 0.0], [3.2, 0.1]])
     scores = torch.tensor([0.9, 0.8, 0.7, 0.95])

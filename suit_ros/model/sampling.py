@@ -8,6 +8,7 @@ rectangle). The features at these cells, their positions and probabilities form 
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -15,8 +16,7 @@ from torch import Tensor
 
 from suit_ros.config import SamplingConfig
 from suit_ros.model.grid import BEVGrid
-from suit_ros.ops.iou import bev_iou
-from suit_ros.ops.nms import greedy_suppression
+from suit_ros.ops.nms import greedy_suppression, rotated_suppression
 
 
 @dataclass
@@ -57,9 +57,10 @@ def refined_nms(boxes: Tensor, scores: Tensor, batch_index: Tensor, iou_threshol
     order = torch.argsort(scores, descending=True, stable=True)
     b, bi = boxes[order], batch_index[order]
     same = bi[:, None] == bi[None, :]
-    dist = torch.cdist(b[:, :2].float(), b[:, :2].float())
-    suppress = ((bev_iou(b, b) > iou_threshold) | (dist < min_distance)) & same
-    suppress.fill_diagonal_(False)
+    close = (torch.cdist(b[:, :2].float(), b[:, :2].float()) < min_distance) & same
+    close.fill_diagonal_(False)
+    # IoU only where closeness does not already decide
+    suppress = rotated_suppression(b, same & ~close, iou_threshold) | close
     return greedy_suppression(suppress, order)
 
 
@@ -95,7 +96,9 @@ def relaxation_window(samples: Samples, cfg: SamplingConfig, grid: BEVGrid
     return cells, inside & member
 
 
-def significant_sampling(heatmap_logits: Tensor, decode_cells, cfg: SamplingConfig,
+def significant_sampling(heatmap_logits: Tensor,
+                         decode_cells: Callable[[Tensor, Tensor], tuple[Tensor, Tensor]],
+                         cfg: SamplingConfig,
                          grid: BEVGrid) -> Samples:
     """Select the significant samples of a batch of frames.
 

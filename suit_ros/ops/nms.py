@@ -47,9 +47,10 @@ def circle_nms(centers: Tensor, scores: Tensor, radius: float | Tensor) -> Tenso
     return greedy_suppression(suppress, order)
 
 
-def _rotated_suppression(b: Tensor, candidates: Tensor, iou_threshold: float) -> Tensor:
+def rotated_suppression(b: Tensor, candidates: Tensor, iou_threshold: float) -> Tensor:
     """``(N, N)`` IoU > threshold of boxes in score order, computed only for the pairs a
-    greedy pass reads (``i < j``, ``candidates[i, j]``) whose circumscribed circles meet."""
+    greedy pass (:func:`greedy_suppression`) reads (``i < j``, ``candidates[i, j]``) whose
+    circumscribed circles meet; every other entry is False."""
     N = b.shape[0]
     r = 0.5 * torch.hypot(b[:, 3], b[:, 4]).double()
     near = torch.cdist(b[:, :2].double(), b[:, :2].double()) < r[:, None] + r[None]
@@ -67,7 +68,7 @@ def rotated_nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
     order = torch.argsort(scores, descending=True, stable=True)
     b = boxes[order]
     full = torch.ones((b.shape[0], b.shape[0]), dtype=torch.bool, device=b.device)
-    suppress = _rotated_suppression(b, full, iou_threshold)
+    suppress = rotated_suppression(b, full, iou_threshold)
     return greedy_suppression(suppress, order)
 
 
@@ -85,7 +86,7 @@ def batched_nms(boxes: Tensor, scores: Tensor, labels: Tensor, kind: str = 'rota
     b, lab = boxes[order], labels[order]
     same = lab[:, None] == lab[None, :]
     if kind == 'rotated':
-        suppress = _rotated_suppression(b, same, iou_threshold)
+        suppress = rotated_suppression(b, same, iou_threshold)
     elif kind == 'circle':
         if radius is None:
             raise ValueError('circle NMS needs per-class radii')
