@@ -59,7 +59,7 @@ def main() -> int:
     res = json.loads(Path('docs/results.json').read_text())
     runs, diffs = res['runs'], res['differences']
     meta = {k: read_metadata(v) for k, v in CKPTS.items()}
-    train = {k: m.get('train_config', {}) for k, m in meta.items()}
+    train = {k: m.get('extra', {}).get('train_config', {}) for k, m in meta.items()}
     cfg: dict[str, Any] = meta['suit'].get('config', {})
     size = {k: Path(v).stat().st_size / 1e6 for k, v in CKPTS.items()}
     minutes = {k: m.get('metrics', {}).get('train_minutes', 'n/a') for k, m in meta.items()}

@@ -11,14 +11,18 @@ import numpy as np
 
 
 def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
-                 seed: int = 7, workdir: str = 'out/demo') -> dict[str, Any]:
+                 seed: int = 7, workdir: str = 'out/demo', threads: int = 0) -> dict[str, Any]:
     """Play the demo bag at ``rate`` x 10 Hz into a fresh node; measure cloud-received ->
-    detections-received latency at a probe, the output rate, drops and the node's overhead."""
+    detections-received latency at a probe, the output rate, drops and the node's overhead.
+
+    :param threads: the node's ``threads`` parameter (0: its default, all cores but one).
+    """
     from diagnostic_msgs.msg import DiagnosticArray
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, QoSReliabilityPolicy
+    from rclpy.utilities import try_shutdown
     from sensor_msgs.msg import PointCloud2
 
     from suit_ros.checkpoint import default_checkpoint_path
@@ -33,7 +37,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
         write_bag(bag, preset('demo-real', frames=frames), seed, 'mcap')
     ckpt = checkpoint or str(default_checkpoint_path())
     node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
-                             f'checkpoint:={ckpt}', '-p', 'threads:=2'],
+                             f'checkpoint:={ckpt}', '-p', f'threads:={threads}'],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctx = Context()
     rclpy.init(context=ctx)
@@ -43,14 +47,20 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     diags: list[dict[str, str]] = []
 
     def key(m: Any) -> int:
-        return m.header.stamp.sec * 10**9 + m.header.stamp.nanosec
-    probe.create_subscription(PointCloud2, '/points',
-                              lambda m: clouds.setdefault(key(m), time.monotonic()),
+        return int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec)
+
+    def on_cloud(m: Any) -> None:
+        clouds.setdefault(key(m), time.monotonic())
+
+    def on_detections(m: Any) -> None:
+        dets.setdefault(key(m), time.monotonic())
+
+    def on_diagnostics(m: Any) -> None:
+        diags.append({kv.key: kv.value for kv in m.status[0].values})
+    probe.create_subscription(PointCloud2, '/points', on_cloud,
                               QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE))
-    probe.create_subscription(PointCloud2, '/detector/detections',
-                              lambda m: dets.setdefault(key(m), time.monotonic()), 50)
-    probe.create_subscription(DiagnosticArray, '/diagnostics', lambda m: diags.append(
-        {kv.key: kv.value for kv in m.status[0].values}), 10)
+    probe.create_subscription(PointCloud2, '/detector/detections', on_detections, 50)
+    probe.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(probe)
     try:
@@ -72,14 +82,14 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     finally:
         ex.shutdown()
         probe.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+        try_shutdown(context=ctx)
         node.terminate()
         node.wait(10)
     lat = [dets[s] - clouds[s] for s in dets if s in clouds]
     last = diags[-1] if diags else {}
     model = float(last.get('model_ms_p50', 'nan'))
     overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50'))
-    return {'frames_in': len(clouds), 'frames_out': len(dets),
+    return {'node_threads': threads, 'frames_in': len(clouds), 'frames_out': len(dets),
             'dropped': int(last.get('dropped_frames', -1)),
             'rate_hz': len(dets) / max(t_play - 1.0, 1e-9),
             'latency_ms_p50': float(np.median(lat)) * 1e3 if lat else float('nan'),
