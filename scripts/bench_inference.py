@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
-"""The streaming step on the model as trained and on its inference copy, in one run.
+"""The streaming step on the model as trained and on its inference copies, in one run.
 
 The inference copy (:mod:`suit_ros.model.inference`) has its batch norms folded, which also
-lets the pillar encoder skip building the decorated points.
+lets the pillar encoder skip building the decorated points, and its convolution weights stored
+channels-last (NHWC). Three variants: as trained, folded (NCHW), folded + channels-last (the
+default inference copy).
 
-Both variants step over the same demo-scene frames, interleaved frame by frame (so load
-changes hit both alike); prints the step medians, their ratio, and the largest difference of
-the detections.
+The variants step over the same demo-scene frames, interleaved frame by frame (so load
+changes hit all alike); prints the step medians, their ratios to the model as trained, and the
+largest difference of the detections.
 
 Usage: python scripts/bench_inference.py [--frames 40] [--threads 1 2]
 """
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import time
+from typing import cast
 
 import numpy as np
 
@@ -29,35 +32,40 @@ def main() -> int:
     from suit_ros.data.sim import preset
     from suit_ros.data.sim.scene import Simulation, to_frame
     from suit_ros.evaluate import step_inputs
+    from suit_ros.model.detector import SUITDetector
+    from suit_ros.model.inference import inference_copy
     from suit_ros.model.streaming import StreamingDetector
     model, _, _ = load_checkpoint(str(default_checkpoint_path()), 'cpu')
     sim = Simulation(preset('demo-real', frames=args.frames), 7)
     frames = [to_frame(sim.render(k), 7) for k in range(args.frames)]
-    folded = StreamingDetector(model)
-    plain = StreamingDetector(model)
-    plain.model = model.eval()               # the model as trained
+    runners = {name: StreamingDetector(model) for name in ('as trained', 'folded', 'folded NHWC')}
+    runners['as trained'].model = model.eval()
+    runners['folded'].model = cast(SUITDetector, inference_copy(model, channels_last=False))
     for threads in args.threads:
         torch.set_num_threads(threads)
-        times: dict[str, list[float]] = {'plain': [], 'folded': []}
-        worst = 0.0
-        for r in (plain, folded):
+        times: dict[str, list[float]] = {name: [] for name in runners}
+        worst = dict.fromkeys(runners, 0.0)
+        for r in runners.values():
             r.reset('bench')
         for i, f in enumerate(frames):
             out = {}
-            for name, r in (('plain', plain), ('folded', folded)):
+            for name, r in runners.items():
                 t0 = time.perf_counter()
                 out[name] = r.step(*step_inputs(f)).detections
                 if i >= 5:                    # warm-up frames not timed
                     times[name].append(time.perf_counter() - t0)
-            a, b = out['plain'], out['folded']
-            if len(a) == len(b) and len(a):
-                worst = max(worst, float(np.abs(a.boxes - b.boxes).max()))
-            elif len(a) != len(b):
-                worst = float('inf')
-        p, q = np.median(times['plain']) * 1e3, np.median(times['folded']) * 1e3
-        print(f'{threads} torch thread(s), {len(times["plain"])} frames: step p50 as trained '
-              f'{p:.1f} ms, inference copy {q:.1f} ms, ratio {q / p:.3f}; largest box difference '
-              f'{worst:.2e} m')
+            a = out['as trained']
+            for name, b in out.items():
+                if len(a) == len(b) and len(a):
+                    worst[name] = max(worst[name], float(np.abs(a.boxes - b.boxes).max()))
+                elif len(a) != len(b):
+                    worst[name] = float('inf')
+        p50 = {name: float(np.median(t)) * 1e3 for name, t in times.items()}
+        base = p50['as trained']
+        n = len(times['as trained'])
+        print(f'{threads} torch thread(s), {n} frames, step p50: ' + ', '.join(
+            f'{name} {v:.1f} ms ({v / base:.3f}x, largest box difference {worst[name]:.1e} m)'
+            for name, v in p50.items()))
     return 0
 
 

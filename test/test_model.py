@@ -367,6 +367,11 @@ def test_inference_copy_folds_batch_norms_exactly():
     assert n_bn > 0 and not any(isinstance(m, torch.nn.modules.batchnorm._BatchNorm)
                                 for m in fast.modules())
     assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())  # untouched
+    convs = [m for m in fast.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert convs and all(m.weight.is_contiguous(memory_format=torch.channels_last)
+                         for m in convs)                     # NHWC for oneDNN
+    assert all(m.weight.is_contiguous() for m in inference_copy(model, channels_last=False)
+               .modules() if isinstance(m, torch.nn.Conv2d))
     rng = np.random.default_rng(0)
     pts = np.c_[rng.uniform(-20, 20, (3000, 2)), rng.uniform(-1, 2, (3000, 1)),
                 rng.uniform(0, 1, (3000, 1)), np.zeros((3000, 1))].astype(np.float32)
