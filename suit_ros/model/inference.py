@@ -81,5 +81,7 @@ def inference_copy(model: nn.Module, channels_last: bool = True) -> nn.Module:
     copied = copy.deepcopy(model).eval()
     fold_batchnorm(copied)
     if channels_last:
-        copied = copied.to(memory_format=torch.channels_last)
+        for m in copied.modules():
+            if isinstance(m, nn.Conv2d | nn.ConvTranspose2d):
+                m.weight.data = m.weight.data.contiguous(memory_format=torch.channels_last)
     return copied
