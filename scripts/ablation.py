@@ -54,21 +54,31 @@ def _no_intensity(frame: Any) -> Any:
     return replace(frame, points=pts)
 
 
-def clutter_fp(runs: dict[str, Any], drives: list[tuple[int, str]], frames: int,
-               min_score: float) -> dict[str, dict[str, float]]:
-    """False positives per frame on clutter objects, per clutter type (the val drives are
-    rendered again for their clutter footprints)."""
+def clutter_frames(drives: list[tuple[int, str]], frames: int) -> list[Any]:
+    """The val drives rendered again, for their clutter footprints and types."""
     from suit_ros.data.sim import preset
-    from suit_ros.data.sim.clutter import CLUTTER_TYPES, clutter_false_positives
     from suit_ros.data.sim.scene import Simulation
-    sim_frames = []
+    out = []
     for seed, sensor in drives:
         sim = Simulation(preset('val-real', sensor=sensor, frames=frames), seed)
-        sim_frames += [sim.render(k) for k in range(frames)]
+        out += [sim.render(k) for k in range(frames)]
+    return out
+
+
+def clutter_counts(run: Any, sim_frames: list[Any], min_score: float) -> Any:
+    """``(F, len(CLUTTER_TYPES))`` false positives on clutter per frame and type."""
+    from suit_ros.data.sim.clutter import clutter_false_positives
+    return clutter_false_positives(sim_frames, [d.select(d.scores >= min_score)
+                                                for d in run.det])
+
+
+def clutter_fp(runs: dict[str, Any], sim_frames: list[Any], min_score: float
+               ) -> dict[str, dict[str, float]]:
+    """False positives per frame on clutter objects, per clutter type and in all."""
+    from suit_ros.data.sim.clutter import CLUTTER_TYPES
     out = {}
     for name, run in runs.items():
-        dets = [d.select(d.scores >= min_score) for d in run.det]
-        counts = clutter_false_positives(sim_frames, dets)
+        counts = clutter_counts(run, sim_frames, min_score)
         out[name] = {t: float(counts[:, j].mean()) for j, t in enumerate(CLUTTER_TYPES)}
         out[name]['all'] = float(counts.sum(1).mean())
     return out
@@ -107,7 +117,7 @@ def main() -> int:
     stats, diffs = bootstrap(runs, names, pairs, args.resamples)
     clutter = ({} if args.quick else
                clutter_fp({k: runs[k] for k in ('single', 'suit')},
-                          [tuple(d) for d in split_drives('val', args.drives)], args.frames, 0.3))
+                          clutter_frames(split_drives('val', args.drives), args.frames), 0.3))
     from suit_ros.benchmark import past_share
     share = {} if args.quick else past_share(suit, val[:8])
     print(f'[ablation] past share at car centres: {share}', flush=True)

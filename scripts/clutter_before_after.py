@@ -74,7 +74,11 @@ def main() -> int:
     import torch
     torch.set_num_threads(2)
     sys.path.insert(0, str(Path(__file__).resolve().parent))
-    from ablation import clutter_fp  # type: ignore[import-not-found]
+    from ablation import (  # type: ignore[import-not-found]
+        clutter_counts,
+        clutter_fp,
+        clutter_frames,
+    )
 
     from suit_ros.checkpoint import load_checkpoint
     from suit_ros.data.sequences import split_drives, synthetic_split
@@ -90,14 +94,9 @@ def main() -> int:
                                                        transform=lidar_as_model_frame),
             'single (shipped)': run_model(load_checkpoint(args.single, 'cpu')[0], val),
             'suit (shipped)': run_model(load_checkpoint(args.suit, 'cpu')[0], val)}
-    fp = clutter_fp(runs, drives, args.frames, args.min_score)
-    from suit_ros.data.sim import preset
-    from suit_ros.data.sim.clutter import CLUTTER_TYPES, clutter_false_positives
-    from suit_ros.data.sim.scene import Simulation
-    sim_frames = []
-    for seed, sensor in drives:
-        sim = Simulation(preset('val-real', sensor=sensor, frames=args.frames), seed)
-        sim_frames += [sim.render(k) for k in range(args.frames)]
+    sim_frames = clutter_frames(drives, args.frames)
+    fp = clutter_fp(runs, sim_frames, args.min_score)
+    from suit_ros.data.sim.clutter import CLUTTER_TYPES
     rng = np.random.default_rng(0)
     n = len(drives)
     picks = rng.integers(0, n, (args.resamples, n))
@@ -107,8 +106,7 @@ def main() -> int:
                            'clutter_fp_per_frame': fp, 'all_interval': {}, 'mAP': {}}
     per_drive_all = {}
     for name, run in runs.items():
-        dets = [d.select(d.scores >= args.min_score) for d in run.det]
-        totals = clutter_false_positives(sim_frames, dets).sum(1).reshape(n, args.frames)
+        totals = clutter_counts(run, sim_frames, args.min_score).sum(1).reshape(n, args.frames)
         per_drive_all[name] = totals.mean(1)
         boot = per_drive_all[name][picks].mean(1)
         out['all_interval'][name] = [float(np.percentile(boot, 2.5)),
