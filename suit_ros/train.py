@@ -152,7 +152,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         model = DistributedDataParallel(model, find_unused_parameters=True)  # type: ignore
     out.mkdir(parents=True, exist_ok=True)
     if tc.dataset == 'synthetic':
-        data = synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir)
+        data = synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir,
+                               points_dtype=np.float16)     # half the RAM; inputs are float32
     elif tc.dataset == 'bags':
         from suit_ros.data.sequences import bag_sequences
         data = bag_sequences(tc.dataset_paths)

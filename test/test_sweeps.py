@@ -130,3 +130,21 @@ def test_an_accumulation_already_is_used_as_it_is():
                     sweep_at(0.5 * k).T_odom_lidar, int(1e9 + 5e8 * k), T_base_lidar=T_BL)
               for k in range(2)]
     assert len(model_frame(frames, 1, 3).points) == 3
+
+
+def test_training_drives_kept_in_float16_give_float32_inputs_equal_to_the_cache(tmp_path):
+    """Training keeps sensor frames in float16 (half the RAM); the model frames built from them
+    are float32 and equal to those built from the same cached drive read as float32."""
+    from suit_ros.data.sequences import ClipSampler, synthetic_sequence
+    fresh = synthetic_sequence('test', 3, 4, tmp_path, points_dtype=np.float16)   # simulated
+    cached = synthetic_sequence('test', 3, 4, tmp_path, points_dtype=np.float16)  # from cache
+    full = synthetic_sequence('test', 3, 4, tmp_path)
+    for a, b, c in zip(fresh, cached, full):
+        assert a.points.dtype == b.points.dtype == np.float16 and c.points.dtype == np.float32
+        np.testing.assert_array_equal(a.points, b.points)
+        np.testing.assert_array_equal(b.points.astype(np.float32), c.points)
+    half = model_frame(cached, 3, 3)
+    assert half.points.dtype == np.float32
+    np.testing.assert_array_equal(half.points, model_frame(full, 3, 3).points)
+    clip = ClipSampler([cached], [2], 0, sweeps=3).batch(1)[0]
+    assert all(f.points.dtype == np.float32 and f.points.shape[1] == 5 for f in clip)

@@ -52,20 +52,33 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
+PointsDtype = type[np.float32] | type[np.float16]
+
+
 def synthetic_sequence(preset_name: str, seed: int, frames: int,
                        cache_dir: str | os.PathLike[str] | None = None,
-                       sensor: str = 'sim32') -> list[Frame]:
-    """One simulated drive as sensor frames, optionally cached on disk (npz per drive)."""
+                       sensor: str = 'sim32', points_dtype: PointsDtype = np.float32
+                       ) -> list[Frame]:
+    """One simulated drive as sensor frames, optionally cached on disk (npz per drive).
+
+    :param points_dtype: float16 halves the memory of a training set (the cache stores float16,
+        so nothing is lost against a cached drive; the model input is float32 again after
+        :func:`~suit_ros.model.sweeps.accumulate_sweeps`).
+    """
+    from dataclasses import replace
+
     from suit_ros.data.sim import preset, sim_frames
     path = None
     if cache_dir is not None:
         path = Path(cache_dir) / f'{preset_name}-{sensor}-{seed}-{frames}-' \
             f'{_cache_key(preset_name, sensor, seed, frames)}.npz'
         if path.is_file():
-            return load_sequence(path)
+            return load_sequence(path, points_dtype)
     out = list(sim_frames(preset(preset_name, sensor=sensor, frames=frames), seed))
     if path is not None:
         save_sequence(path, out)
+    if points_dtype is not np.float32:
+        out = [replace(f, points=f.points.astype(points_dtype)) for f in out]
     return out
 
 
@@ -77,10 +90,11 @@ def split_drives(split: str, sequences: int) -> list[tuple[int, str]]:
 
 def synthetic_split(split: str, sequences: int, frames: int,
                     cache_dir: str | os.PathLike[str] | None = None,
-                    preset_name: str | None = None) -> list[list[Frame]]:
+                    preset_name: str | None = None, points_dtype: PointsDtype = np.float32
+                    ) -> list[list[Frame]]:
     """A split (``train``, ``val``, ``heldout``): ``sequences`` drives (see module docstring)."""
     name = preset_name or ('train-real' if split == 'train' else 'val-real')
-    return [synthetic_sequence(name, seed, frames, cache_dir, sensor)
+    return [synthetic_sequence(name, seed, frames, cache_dir, sensor, points_dtype)
             for seed, sensor in split_drives(split, sequences)]
 
 
@@ -106,7 +120,7 @@ def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
     os.replace(tmp, path)
 
 
-def load_sequence(path: Path) -> list[Frame]:
+def load_sequence(path: Path, points_dtype: PointsDtype = np.float32) -> list[Frame]:
     """Read frames written by :func:`save_sequence` (no pickle)."""
     with np.load(path, allow_pickle=False) as z:
         meta = json.loads(z['meta'].tobytes().decode())
@@ -114,7 +128,7 @@ def load_sequence(path: Path) -> list[Frame]:
         for i in range(meta['n']):
             gt = Detections(z[f'{i}/boxes'], z[f'{i}/vel'], np.ones(len(z[f'{i}/boxes'])),
                             z[f'{i}/labels'])
-            out.append(Frame(z[f'{i}/points'].astype(np.float32), z[f'{i}/pose'],
+            out.append(Frame(z[f'{i}/points'].astype(points_dtype), z[f'{i}/pose'],
                              int(z[f'{i}/stamp']), meta['frame_id'], gt, z[f'{i}/num'],
                              z[f'{i}/ids'], meta['sequence_id'], z[f'{i}/extrinsic']))
     return out
