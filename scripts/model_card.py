@@ -81,11 +81,11 @@ def main() -> int:
         '| classes | car, truck (buses included), pedestrian, cyclist (motorcycles included) | '
         'the same |',
         f'| size | {size["suit"]:.1f} MB | {size["single"]:.1f} MB |',
-        f'| stage 2 | {steps["suit"]} steps, {minutes["suit"]} min, 1 thread | '
+        f'| last stage | {steps["suit"]} steps, {minutes["suit"]} min, 1 thread | '
         f'{steps["single"]} steps, {minutes["single"]} min, 1 thread |', '',
         '**Data.** The embedded synthetic world, detailed variant (`train-real`: vehicles with a '
         'front and a back, articulated pedestrians, cyclists and motorcycles, street clutter), '
-        f'{train["suit"].get("train_sequences", "?")} drives of '
+        f'{train["suit"].get("train_sequences", "?")} drives (in the last stage) of '
         f'{train["suit"].get("train_frames", "?")} frames at 10 Hz from seeds 1000+, sensor '
         'models mixed (sim32, hdl32e, vlp16, hdl64e, os1-64; docs/sensors.md); GT boxes with at '
         'least one return.', '',
@@ -94,7 +94,10 @@ def main() -> int:
         'shipped before at commit 1e0d6b8), then, from stage 1, SUIT fine-tuning '
         '(`params/train_suit.yaml`, clips of 2-4 frames, temporal modules at 3x lr) and the '
         'single-frame continuation (`params/train_single_cont.yaml`) side by side for the same '
-        '45 min with one thread each. AdamW, one-cycle following wall time, weight decay 0.01, '
+        '45 min with one thread each (48 drives); stage 3: each on 144 drives '
+        '(`params/train_*_moredata.yaml`), stage 4: each on 288 drives '
+        '(`params/train_*_288.yaml`), 45 min each, side by side, one thread each, a new '
+        'one-cycle at lr 5e-4 per stage. AdamW, one-cycle following wall time, weight decay 0.01, '
         'rotation +-45 degrees, scaling 0.95-1.05, intensity dropout 20%, no flip.', '',
         f'**Validation** ({len(res["meta"]["val_drives"])} drives from seeds 9000+, 40 frames '
         f'each, sensors {", ".join(sensors)}; value [95% per-drive bootstrap interval]):', '',

@@ -4,8 +4,11 @@
 #            mix of sensor models, warm-started from the checkpoint shipped at commit 1e0d6b8
 #            (the one-sweep, LiDAR-frame model; its weights are a starting point only);
 #   stage 2: from stage 1, in parallel with one thread each and the same wall time:
-#            SUIT fine-tuning (clips of 2-4 frames)  -> suit_default.safetensors
-#            single-frame continued                  -> centerpoint_single.safetensors
+#            SUIT fine-tuning (clips of 2-4 frames), single-frame continued;
+#   stage 3: each model of stage 2 on 144 drives (48 + 96 new seeds), one thread each, 45 min;
+#   stage 4: each model of stage 3 on 288 drives (144 + 144 new seeds), one thread each, 45 min
+#            SUIT          -> suit_default.safetensors
+#            single frame  -> centerpoint_single.safetensors
 #   then the benchmark (docs/results.md). Every run logs to runs/<name>/log.csv and train.log
 #   and resumes with RESUME=1.
 set -euo pipefail
@@ -17,6 +20,7 @@ suit="$root/.venv/bin/suit-ros"
 py="$root/.venv/bin/python"
 STAGE1_MIN=${STAGE1_MIN:-55}
 STAGE2_MIN=${STAGE2_MIN:-45}
+STAGE34_MIN=${STAGE34_MIN:-45}
 resume=()
 [ -n "${RESUME:-}" ] && resume=(--resume)
 mkdir -p runs/prev
@@ -30,7 +34,18 @@ mkdir -p runs/prev
 "$suit" train --config params/train_single_cont.yaml --out runs/single --threads 1 \
   --max-minutes "$STAGE2_MIN" "${resume[@]}" > runs/single.log 2>&1 &
 wait
-cp runs/suit/model.safetensors suit_ros/checkpoints/suit_default.safetensors
-cp runs/single/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
+mkdir -p runs/stage2
+cp runs/suit/model.safetensors runs/stage2/suit.safetensors
+cp runs/single/model.safetensors runs/stage2/single.safetensors
+for stage in moredata:more 288:288; do
+  cfg=${stage%%:*} out=${stage##*:}
+  "$suit" train --config "params/train_suit_$cfg.yaml" --out "runs/suit_$out" --threads 1 \
+    --max-minutes "$STAGE34_MIN" "${resume[@]}" > "runs/suit_$out.log" 2>&1 &
+  "$suit" train --config "params/train_single_$cfg.yaml" --out "runs/single_$out" --threads 1 \
+    --max-minutes "$STAGE34_MIN" "${resume[@]}" > "runs/single_$out.log" 2>&1 &
+  wait
+done
+cp runs/suit_288/model.safetensors suit_ros/checkpoints/suit_default.safetensors
+cp runs/single_288/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
 "$py" scripts/ablation.py --single suit_ros/checkpoints/centerpoint_single.safetensors \
   --suit suit_ros/checkpoints/suit_default.safetensors
