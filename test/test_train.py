@@ -66,8 +66,9 @@ def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monk
     from suit_ros.train import train
     orig = seqs.synthetic_sequence
     monkeypatch.setattr(seqs, 'synthetic_sequence',
-                        lambda name, seed, frames, cache_dir=None, sensor='sim32':
-                        orig('test', seed, frames, cache_dir))
+                        lambda name, seed, frames, cache_dir=None, sensor='sim32',
+                        points_dtype=np.float32:
+                        orig('test', seed, frames, cache_dir, points_dtype=points_dtype))
     # an interrupted run (time budget) ...
     metrics = train(tiny(tmp_path, temporal='suit', max_minutes=1e-6), tmp_path / 'run')
     assert metrics['steps'] == 1 and 'mAP' in metrics
