@@ -13,9 +13,11 @@ import os
 import platform
 import resource
 import time
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
+
+from suit_ros.config import TemporalMode
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -39,10 +41,7 @@ def pct(values: list[float], q: float) -> float:
     return float(np.percentile(np.asarray(values) * 1e3, q)) if values else float('nan')
 
 
-Temporal = Literal['none', 'dense', 'sparse', 'sparse_velocity', 'suit']
-
-
-def _model(args: argparse.Namespace, temporal: Temporal) -> Any:
+def _model(args: argparse.Namespace, temporal: TemporalMode) -> Any:
     from dataclasses import replace
 
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
@@ -89,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     steps: dict[str, list[float]] = {}
     memory: dict[str, dict[int, int]] = {}
     names = None
-    temporals: tuple[Temporal, ...] = ('none', 'suit', 'dense')
+    temporals: tuple[TemporalMode, ...] = ('none', 'suit', 'dense')
     for temporal in temporals:
         runner = StreamingDetector(_model(args, temporal), args.device)
         names = runner.cfg.class_names
