@@ -72,16 +72,21 @@ def clutter_counts(run: Any, sim_frames: list[Any], min_score: float) -> Any:
                                                 for d in run.det])
 
 
+def clutter_summary(counts: dict[str, Any]) -> dict[str, dict[str, float]]:
+    """Per-type and total false positives per frame from :func:`clutter_counts` per run."""
+    from suit_ros.data.sim.clutter import CLUTTER_TYPES
+    out = {}
+    for name, c in counts.items():
+        out[name] = {t: float(c[:, j].mean()) for j, t in enumerate(CLUTTER_TYPES)}
+        out[name]['all'] = float(c.sum(1).mean())
+    return out
+
+
 def clutter_fp(runs: dict[str, Any], sim_frames: list[Any], min_score: float
                ) -> dict[str, dict[str, float]]:
     """False positives per frame on clutter objects, per clutter type and in all."""
-    from suit_ros.data.sim.clutter import CLUTTER_TYPES
-    out = {}
-    for name, run in runs.items():
-        counts = clutter_counts(run, sim_frames, min_score)
-        out[name] = {t: float(counts[:, j].mean()) for j, t in enumerate(CLUTTER_TYPES)}
-        out[name]['all'] = float(counts.sum(1).mean())
-    return out
+    return clutter_summary({name: clutter_counts(run, sim_frames, min_score)
+                            for name, run in runs.items()})
 
 
 def main() -> int:

@@ -76,8 +76,8 @@ def main() -> int:
     sys.path.insert(0, str(Path(__file__).resolve().parent))
     from ablation import (  # type: ignore[import-not-found]
         clutter_counts,
-        clutter_fp,
         clutter_frames,
+        clutter_summary,
     )
 
     from suit_ros.checkpoint import load_checkpoint
@@ -95,7 +95,8 @@ def main() -> int:
             'single (shipped)': run_model(load_checkpoint(args.single, 'cpu')[0], val),
             'suit (shipped)': run_model(load_checkpoint(args.suit, 'cpu')[0], val)}
     sim_frames = clutter_frames(drives, args.frames)
-    fp = clutter_fp(runs, sim_frames, args.min_score)
+    counts = {name: clutter_counts(run, sim_frames, args.min_score) for name, run in runs.items()}
+    fp = clutter_summary(counts)
     from suit_ros.data.sim.clutter import CLUTTER_TYPES
     rng = np.random.default_rng(0)
     n = len(drives)
@@ -104,19 +105,17 @@ def main() -> int:
                                     'min_score': args.min_score, 'before': BEFORE_COMMIT,
                                     'date': time.strftime('%Y-%m-%d')},
                            'clutter_fp_per_frame': fp, 'all_interval': {}, 'mAP': {}}
-    per_drive_all = {}
+    per_drive = {name: c.sum(1).reshape(n, args.frames).mean(1) for name, c in counts.items()}
+    boot = {name: v[picks].mean(1) for name, v in per_drive.items()}    # same resamples
     for name, run in runs.items():
-        totals = clutter_counts(run, sim_frames, args.min_score).sum(1).reshape(n, args.frames)
-        per_drive_all[name] = totals.mean(1)
-        boot = per_drive_all[name][picks].mean(1)
-        out['all_interval'][name] = [float(np.percentile(boot, 2.5)),
-                                     float(np.percentile(boot, 97.5))]
+        out['all_interval'][name] = [float(np.percentile(boot[name], 2.5)),
+                                     float(np.percentile(boot[name], 97.5))]
         out['mAP'][name] = float(run.evaluate(bcfg.class_names).mean_ap)
-    for name in list(runs)[1:]:
-        ratio = per_drive_all[name][picks].mean(1) / np.maximum(
-            per_drive_all[list(runs)[0]][picks].mean(1), 1e-9)
+    before_name, *after_names = runs
+    for name in after_names:
+        ratio = boot[name] / np.maximum(boot[before_name], 1e-9)
         out.setdefault('after_over_before', {})[name] = [
-            float(per_drive_all[name].mean() / max(per_drive_all[list(runs)[0]].mean(), 1e-9)),
+            float(per_drive[name].mean() / max(per_drive[before_name].mean(), 1e-9)),
             float(np.percentile(ratio, 2.5)), float(np.percentile(ratio, 97.5))]
     Path(args.out).write_text(json.dumps(out, indent=1))
     cols = list(CLUTTER_TYPES) + ['all']
