@@ -36,6 +36,7 @@ class TrainConfig:
     # '' keeps the model config's temporal mode
     init_from: str = ''              # stage 2: initialise shared weights from this checkpoint
     train_sequences: int = 16
+    train_first_sequence: int = 0    # drive number of the first training drive (a fresh window)
     train_frames: int = 60
     val_sequences: int = 4
     val_frames: int = 40
@@ -64,7 +65,11 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
             data = yaml.safe_load(f) or {}
     except FileNotFoundError as exc:
         raise ConfigError(f'training config {path} does not exist') from exc
-    return typing.cast(TrainConfig, dataclass_from_dict(TrainConfig, data, os.fspath(path)))
+    tc = typing.cast(TrainConfig, dataclass_from_dict(TrainConfig, data, os.fspath(path)))
+    if tc.train_sequences < 1 or tc.train_first_sequence < 0:
+        raise ConfigError(f'{path}: train_sequences must be >= 1 and train_first_sequence >= 0, '
+                          f'not {tc.train_sequences} and {tc.train_first_sequence}')
+    return tc
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -153,7 +158,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     out.mkdir(parents=True, exist_ok=True)
     if tc.dataset == 'synthetic':
         data = synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir,
-                               points_dtype=np.float16)     # half the RAM; inputs are float32
+                               points_dtype=np.float16,     # half the RAM; inputs are float32
+                               first=tc.train_first_sequence)
     elif tc.dataset == 'bags':
         from suit_ros.data.sequences import bag_sequences
         data = bag_sequences(tc.dataset_paths)

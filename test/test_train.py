@@ -50,6 +50,21 @@ def test_train_config_strict(tmp_path):
     with pytest.raises(ConfigError, match='stepz'):
         load_train_config(tmp_path / 'bad.yaml')
     assert load_train_config(REPO / 'params/train_single.yaml').temporal == 'none'
+    (tmp_path / 'neg.yaml').write_text('train_first_sequence: -1\n')
+    with pytest.raises(ConfigError, match='train_first_sequence'):
+        load_train_config(tmp_path / 'neg.yaml')
+
+
+def test_fresh_window_of_training_drives_follows_the_first_ones():
+    from suit_ros.data.sequences import split_drives
+    first, fresh = split_drives('train', 288), split_drives('train', 288, first=288)
+    assert split_drives('train', 576) == first + fresh       # seeds and sensor cycle continue
+    assert not {s for s, _ in fresh} & {s for s, _ in first}
+    held = {s for split in ('val', 'heldout') for s, _ in split_drives(split, 16)}
+    assert not {s for s, _ in fresh} & held
+    assert load_train_config(REPO / 'params/train_suit_fresh.yaml').train_first_sequence == 288
+    with pytest.raises(ValueError, match='first'):
+        split_drives('train', 2, first=-1)
 
 
 def tiny(tmp_path, **kw) -> TrainConfig:

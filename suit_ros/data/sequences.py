@@ -82,20 +82,25 @@ def synthetic_sequence(preset_name: str, seed: int, frames: int,
     return out
 
 
-def split_drives(split: str, sequences: int) -> list[tuple[int, str]]:
-    """``(seed, sensor)`` of the first ``sequences`` drives of a split."""
+def split_drives(split: str, sequences: int, first: int = 0) -> list[tuple[int, str]]:
+    """``(seed, sensor)`` of ``sequences`` drives of a split, from its drive number ``first``."""
+    if first < 0 or sequences < 0:
+        raise ValueError(f'split_drives needs first >= 0 and sequences >= 0, not {first}, '
+                         f'{sequences}')
     sensors = SPLIT_SENSORS.get(split, ('sim32',))
-    return [(SPLIT_SEEDS[split] + i, sensors[i % len(sensors)]) for i in range(sequences)]
+    return [(SPLIT_SEEDS[split] + i, sensors[i % len(sensors)])
+            for i in range(first, first + sequences)]
 
 
 def synthetic_split(split: str, sequences: int, frames: int,
                     cache_dir: str | os.PathLike[str] | None = None,
-                    preset_name: str | None = None, points_dtype: PointsDtype = np.float32
-                    ) -> list[list[Frame]]:
-    """A split (``train``, ``val``, ``heldout``): ``sequences`` drives (see module docstring)."""
+                    preset_name: str | None = None, points_dtype: PointsDtype = np.float32,
+                    first: int = 0) -> list[list[Frame]]:
+    """A split (``train``, ``val``, ``heldout``): ``sequences`` drives from drive number ``first``
+    (see module docstring)."""
     name = preset_name or ('train-real' if split == 'train' else 'val-real')
     return [synthetic_sequence(name, seed, frames, cache_dir, sensor, points_dtype)
-            for seed, sensor in split_drives(split, sequences)]
+            for seed, sensor in split_drives(split, sequences, first)]
 
 
 def save_sequence(path: Path, frames: Sequence[Frame]) -> None:

@@ -136,7 +136,7 @@ class StreamingDetector:
             own = m.fusion.current(current) if m.fusion is not None else current
             self.last_terms = (own, past)
         t3 = self._sync()
-        preds = m.head(fused)
+        preds = m.head(fused, regression=False)   # regression only at the decoded cells
         h = self.cfg.head
         radius = torch.tensor(h.circle_nms_radius, device=self.device)
         out = m.head.decode(preds, self.candidates, self.score_thresholds, h.nms,
