@@ -85,19 +85,21 @@ def main() -> int:
         f'{steps["single"]} steps, {minutes["single"]} min, 1 thread |', '',
         '**Data.** The embedded synthetic world, detailed variant (`train-real`: vehicles with a '
         'front and a back, articulated pedestrians, cyclists and motorcycles, street clutter), '
-        f'{train["suit"].get("train_sequences", "?")} drives (in the last stage) of '
-        f'{train["suit"].get("train_frames", "?")} frames at 10 Hz from seeds 1000+, sensor '
+        '576 drives over the stages (training drives 0-575, seeds 1000-1575; '
+        f'{train["suit"].get("train_sequences", "?")} in the last stage) of '
+        f'{train["suit"].get("train_frames", "?")} frames at 10 Hz, sensor '
         'models mixed (sim32, hdl32e, vlp16, hdl64e, os1-64; docs/sensors.md); GT boxes with at '
         'least one return.', '',
-        '**Recipe** (`scripts/train_default.sh`, 2-core CPU, no GPU): stage 1 single-frame, '
-        '55 min wall time (`params/train_single.yaml`, warm-started from the one-sweep checkpoint '
-        'shipped before at commit 1e0d6b8), then, from stage 1, SUIT fine-tuning '
-        '(`params/train_suit.yaml`, clips of 2-4 frames, temporal modules at 3x lr) and the '
-        'single-frame continuation (`params/train_single_cont.yaml`) side by side for the same '
-        '45 min with one thread each (48 drives); stage 3: each on 144 drives '
-        '(`params/train_*_moredata.yaml`), stage 4: each on 288 drives '
-        '(`params/train_*_288.yaml`), 45 min each, side by side, one thread each, a new '
-        'one-cycle at lr 5e-4 per stage. AdamW, one-cycle following wall time, weight decay 0.01, '
+        '**Recipe** (`scripts/train_default.sh`, 2-core CPU, no GPU): the single-frame model '
+        'trains in stages: stage 1, 55 min (`params/train_single.yaml`, warm-started from the '
+        'one-sweep checkpoint shipped before at commit 1e0d6b8), then 45 min each on 48, 144, '
+        '288 and 288 fresh drives (`params/train_single_cont.yaml`, `_moredata`, `_288`, '
+        '`_fresh`), one thread, beside a SUIT run of the same stage, a new one-cycle per stage '
+        "(lr 5e-4 from stage 3). Last stage, as the paper's second stage: from that single-frame "
+        'model, SUIT fine-tuning (`params/train_suit_from_single.yaml`, clips of 2-4 frames, '
+        'temporal modules starting as a no-op at 3x lr) and the single-frame continuation '
+        '(`params/train_single_cont288.yaml`) side by side for the same 30 min with one thread '
+        'each: same data, same budget. AdamW, one-cycle following wall time, weight decay 0.01, '
         'rotation +-45 degrees, scaling 0.95-1.05, intensity dropout 20%, no flip.', '',
         f'**Validation** ({len(res["meta"]["val_drives"])} drives from seeds 9000+, 40 frames '
         f'each, sensors {", ".join(sensors)}; value [95% per-drive bootstrap interval]):', '',

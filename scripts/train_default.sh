@@ -6,11 +6,16 @@
 #   stage 2: from stage 1, in parallel with one thread each and the same wall time:
 #            SUIT fine-tuning (clips of 2-4 frames), single-frame continued;
 #   stage 3: each model of stage 2 on 144 drives (48 + 96 new seeds), one thread each, 45 min;
-#   stage 4: each model of stage 3 on 288 drives (144 + 144 new seeds), one thread each, 45 min
-#            SUIT          -> suit_default.safetensors
-#            single frame  -> centerpoint_single.safetensors
-#   then the benchmark (docs/results.md). Every run logs to runs/<name>/log.csv and train.log
-#   and resumes with RESUME=1.
+#   stage 4: each model of stage 3 on 288 drives (144 + 144 new seeds), one thread each, 45 min;
+#   stage 5: each model of stage 4 on 288 fresh drives (training drives 288-575), 45 min;
+#   stage 6: the paper's second stage again, from the stage-5 single-frame model, side by side
+#            with one thread each for 30 min on training drives 0-287:
+#            SUIT fine-tuning  -> suit_default.safetensors
+#            single frame continued -> centerpoint_single.safetensors
+#   then the benchmark (docs/results.md). The SUIT runs of stages 2-5 are not in the shipped
+#   SUIT model's lineage (README, "More drives, not more steps"), but they shared the 2 cores
+#   with the single-frame runs of the same stages, which set how many steps those got in their
+#   wall time. Every run logs to runs/<name>/log.csv and train.log and resumes with RESUME=1.
 set -euo pipefail
 root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 cd "$root"
@@ -20,7 +25,8 @@ suit="$root/.venv/bin/suit-ros"
 py="$root/.venv/bin/python"
 STAGE1_MIN=${STAGE1_MIN:-55}
 STAGE2_MIN=${STAGE2_MIN:-45}
-STAGE34_MIN=${STAGE34_MIN:-45}
+STAGE34_MIN=${STAGE34_MIN:-45}     # stages 3, 4 and 5
+STAGE6_MIN=${STAGE6_MIN:-30}
 resume=()
 [ -n "${RESUME:-}" ] && resume=(--resume)
 mkdir -p runs/prev
@@ -37,7 +43,7 @@ wait
 mkdir -p runs/stage2
 cp runs/suit/model.safetensors runs/stage2/suit.safetensors
 cp runs/single/model.safetensors runs/stage2/single.safetensors
-for stage in moredata:more 288:288; do
+for stage in moredata:more 288:288 fresh:fresh; do
   cfg=${stage%%:*} out=${stage##*:}
   "$suit" train --config "params/train_suit_$cfg.yaml" --out "runs/suit_$out" --threads 1 \
     --max-minutes "$STAGE34_MIN" "${resume[@]}" > "runs/suit_$out.log" 2>&1 &
@@ -45,7 +51,12 @@ for stage in moredata:more 288:288; do
     --max-minutes "$STAGE34_MIN" "${resume[@]}" > "runs/single_$out.log" 2>&1 &
   wait
 done
-cp runs/suit_288/model.safetensors suit_ros/checkpoints/suit_default.safetensors
-cp runs/single_288/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
+"$suit" train --config params/train_suit_from_single.yaml --out runs/suit_s6 --threads 1 \
+  --max-minutes "$STAGE6_MIN" "${resume[@]}" > runs/suit_s6.log 2>&1 &
+"$suit" train --config params/train_single_cont288.yaml --out runs/single_s6 --threads 1 \
+  --max-minutes "$STAGE6_MIN" "${resume[@]}" > runs/single_s6.log 2>&1 &
+wait
+cp runs/suit_s6/model.safetensors suit_ros/checkpoints/suit_default.safetensors
+cp runs/single_s6/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
 "$py" scripts/ablation.py --single suit_ros/checkpoints/centerpoint_single.safetensors \
   --suit suit_ros/checkpoints/suit_default.safetensors
