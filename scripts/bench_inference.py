@@ -3,9 +3,8 @@
 
 The inference copy (:mod:`suit_ros.model.inference`) has its batch norms folded, which also
 lets the pillar encoder skip building the decorated points, and its convolution weights stored
-channels-last (NHWC). Four variants: as trained, folded (NCHW), folded + channels-last (the
-default inference copy), each computing the head's regression maps whole, and the default
-streaming step: folded + channels-last with the regression branch at the decoded cells only.
+channels-last (NHWC). Three variants: as trained, folded (NCHW), folded + channels-last (the
+default inference copy).
 
 The variants step over the same demo-scene frames, interleaved frame by frame (so load
 changes hit all alike); prints the step medians, their ratios to the model as trained, and the
@@ -55,10 +54,7 @@ def main() -> int:
     model, _, _ = load_checkpoint(str(default_checkpoint_path()), 'cpu')
     sim = Simulation(preset('demo-real', frames=args.frames), 7)
     frames = [to_frame(sim.render(k), 7) for k in range(args.frames)]
-    runners = {name: StreamingDetector(model) for name in (
-        'as trained', 'folded', 'folded NHWC', 'folded NHWC, regression at cells')}
-    for name in ('as trained', 'folded', 'folded NHWC'):
-        runners[name].full_regression_maps = True
+    runners = {name: StreamingDetector(model) for name in ('as trained', 'folded', 'folded NHWC')}
     runners['as trained'].model = model.eval()
     runners['folded'].model = cast(SUITDetector, inference_copy(model, channels_last=False))
     for threads in args.threads:

@@ -389,34 +389,3 @@ def test_inference_copy_folds_batch_norms_exactly():
             assert torch.allclose(pa[k], pb[k], atol=1e-4, rtol=1e-4), k
     with pytest.raises(ValueError, match='eval mode'):
         fold_batchnorm(SUITDetector(small_config()).train())
-
-
-@pytest.mark.parametrize('fold', [False, True])
-def test_regression_at_cells_equals_the_full_regression_maps(fold):
-    """The streaming step skips the regression maps and evaluates the branch at the decoded
-    cells only: same boxes, velocities at every cell (map corners and edges included)."""
-    from suit_ros.model.inference import inference_copy
-    model = trained_looking_model(1)
-    m = inference_copy(model) if fold else model
-    head = m.head
-    x = torch.randn(2, head.shared[0].in_channels, GRID.H, GRID.W)
-    H, W = GRID.H, GRID.W
-    cells = torch.tensor([[0, 0], [W - 1, H - 1], [0, H - 1], [W - 1, 0], [5, 0], [0, 7],
-                          [17, 23], [W - 2, 3]])
-    b = torch.tensor([0, 1, 1, 0, 1, 0, 1, 1])
-    with torch.no_grad():
-        full, lazy = head(x), head(x, regression=False)
-        assert set(lazy) == {'heatmap', 'shared'} and torch.equal(full['heatmap'],
-                                                                  lazy['heatmap'])
-        box_f, vel_f = head.decode_cells(full, b, cells)
-        box_l, vel_l = head.decode_cells(lazy, b, cells)
-        torch.testing.assert_close(box_l, box_f, atol=1e-5, rtol=1e-5)
-        torch.testing.assert_close(vel_l, vel_f, atol=1e-5, rtol=1e-5)
-        # decoding through the lazy path gives the same detections
-        thr = torch.full((len(small_config().class_names),), 0.0)
-        a = head.decode(full, 50, thr, 'rotated', 0.2, None, 20)[1]
-        c = head.decode(lazy, 50, thr, 'rotated', 0.2, None, 20)[1]
-        assert torch.equal(a['cells'], c['cells'])
-        torch.testing.assert_close(a['boxes'], c['boxes'], atol=1e-5, rtol=1e-5)
-    with pytest.raises(RuntimeError, match='eval mode'):
-        model.train().head.regression_at(x, b, cells[:, 1], cells[:, 0])

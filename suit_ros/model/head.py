@@ -91,52 +91,14 @@ class CenterHead(nn.Module):
         if isinstance(last, nn.Conv2d) and last.bias is not None:
             nn.init.constant_(last.bias, -2.19)   # prior 0.1, as CenterPoint
 
-    def forward(self, x: Tensor, regression: bool = True) -> dict[str, Tensor]:
-        """Return ``heatmap`` logits ``(B, K, H, W)`` and the regression maps by name.
-
-        :param regression: False skips the regression maps and returns the shared features as
-            ``shared`` instead; :meth:`decode_cells` then evaluates the regression branch at the
-            cells it decodes only (:meth:`regression_at`): the same numbers for a few hundred
-            cells instead of the whole map (the streaming step's path).
-        """
+    def forward(self, x: Tensor) -> dict[str, Tensor]:
+        """Return ``heatmap`` logits ``(B, K, H, W)`` and the regression maps by name."""
         s = self.shared(x)
-        out = {'heatmap': self.heatmap(s)}
-        if not regression:
-            out['shared'] = s
-            return out
         reg = self.regression(s)
+        out = {'heatmap': self.heatmap(s)}
         for name, (a, b) in REG_SLICES.items():
             out[name] = reg[:, a:b]
         return out
-
-    def regression_at(self, shared: Tensor, batch_index: Tensor, rows: Tensor, cols: Tensor
-                      ) -> Tensor:
-        """The regression branch at ``(batch, row, col)`` cells only, ``(N, 10)``.
-
-        The branch's first layer is a 3x3 convolution (padding 1) and everything after it acts
-        per cell, so the branch at one cell is that convolution over the cell's 3x3 neighbourhood
-        (zeros beyond the map, as the padding) followed by the rest of the branch on one pixel.
-        """
-        first = self.regression[0]
-        if not (isinstance(first, nn.Conv2d) and first.kernel_size == (3, 3)
-                and first.padding == (1, 1) and first.stride == (1, 1)
-                and first.dilation == (1, 1) and first.groups == 1):
-            raise TypeError('regression_at needs a branch that starts with a 3x3 convolution '
-                            'of stride 1 and padding 1')
-        if self.training:
-            raise RuntimeError('regression_at evaluates per cell: batch statistics would differ '
-                               '(use it in eval mode)')
-        _, C, H, W = shared.shape
-        offs = torch.arange(-1, 2, device=shared.device)
-        r = rows.long()[:, None, None] + offs[None, :, None]                   # (N, 3, 1)
-        c = cols.long()[:, None, None] + offs[None, None, :]                   # (N, 1, 3)
-        inside = ((r >= 0) & (r < H) & (c >= 0) & (c < W)).to(shared.dtype)   # (N, 3, 3)
-        b = batch_index.long()[:, None, None]
-        patch = shared.permute(0, 2, 3, 1)[b, r.clamp(0, H - 1), c.clamp(0, W - 1)]  # N,3,3,C
-        patch = (patch * inside[..., None]).permute(0, 3, 1, 2)               # (N, C, 3, 3)
-        y = nn.functional.conv2d(patch, first.weight, first.bias)              # (N, C, 1, 1)
-        out: Tensor = self.regression[1:](y)
-        return out.flatten(1)
 
     # ------------------------------------------------------------------ targets and loss
     def build_targets(self, boxes: list[Tensor], velocities: list[Tensor],
@@ -197,19 +159,12 @@ class CenterHead(nn.Module):
     # ------------------------------------------------------------------ decoding
     def decode_cells(self, preds: dict[str, Tensor], batch_index: Tensor, cells: Tensor
                      ) -> tuple[Tensor, Tensor]:
-        """Decode boxes ``(N, 7)`` and velocities ``(N, 2)`` at integer cells ``(N, 2)``
-        (from the regression maps, or per cell from ``shared`` when the forward skipped them)."""
+        """Decode boxes ``(N, 7)`` and velocities ``(N, 2)`` at integer cells ``(N, 2)``."""
         g = self.grid
         b, c, r = batch_index.long(), cells[:, 0].long(), cells[:, 1].long()
-        if 'offset' in preds:
-            def at(name: str) -> Tensor:
-                return preds[name][b, :, r, c]                           # (N, ch)
-        else:                                       # forward(regression=False): per cell
-            reg = self.regression_at(preds['shared'], b, r, c)
 
-            def at(name: str) -> Tensor:
-                lo, hi = REG_SLICES[name]
-                return reg[:, lo:hi]
+        def at(name: str) -> Tensor:
+            return preds[name][b, :, r, c]                               # (N, ch)
 
         off, z, size, rot, vel = at('offset'), at('z'), at('size'), at('rot'), at('vel')
         x = (c.to(off.dtype) + off[:, 0]) * g.cell + g.point_range[0]

@@ -57,9 +57,6 @@ class StreamingDetector:
         # set keep_terms to inspect the fusion: (W1 F_t, past term or None) of the last step
         self.keep_terms = False
         self.last_terms: tuple[torch.Tensor, torch.Tensor | None] | None = None
-        # False: the head's regression branch runs at the decoded and sampled cells only (the
-        # same numbers, tested); True computes the whole regression maps (for benchmarks)
-        self.full_regression_maps = False
         self.set_thresholds(score_thresholds, nms_iou_threshold, max_detections, candidates)
 
     def set_thresholds(self, score_thresholds: list[float] | None = None,
@@ -139,7 +136,7 @@ class StreamingDetector:
             own = m.fusion.current(current) if m.fusion is not None else current
             self.last_terms = (own, past)
         t3 = self._sync()
-        preds = m.head(fused, regression=self.full_regression_maps)
+        preds = m.head(fused)
         h = self.cfg.head
         radius = torch.tensor(h.circle_nms_radius, device=self.device)
         out = m.head.decode(preds, self.candidates, self.score_thresholds, h.nms,
