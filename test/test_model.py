@@ -349,23 +349,18 @@ def test_voxelize_equals_torch_unique_over_batches():
     assert empty[0].shape[0] == 0 and empty[2].numel() == 0
 
 
-def trained_looking_model(seed: int) -> SUITDetector:
-    """A small SUIT model in eval mode whose batch norms have non-trivial running statistics
-    and affine parameters, as after training."""
-    torch.manual_seed(seed)
+def test_inference_copy_folds_batch_norms_exactly():
+    from suit_ros.model.inference import fold_batchnorm, inference_copy
+    torch.manual_seed(0)
     model = SUITDetector(small_config())
+    # non-trivial running statistics and affine parameters, as after training
     for m in model.modules():
         if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
             m.running_mean.uniform_(-0.5, 0.5)
             m.running_var.uniform_(0.5, 2.0)
             m.weight.data.uniform_(0.5, 1.5)
             m.bias.data.uniform_(-0.2, 0.2)
-    return model.eval()
-
-
-def test_inference_copy_folds_batch_norms_exactly():
-    from suit_ros.model.inference import fold_batchnorm, inference_copy
-    model = trained_looking_model(0)
+    model.eval()
     before = {k: v.clone() for k, v in model.state_dict().items()}
     fast = inference_copy(model)
     n_bn = sum(isinstance(m, torch.nn.modules.batchnorm._BatchNorm) for m in model.modules())
