@@ -10,6 +10,8 @@ models; training used seeds 1000+):
   kept): what the temporal path is worth;
 - ``suit, zero displacement``: SUIT's weights with GeoNet replaced by zero displacement;
 - ``... no intensity``: the same clouds with the intensity channel removed;
+- ``suit, bfloat16``: the same weights with the backbone and head convolutions in bfloat16 (the
+  node's ``precision: auto`` on a CPU with bfloat16 units); every other run is float32;
 - the held-out sensor (``heldout`` seeds 9500+, a sensor no training drive used).
 
 Every metric gets a per-drive bootstrap 95% interval, and the differences that the acceptance
@@ -32,7 +34,8 @@ from typing import Any
 import numpy as np
 
 PAIRS = [('suit', 'single'), ('suit', 'suit, memory dropped'),
-         ('suit', 'suit, zero displacement'), ('suit, no intensity', 'suit')]
+         ('suit', 'suit, zero displacement'), ('suit, no intensity', 'suit'),
+         ('suit, bfloat16', 'suit')]
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err']
 
@@ -116,6 +119,7 @@ def main() -> int:
         runs['suit, memory dropped'] = run_model(suit, val, drop_memory=True)
         runs['suit, zero displacement'] = run_model(_load(args.suit, 'sparse'), val)
         runs['suit, no intensity'] = run_model(suit, val, transform=_no_intensity)
+        runs['suit, bfloat16'] = run_model(suit, val, precision='bfloat16')
     print(f'[ablation] ran {len(runs)} variants in {(time.monotonic() - t0) / 60:.1f} min',
           flush=True)
     pairs = [p for p in PAIRS if p[0] in runs and p[1] in runs]

@@ -3,8 +3,8 @@
 
 The inference copy (:mod:`suit_ros.model.inference`) has its batch norms folded, which also
 lets the pillar encoder skip building the decorated points, and its convolution weights stored
-channels-last (NHWC). Three variants: as trained, folded (NCHW), folded + channels-last (the
-default inference copy).
+channels-last (NHWC). Four variants: as trained, folded (NCHW), folded + channels-last (the
+float32 inference copy), and that copy with its convolutions in bfloat16 (``precision``).
 
 The variants step over the same demo-scene frames, interleaved frame by frame (so load
 changes hit all alike); prints the step medians, their ratios to the model as trained, and the
@@ -55,6 +55,7 @@ def main() -> int:
     sim = Simulation(preset('demo-real', frames=args.frames), 7)
     frames = [to_frame(sim.render(k), 7) for k in range(args.frames)]
     runners = {name: StreamingDetector(model) for name in ('as trained', 'folded', 'folded NHWC')}
+    runners['folded NHWC bfloat16'] = StreamingDetector(model, precision='bfloat16')
     runners['as trained'].model = model.eval()
     runners['folded'].model = cast(SUITDetector, inference_copy(model, channels_last=False))
     for threads in args.threads:

@@ -29,6 +29,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--node-threads', type=int, default=0, help="the node's threads "
                         'parameter in the DDS measurement (0: its default, all cores but one)')
     parser.add_argument('--device', default='cpu', choices=['cpu', 'cuda'])
+    parser.add_argument('--precision', default='auto', choices=['auto', 'float32', 'bfloat16'],
+                        help="the step's precision (default: auto, as the node's parameter)")
     parser.add_argument('--config', default='', help='model config for an untrained '
                         'measurement instead of the checkpoint (e.g. params/model_paper.yaml)')
     parser.add_argument('--skip-node', action='store_true', help='skip the DDS measurement')
@@ -80,7 +82,9 @@ def run(args: argparse.Namespace) -> int:
     C = MessageClasses.from_rclpy()
     clouds = [array_to_pointcloud2(f.cloud, C.header(f.stamp_ns, 'lidar'), C)
               for f in simframes]
+    from suit_ros.model.inference import resolve_precision
     res: dict[str, Any] = {'machine': machine(), 'threads': args.threads, 'device': args.device,
+                           'precision': resolve_precision(args.precision, args.device),
                            'points_per_frame': int(np.mean([len(f.cloud) for f in simframes]))}
     # --- per stage, SUIT (memory carried) and single frame
     stage_times: dict[str, list[float]] = {k: [] for k in (
@@ -90,7 +94,8 @@ def run(args: argparse.Namespace) -> int:
     names = None
     temporals: tuple[TemporalMode, ...] = ('none', 'suit', 'dense')
     for temporal in temporals:
-        runner = StreamingDetector(_model(args, temporal), args.device)
+        runner = StreamingDetector(_model(args, temporal), args.device,
+                                   precision=args.precision)
         names = runner.cfg.class_names
         steps[temporal] = []
         memory[temporal] = {}
@@ -125,7 +130,7 @@ def run(args: argparse.Namespace) -> int:
     res['memory_ratio_suit_dense'] = {k: memory['suit'].get(k, 0) / max(memory['dense'].get(k, 1),
                                                                           1) for k in (2, 10)}
     # --- scaling with points per cloud (resampled demo frame) and with objects
-    runner = StreamingDetector(_model(args, 'suit'), args.device)
+    runner = StreamingDetector(_model(args, 'suit'), args.device, precision=args.precision)
     base = np.concatenate([f.points for f in frames[:8]])
     rng = np.random.default_rng(0)
     scaling = {}
@@ -158,7 +163,8 @@ def run(args: argparse.Namespace) -> int:
     if not args.skip_node:
         from suit_ros.bench_node import node_latency
         res['node'] = {f'{hz}Hz': node_latency(args.checkpoint, rate=hz / 10.0,
-                                                  threads=args.node_threads)
+                                                  threads=args.node_threads,
+                                                  precision=args.precision)
                        for hz in (10, 20)}
     res['peak_rss_mb'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     text = table(res)
@@ -190,7 +196,7 @@ def machine() -> str:
 def table(r: dict[str, Any]) -> str:
     """The human-readable table."""
     lines = [f'machine: {r["machine"]}; torch threads {r["threads"]}; device {r["device"]}; '
-             f'demo scene ~{r["points_per_frame"]} points/frame', '',
+             f'precision {r.get("precision", "float32")}; demo scene ~{r["points_per_frame"]} points/frame', '',
              f'{"stage (SUIT step, memory carried)":<36}{"p50 ms":>9}{"p95 ms":>9}']
     for k, v in r['stages_ms'].items():
         lines.append(f'{k:<36}{v["p50"]:>9.1f}{v["p95"]:>9.1f}')
@@ -210,7 +216,8 @@ def table(r: dict[str, Any]) -> str:
         for o in r['scaling_objects']))
     if 'node' in r:
         for hz, v in r['node'].items():
-            lines.append(f'node (threads:={v.get("node_threads", 2)}) through DDS at {hz}: '
+            lines.append(f'node (threads:={v.get("node_threads", 2)}, precision:='
+                         f'{v.get("node_precision", "float32")}) through DDS at {hz}: '
                          f'latency p50 {v["latency_ms_p50"]:.1f} ms, '
                          f'p95 {v["latency_ms_p95"]:.1f} ms, output {v["rate_hz"]:.1f} Hz, '
                          f'{v["frames_out"]}/{v["frames_in"]} frames out, dropped '

@@ -11,11 +11,13 @@ import numpy as np
 
 
 def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
-                 seed: int = 7, workdir: str = 'out/demo', threads: int = 0) -> dict[str, Any]:
+                 seed: int = 7, workdir: str = 'out/demo', threads: int = 0,
+                 precision: str = 'auto') -> dict[str, Any]:
     """Play the demo bag at ``rate`` x 10 Hz into a fresh node; measure cloud-received ->
     detections-received latency at a probe, the output rate, drops and the node's overhead.
 
     :param threads: the node's ``threads`` parameter (0: its default, all cores but one).
+    :param precision: the node's ``precision`` parameter.
     """
     from diagnostic_msgs.msg import DiagnosticArray
     import rclpy
@@ -37,7 +39,8 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
         write_bag(bag, preset('demo-real', frames=frames), seed, 'mcap')
     ckpt = checkpoint or str(default_checkpoint_path())
     node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
-                             f'checkpoint:={ckpt}', '-p', f'threads:={threads}'],
+                             f'checkpoint:={ckpt}', '-p', f'threads:={threads}', '-p',
+                             f'precision:={precision}'],
                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     ctx = Context()
     rclpy.init(context=ctx)
@@ -89,7 +92,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     last = diags[-1] if diags else {}
     model = float(last.get('model_ms_p50', 'nan'))
     overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50'))
-    return {'node_threads': threads, 'frames_in': len(clouds), 'frames_out': len(dets),
+    return {'node_threads': threads, 'node_precision': precision, 'frames_in': len(clouds), 'frames_out': len(dets),
             'dropped': int(last.get('dropped_frames', -1)),
             'rate_hz': len(dets) / max(t_play - 1.0, 1e-9),
             'latency_ms_p50': float(np.median(lat)) * 1e3 if lat else float('nan'),

@@ -12,13 +12,16 @@ from __future__ import annotations
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 import json
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros import CLASS_NAMES
 from suit_ros.structures import Detections, Frame
+
+if TYPE_CHECKING:
+    from suit_ros.model.inference import PrecisionChoice
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
 TP_DIST = 2.0
@@ -332,7 +335,8 @@ class ModelRun:
 
 def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None,
               history: int | None = None, drop_memory: bool = False,
-              transform: Callable[[Frame], Frame] | None = None) -> ModelRun:
+              transform: Callable[[Frame], Frame] | None = None,
+              precision: PrecisionChoice = 'float32') -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -341,10 +345,11 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param drop_memory: forget the feature memory before every frame (the sweeps are kept):
         what the temporal path is worth.
     :param transform: applied to every input frame (e.g. intensity removed).
+    :param precision: of the streaming detector (:mod:`suit_ros.model.inference`).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
-    runner = StreamingDetector(model, device)
+    runner = StreamingDetector(model, device, precision=precision)
     out = ModelRun([], [], [], [], [], {})
     for drive, seq in enumerate(sequences):
         runner.reset('new sequence')

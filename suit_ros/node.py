@@ -165,18 +165,16 @@ class DetectorNode(Node):
     def _load_model(self, params: DetectorParams) -> Any:
         import torch
 
-        from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
-        from suit_ros.model.streaming import StreamingDetector
+        from suit_ros.checkpoint import default_checkpoint_path
+        from suit_ros.pipeline import load_detector
         torch.set_num_threads(torch_threads(params.threads))
-        ckpt = params.checkpoint or str(default_checkpoint_path())
-        dev = ('cuda' if params.device == 'cuda'
-               or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
-        model, cfg, meta = load_checkpoint(ckpt, dev)
+        runner, cfg, meta = load_detector(params)
         self.get_logger().info(
-            f'loaded {ckpt} (temporal={cfg.temporal}, classes={list(cfg.class_names)}, '
-            f'code {meta.get("code_version")}) on {dev}, {torch.get_num_threads()} torch '
+            f'loaded {params.checkpoint or default_checkpoint_path()} (temporal={cfg.temporal}'
+            f', classes={list(cfg.class_names)}, code {meta.get("code_version")}) on '
+            f'{runner.device.type}, {runner.precision}, {torch.get_num_threads()} torch '
             f'threads; suit_ros from {os.path.dirname(os.path.abspath(__file__))}')
-        return StreamingDetector(model, dev)
+        return runner
 
     # ------------------------------------------------------------------ points QoS
     def _points_qos(self, reliability: ReliabilityPolicy) -> QoSProfile:

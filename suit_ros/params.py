@@ -19,6 +19,7 @@ from suit_ros.errors import ConfigError
 
 PointsQoS = Literal['auto', 'sensor_data', 'reliable']
 Device = Literal['auto', 'cpu', 'cuda']
+PrecisionParam = Literal['auto', 'float32', 'bfloat16']
 Vector3 = tuple[float, float, float]
 
 
@@ -41,6 +42,10 @@ class DetectorParams:
     threads: int = field(default=0, metadata=_spec(
         'torch CPU threads; 0: all cores but one, so DDS I/O keeps a core', read_only=True,
         lo=0, hi=256))
+    precision: PrecisionParam = field(default='auto', metadata=_spec(
+        'auto | float32 | bfloat16: bfloat16 runs the backbone and head convolutions in '
+        'bfloat16; auto: bfloat16 on a CPU with bfloat16 units (AMX, AVX512-BF16), else '
+        'float32', read_only=True, choices=get_args(PrecisionParam)))
     points_topic: str = field(default='/points', metadata=_spec(
         'input PointCloud2 topic (or remap)', read_only=True))
     odom_topic: str = field(default='/odom', metadata=_spec(

@@ -33,6 +33,22 @@ InputWarning = Literal['unusable_cloud', 'empty_cloud', 'no_intensity', 'intensi
                        'too_few_points', 'frame_changed']
 
 
+def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[str, Any]]:
+    """The streaming detector ``params`` asks for: its checkpoint (the shipped one when empty),
+    device (``auto``: CUDA when available) and precision (``auto``: see
+    :func:`suit_ros.model.inference.resolve_precision`).
+
+    :return: ``(detector, model config, checkpoint metadata)``.
+    """
+    import torch
+
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    dev = ('cuda' if params.device == 'cuda'
+           or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
+    model, cfg, meta = load_checkpoint(params.checkpoint or default_checkpoint_path(), dev)
+    return StreamingDetector(model, dev, precision=params.precision), cfg, meta
+
+
 @dataclass
 class PipelineOutput:
     """What one cloud produced (messages are None when no classes were given)."""

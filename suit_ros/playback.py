@@ -36,6 +36,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--copy-inputs', action='store_true',
                         help='also copy every input topic into OUT')
     parser.add_argument('--device', default=None, choices=['auto', 'cpu', 'cuda'])
+    parser.add_argument('--precision', default=None, choices=['auto', 'float32', 'bfloat16'],
+                        help='default: auto (bfloat16 on a CPU with bfloat16 units)')
     parser.add_argument('--intensity-scale', type=float,
                         help='intensity / scale -> 0..1 (1 for 0..1 reflectance)')
     parser.add_argument('--score-threshold', type=float, nargs='+', metavar='T',
@@ -55,7 +57,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='vehicle frame for --extrinsic-from-tf')
 
 
-FLAG_PARAMS = {'checkpoint': 'checkpoint', 'device': 'device', 'points_topic': 'points_topic',
+FLAG_PARAMS = {'checkpoint': 'checkpoint', 'device': 'device', 'precision': 'precision',
+               'points_topic': 'points_topic',
                'odom_topic': 'odom_topic', 'intensity_scale': 'intensity_scale',
                'intensity_field': 'intensity_field',
                'score_threshold': 'score_thresholds', 'min_range': 'min_range',
@@ -97,20 +100,14 @@ def extrinsic_from_tf_static(reader: Any, base_frame: str, lidar_frame: str
 
 def build_pipeline(params: DetectorParams, classes: Any) -> Any:
     """The pipeline the node would build from the same parameters."""
-    import torch
-
-    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
-    from suit_ros.model.streaming import StreamingDetector
-    from suit_ros.pipeline import DetectionPipeline
-    dev = ('cuda' if params.device == 'cuda'
-           or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
-    model, cfg, _ = load_checkpoint(params.checkpoint or default_checkpoint_path(), dev)
+    from suit_ros.pipeline import DetectionPipeline, load_detector
+    runner, cfg, _ = load_detector(params)
     try:
         params.validate(len(cfg.class_names))
     except ConfigError as exc:
         raise ConfigError(f'{exc} (the checkpoint has classes {list(cfg.class_names)})'
                           ) from exc
-    return DetectionPipeline(StreamingDetector(model, dev), params, classes)
+    return DetectionPipeline(runner, params, classes)
 
 
 def _cloud_frame(reader: Any, points_topic: str) -> str:

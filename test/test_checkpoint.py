@@ -104,3 +104,29 @@ def test_shipped_checkpoints_load_and_detect(name, temporal):
     assert results[-1].model_points > len(frames[-1].points)       # sweeps accumulated
     assert results[-1].used_memory == (temporal == 'suit')
     assert all(np.isfinite(r.detections.boxes).all() for r in results)
+
+
+def test_shipped_checkpoint_in_bfloat16_finds_the_same_objects():
+    """The node's ``precision: auto`` on a CPU with bfloat16 units: every confident float32
+    detection has a bfloat16 twin (same class, centre within 0.1 m, score within 0.03)."""
+    import numpy as np
+
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.data.sim import preset, sim_frames
+    from suit_ros.evaluate import step_inputs
+    from suit_ros.model.streaming import StreamingDetector
+    model, _, _ = load_checkpoint(default_checkpoint_path(), 'cpu')
+    runners = [StreamingDetector(model, precision=p) for p in ('float32', 'bfloat16')]
+    confident = 0
+    for f in sim_frames(preset('test-real', frames=4), 5):
+        a, b = (r.step(*step_inputs(f)).detections for r in runners)
+        for x, y in ((a, b), (b, a)):
+            for box, score, label in zip(x.boxes, x.scores, x.labels):
+                if score < 0.3:
+                    continue
+                confident += 1
+                same = y.labels == label
+                dist = np.linalg.norm(y.boxes[same, :2] - box[:2], axis=1)
+                assert len(dist) and dist.min() < 0.1, (label, score)
+                assert abs(y.scores[same][dist.argmin()] - score) < 0.03
+    assert confident >= 4

@@ -384,3 +384,54 @@ def test_inference_copy_folds_batch_norms_exactly():
             assert torch.allclose(pa[k], pb[k], atol=1e-4, rtol=1e-4), k
     with pytest.raises(ValueError, match='eval mode'):
         fold_batchnorm(SUITDetector(small_config()).train())
+
+
+def test_bfloat16_inference_copy_wraps_the_convolutions_and_keeps_float32_outputs():
+    from suit_ros.model.inference import Cast, inference_copy
+    torch.manual_seed(0)
+    model = SUITDetector(small_config()).eval()
+    fast = inference_copy(model, precision='bfloat16')
+    assert isinstance(fast.backbone, Cast) and isinstance(fast.head.shared, Cast)
+    assert isinstance(fast.fusion.current, Cast)
+    assert all(p.dtype == torch.bfloat16 for p in fast.backbone.parameters())
+    # the final 1x1 projections, the pillar encoder and GeoNet stay float32
+    assert fast.head.heatmap[-1].weight.dtype == torch.float32
+    assert fast.head.regression[-1].weight.dtype == torch.float32
+    assert all(p.dtype == torch.float32 for p in fast.pillars.parameters())
+    assert all(p.dtype == torch.float32 for p in fast.geonet.parameters())
+    assert all(p.dtype == torch.float32 for p in model.parameters())        # untouched
+    rng = np.random.default_rng(1)
+    pts = np.c_[rng.uniform(-20, 20, (3000, 2)), rng.uniform(-1, 2, (3000, 1)),
+                rng.uniform(0, 1, (3000, 1)), np.zeros((3000, 1))].astype(np.float32)
+    with torch.no_grad():
+        a = model.encode([torch.from_numpy(pts)])
+        b = fast.encode([torch.from_numpy(pts)])
+        assert b.dtype == torch.float32
+        # bfloat16 keeps 8 significant bits: relative error about 2^-8 per layer
+        assert (a - b).abs().max() <= 0.05 * a.abs().max()
+        pa, pb = model.head(model.fuse(a, None)), fast.head(fast.fuse(b, None))
+        for k in pa:
+            assert pb[k].dtype == torch.float32
+            assert (pa[k] - pb[k]).abs().max() <= 0.05 * pa[k].abs().max() + 1e-3, k
+    with pytest.raises(ValueError, match='precision'):
+        inference_copy(model, precision='float16')
+
+
+def test_precision_auto_follows_the_cpu_flags(tmp_path, monkeypatch):
+    from suit_ros.model import inference
+    amx = tmp_path / 'amx'
+    amx.write_text('processor\t: 0\nflags\t\t: fpu avx2 avx512f amx_bf16 amx_tile\n')
+    plain = tmp_path / 'plain'
+    plain.write_text('processor\t: 0\nflags\t\t: fpu avx2 avx512f avx512bw\n')
+    assert inference.cpu_has_bf16_units(str(amx))
+    assert not inference.cpu_has_bf16_units(str(plain))
+    assert not inference.cpu_has_bf16_units(str(tmp_path / 'missing'))
+    for has_units, want in ((True, 'bfloat16'), (False, 'float32')):
+        monkeypatch.setattr(inference, 'cpu_has_bf16_units', lambda h=has_units: h)
+        assert inference.resolve_precision('auto', 'cpu') == want
+    assert inference.resolve_precision('auto', 'cuda') == 'float32'
+    assert inference.resolve_precision('bfloat16', 'cpu') == 'bfloat16'
+    with pytest.raises(ValueError, match='precision'):
+        inference.resolve_precision('half', 'cpu')
+    runner = StreamingDetector(SUITDetector(small_config()), precision='bfloat16')
+    assert runner.precision == 'bfloat16'

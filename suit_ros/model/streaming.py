@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 import torch
 
 from suit_ros.model.detector import Memory, SUITDetector
-from suit_ros.model.inference import inference_copy
+from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.structures import Detections
 
@@ -41,15 +41,21 @@ class StreamingDetector:
 
     :param score_thresholds: per-class thresholds (defaults to the config's single threshold);
         changeable at runtime with :meth:`set_thresholds`.
+    :param precision: the inference copy's precision (:mod:`suit_ros.model.inference`):
+        ``float32`` (default), ``bfloat16``, or ``auto`` (bfloat16 on a CPU with bfloat16
+        units); the one chosen is :attr:`precision`.
     """
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
                  score_thresholds: list[float] | None = None,
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
-                 candidates: int | None = None) -> None:
+                 candidates: int | None = None, precision: PrecisionChoice = 'float32'
+                 ) -> None:
         self.device = torch.device(device) if device is not None else model.device
+        self.precision = resolve_precision(precision, self.device)
         # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
-        self.model = cast(SUITDetector, inference_copy(model.to(self.device)))
+        self.model = cast(SUITDetector, inference_copy(model.to(self.device),
+                                                       precision=self.precision))
         self.cfg = model.cfg
         self.memory: Memory | None = None
         self.sweeps = SweepBuffer(self.cfg.sweeps)
