@@ -7,8 +7,9 @@ channels-last (NHWC). Four variants: as trained, folded (NCHW), folded + channel
 float32 inference copy), and that copy with its convolutions in bfloat16 (``precision``).
 
 The variants step over the same demo-scene frames, interleaved frame by frame (so load
-changes hit all alike); prints the step medians, their ratios to the model as trained, and the
-largest difference of the detections.
+changes hit all alike); prints the step medians, their ratios to the model as trained, the
+largest difference of the detections (inf when their counts differ) and the largest centre
+difference of the confident ones (score >= 0.3).
 
 Usage: python scripts/bench_inference.py [--frames 40] [--threads 1 2]
 """
@@ -37,6 +38,22 @@ def box_difference(a: Any, b: Any) -> float:
     return worst
 
 
+def confident_difference(a: Any, b: Any, min_score: float = 0.3) -> float:
+    """The largest centre distance (m) from a detection with ``score >= min_score`` in either
+    set to the nearest detection of the same class in the other (inf when it has none): a
+    bfloat16 copy may reorder or drop low-score boxes, the confident ones must stay put."""
+    worst = 0.0
+    for x, y in ((a, b), (b, a)):
+        for box, score, label in zip(x.boxes, x.scores, x.labels):
+            if score < min_score:
+                continue
+            same = y.boxes[y.labels == label, :2]
+            if not len(same):
+                return float('inf')
+            worst = max(worst, float(np.linalg.norm(same - box[:2], axis=1).min()))
+    return worst
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or '').splitlines()[0])
     parser.add_argument('--frames', type=int, default=40)
@@ -62,6 +79,7 @@ def main() -> int:
         torch.set_num_threads(threads)
         times: dict[str, list[float]] = {name: [] for name in runners}
         worst = dict.fromkeys(runners, 0.0)
+        confident = dict.fromkeys(runners, 0.0)
         for r in runners.values():
             r.reset('bench')
         for i, f in enumerate(frames):
@@ -74,11 +92,13 @@ def main() -> int:
             a = out['as trained']
             for name, b in out.items():
                 worst[name] = max(worst[name], box_difference(a, b))
+                confident[name] = max(confident[name], confident_difference(a, b))
         p50 = {name: float(np.median(t)) * 1e3 for name, t in times.items()}
         base = p50['as trained']
         n = len(times['as trained'])
         print(f'{threads} torch thread(s), {n} frames, step p50: ' + ', '.join(
-            f'{name} {v:.1f} ms ({v / base:.3f}x, largest box difference {worst[name]:.1e} m)'
+            f'{name} {v:.1f} ms ({v / base:.3f}x, largest box difference {worst[name]:.1e} m,'
+            f' confident centres {confident[name]:.1e} m)'
             for name, v in p50.items()))
     return 0
 

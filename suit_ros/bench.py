@@ -196,7 +196,8 @@ def machine() -> str:
 def table(r: dict[str, Any]) -> str:
     """The human-readable table."""
     lines = [f'machine: {r["machine"]}; torch threads {r["threads"]}; device {r["device"]}; '
-             f'precision {r.get("precision", "float32")}; demo scene ~{r["points_per_frame"]} points/frame', '',
+             f'precision {r.get("precision", "float32")}; demo scene '
+             f'~{r["points_per_frame"]} points/frame', '',
              f'{"stage (SUIT step, memory carried)":<36}{"p50 ms":>9}{"p95 ms":>9}']
     for k, v in r['stages_ms'].items():
         lines.append(f'{k:<36}{v["p50"]:>9.1f}{v["p95"]:>9.1f}')

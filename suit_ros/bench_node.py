@@ -92,7 +92,8 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     last = diags[-1] if diags else {}
     model = float(last.get('model_ms_p50', 'nan'))
     overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50'))
-    return {'node_threads': threads, 'node_precision': precision, 'frames_in': len(clouds), 'frames_out': len(dets),
+    return {'node_threads': threads, 'node_precision': precision, 'frames_in': len(clouds),
+            'frames_out': len(dets),
             'dropped': int(last.get('dropped_frames', -1)),
             'rate_hz': len(dets) / max(t_play - 1.0, 1e-9),
             'latency_ms_p50': float(np.median(lat)) * 1e3 if lat else float('nan'),

@@ -42,8 +42,9 @@ class TemporalFusion(nn.Module):
 
     def forward(self, current: Tensor, past_term: Tensor | None) -> Tensor:
         """Fuse ``(B, C, H, W)`` current features with an already W2-projected past term."""
-        out = self.current(current)
-        return out if past_term is None else out + past_term
+        out: Tensor = self.current(current)
+        # in place: the conv's output is fresh (and autograd does not need it for the conv)
+        return out if past_term is None else out.add_(past_term)
 
 
 def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: Tensor,

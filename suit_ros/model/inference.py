@@ -9,8 +9,10 @@ measures the step both ways; the outputs agree to float rounding (tested).
 Precision: on CPUs with bfloat16 matrix units (Intel AMX, or AVX512-BF16), oneDNN runs a
 bfloat16 3x3 convolution several times faster than a float32 one. ``precision='bfloat16'``
 runs the backbone, the neck, the fusion's 1x1 convolution over the current features and the
-head's 3x3 convolutions in bfloat16; the pillar encoder, the past term and GeoNet, the head's
-final 1x1 projections and the decoding stay float32, so
+head's 3x3 convolutions in bfloat16 (the pillar encoder writes its pseudo-image in bfloat16 and
+the backbone hands bfloat16 features on); the pillar features, the fused map (float32 out of
+the fusion's conv), the past term and GeoNet, the head's final 1x1 projections and the decoding
+stay float32, so
 box parameters and scores come from float32 maps and the memory holds float32 features.
 :func:`resolve_precision` picks bfloat16 for ``auto`` only where the CPU has those units.
 """
@@ -130,9 +132,13 @@ def _low_precision(model: nn.Module, dtype: torch.dtype) -> int:
     """Wrap the backbone, the fusion's current-feature conv and the head's 3x3 layers of a
     detector in :class:`Cast` (in place); return how many modules were wrapped."""
     wrapped = 0
+    pillars = getattr(model, 'pillars', None)
+    if pillars is not None and hasattr(pillars, 'canvas_dtype'):
+        pillars.canvas_dtype = dtype          # the pseudo-image is written in the backbone's dtype
     backbone = getattr(model, 'backbone', None)
     if isinstance(backbone, nn.Module):
-        model.backbone = Cast(backbone, dtype, torch.float32)
+        # its output stays in low precision: the fusion's conv and the head take it as it is
+        model.backbone = Cast(backbone, dtype, dtype)
         wrapped += 1
     fusion = getattr(model, 'fusion', None)
     if fusion is not None and isinstance(getattr(fusion, 'current', None), nn.Conv2d):

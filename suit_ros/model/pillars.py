@@ -28,6 +28,9 @@ class PillarEncoder(nn.Module):
         self.out_channels = channels
         self.linear = nn.Linear(in_channels + 5, channels, bias=False)
         self.norm: nn.Module = nn.BatchNorm1d(channels, eps=1e-3, momentum=0.01)
+        # the pseudo-image's dtype (None: the pillar features'); an inference copy that runs
+        # the backbone in bfloat16 writes it in bfloat16 directly
+        self.canvas_dtype: torch.dtype | None = None
 
     # (layer, norm) attribute pairs an inference copy may fold (suit_ros.model.inference)
     fold_pairs = (('linear', 'norm'),)
@@ -109,7 +112,7 @@ class PillarEncoder(nn.Module):
                                             include_self=False)
         else:
             pillar = self._folded_pillars(feats, inverse, mean, centre_x, centre_y)
-        canvas = torch.zeros(batch_size * g.ny * g.nx, self.out_channels, dtype=pillar.dtype,
-                             device=pillar.device)
-        canvas[keys] = pillar
+        canvas = torch.zeros(batch_size * g.ny * g.nx, self.out_channels,
+                             dtype=self.canvas_dtype or pillar.dtype, device=pillar.device)
+        canvas[keys] = pillar.to(canvas.dtype)
         return canvas.view(batch_size, g.ny, g.nx, self.out_channels).permute(0, 3, 1, 2)
