@@ -33,7 +33,7 @@ class TemporalFusion(nn.Module):
         self.past = nn.Linear(channels, channels, bias=False)
         with torch.no_grad():
             self.current.weight.copy_(torch.eye(channels)[:, :, None, None])
-            self.current.bias.zero_()
+            nn.init.zeros_(self.current.bias)
             self.past.weight.zero_()
 
     def past_dense(self, warped: Tensor) -> Tensor:
