@@ -33,7 +33,8 @@ class TemporalFusion(nn.Module):
         self.past = nn.Linear(channels, channels, bias=False)
         with torch.no_grad():
             self.current.weight.copy_(torch.eye(channels)[:, :, None, None])
-            nn.init.zeros_(self.current.bias)
+            assert self.current.bias is not None
+            self.current.bias.zero_()
             self.past.weight.zero_()
 
     def past_dense(self, warped: Tensor) -> Tensor:
