@@ -454,7 +454,9 @@ class DetectorNode(Node):
                        'lost_before_callback': str(self.lost_in_reader),
                        'frames_single_frame': str(self.frames_single),
                        'odometry_waits': str(self.odom_waits),
-                       'points_reliability': self.points_reliability.name.lower()})
+                       'points_reliability': self.points_reliability.name.lower(),
+                       'model_device': self.detector.device.type,
+                       'model_precision': self.detector.precision})
         if losses:
             levels.append((DiagnosticStatus.WARN,
                            f'{self.lost_in_reader} clouds published but never received so far '

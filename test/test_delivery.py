@@ -69,6 +69,9 @@ def test_default_node_gets_the_clouds_of_a_played_bag(big_bag, checkpoint, relia
     assert 'large-data' in player_out or 'fastdds_large_data' in player_out, player_out
     expected = 'reliable' if reliability == 'reliable' else 'best_effort'
     assert last['points_reliability'] == expected, node_out[-2000:]
+    from suit_ros.model.inference import resolve_precision
+    # the default precision (auto) as this machine resolves it, reported in diagnostics
+    assert last['model_precision'] == resolve_precision('auto', last['model_device'])
     assert frames_in >= 0.95 * FRAMES, node_out[-2000:]
     # whatever was lost is counted: by the publisher's sequence numbers
     assert frames_in + int(last['lost_before_callback']) >= FRAMES - 1, node_out[-2000:]
