@@ -112,6 +112,12 @@ def main() -> int:
     lines += ['', 'The acceptance criteria of the motion issue, checked on these figures:', '',
               '| criterion | measured | |', '|---|---|---|']
     lines += [f'| {c} | {f} | **{h}** |' for c, f, h in claims(res)]
+    bf16 = diffs.get('suit, bfloat16 - suit')
+    if bf16:
+        lines += ['', '**Precision.** Inference in bfloat16 (the node parameter `precision: auto` '
+                  'on a CPU with bfloat16 units: backbone, neck and head convolutions in '
+                  'bfloat16, the rest in float32) against float32, same drive resamples: mAP '
+                  f'{fmt(bf16, "mAP")}, NDS {fmt(bf16, "NDS")}, mAVE {fmt(bf16, "mAVE")}.']
     lines += ['', 'Limitations: trained only on the synthetic world (see docs/results.md for the '
               'held-out sensor and clutter figures, and the README for what to expect on real '
               'sensors); velocities are under-estimated along the direction of travel (the '
