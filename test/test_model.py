@@ -349,6 +349,13 @@ def test_voxelize_equals_torch_unique_over_batches():
     assert empty[0].shape[0] == 0 and empty[2].numel() == 0
 
 
+def cloud_in_grid(seed: int, n: int = 3000) -> np.ndarray:
+    """``(n, 5)`` points (x, y, z, intensity, time lag 0) inside the small config's grid."""
+    rng = np.random.default_rng(seed)
+    return np.c_[rng.uniform(-20, 20, (n, 2)), rng.uniform(-1, 2, (n, 1)),
+                 rng.uniform(0, 1, (n, 1)), np.zeros((n, 1))].astype(np.float32)
+
+
 def test_inference_copy_folds_batch_norms_exactly():
     from suit_ros.model.inference import fold_batchnorm, inference_copy
     torch.manual_seed(0)
@@ -372,9 +379,7 @@ def test_inference_copy_folds_batch_norms_exactly():
                          for m in convs)                     # NHWC for oneDNN
     assert all(m.weight.is_contiguous() for m in inference_copy(model, channels_last=False)
                .modules() if isinstance(m, torch.nn.Conv2d))
-    rng = np.random.default_rng(0)
-    pts = np.c_[rng.uniform(-20, 20, (3000, 2)), rng.uniform(-1, 2, (3000, 1)),
-                rng.uniform(0, 1, (3000, 1)), np.zeros((3000, 1))].astype(np.float32)
+    pts = cloud_in_grid(0)
     with torch.no_grad():
         a = model.encode([torch.from_numpy(pts)])
         b = fast.encode([torch.from_numpy(pts)])
@@ -400,9 +405,7 @@ def test_bfloat16_inference_copy_wraps_the_convolutions_and_keeps_float32_output
     assert all(p.dtype == torch.float32 for p in fast.pillars.parameters())
     assert all(p.dtype == torch.float32 for p in fast.geonet.parameters())
     assert all(p.dtype == torch.float32 for p in model.parameters())        # untouched
-    rng = np.random.default_rng(1)
-    pts = np.c_[rng.uniform(-20, 20, (3000, 2)), rng.uniform(-1, 2, (3000, 1)),
-                rng.uniform(0, 1, (3000, 1)), np.zeros((3000, 1))].astype(np.float32)
+    pts = cloud_in_grid(1)
     with torch.no_grad():
         a = model.encode([torch.from_numpy(pts)])
         b = fast.encode([torch.from_numpy(pts)])
