@@ -412,11 +412,18 @@ def test_bfloat16_inference_copy_wraps_the_convolutions_and_keeps_float32_output
         assert b.dtype == torch.bfloat16                 # handed on to the fusion as it is
         # bfloat16 keeps 8 significant bits: relative error about 2^-8 per layer
         assert (a - b.float()).abs().max() <= 0.05 * a.abs().max()
-        assert fast.fuse(b, None).dtype == torch.float32       # the fused map (the memory's)
-        pa, pb = model.head(model.fuse(a, None)), fast.head(fast.fuse(b, None))
+        fused = fast.fuse(b, None)
+        assert fused.dtype == torch.bfloat16             # the head takes it as it is
+        pa, pb = model.head(model.fuse(a, None)), fast.head(fused)
         for k in pa:
             assert pb[k].dtype == torch.float32
             assert (pa[k] - pb[k]).abs().max() <= 0.05 * pa[k].abs().max() + 1e-3, k
+        # the memory holds float32 features, and the next frame's past term fuses in bfloat16
+        memory = fast.sample_memory(fused, pb, np.eye(4)[None], [0])
+        assert memory.num_samples > 0 and memory.features.dtype == torch.float32
+        past, _ = fast.past_term(memory, np.eye(4)[None], [100_000_000])
+        assert past is not None and past.dtype == torch.float32
+        assert fast.fuse(b, past).dtype == torch.bfloat16
     with pytest.raises(ValueError, match='precision'):
         inference_copy(model, precision='float16')
 

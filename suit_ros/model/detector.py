@@ -146,7 +146,7 @@ class SUITDetector(nn.Module):
         if self.cfg.temporal == 'none':
             return None
         if self.cfg.temporal == 'dense':
-            return DenseMemory(fused, list(stamps_ns), poses)
+            return DenseMemory(fused.float(), list(stamps_ns), poses)
         head = self.head
         samples = significant_sampling(
             preds['heatmap'], lambda b, c: head.decode_cells(preds, b, c), self.cfg.sampling,
@@ -154,6 +154,7 @@ class SUITDetector(nn.Module):
         cells, mask = relaxation_window(samples, self.cfg.sampling, self.grid)
         prob = torch.sigmoid(preds['heatmap']).amax(dim=1)
         feats, probs = gather_window(fused, prob, samples.batch_index, cells, mask)
+        feats = feats.float()           # float32 memory, also from a bfloat16 inference copy
         return SparseMemory(samples.batch_index, self.grid.cell_to_xy(cells), feats, probs,
                             mask, samples.boxes, samples.velocities, list(stamps_ns), poses,
                             self.cfg.sampling.window)

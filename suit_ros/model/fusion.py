@@ -44,8 +44,9 @@ class TemporalFusion(nn.Module):
     def forward(self, current: Tensor, past_term: Tensor | None) -> Tensor:
         """Fuse ``(B, C, H, W)`` current features with an already W2-projected past term."""
         out: Tensor = self.current(current)
-        # in place: the conv's output is fresh (and autograd does not need it for the conv)
-        return out if past_term is None else out.add_(past_term)
+        # in place: the conv's output is fresh (and autograd does not need it for the conv);
+        # in the conv's dtype (bfloat16 in a bfloat16 inference copy)
+        return out if past_term is None else out.add_(past_term.to(out.dtype))
 
 
 def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: Tensor,

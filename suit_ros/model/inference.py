@@ -9,10 +9,11 @@ measures the step both ways; the outputs agree to float rounding (tested).
 Precision: on CPUs with bfloat16 matrix units (Intel AMX, or AVX512-BF16), oneDNN runs a
 bfloat16 3x3 convolution several times faster than a float32 one. ``precision='bfloat16'``
 runs the backbone, the neck, the fusion's 1x1 convolution over the current features and the
-head's 3x3 convolutions in bfloat16 (the pillar encoder writes its pseudo-image in bfloat16 and
-the backbone hands bfloat16 features on); the pillar features, the fused map (float32 out of
-the fusion's conv), the past term and GeoNet, the head's final 1x1 projections and the decoding
-stay float32, so
+head's 3x3 convolutions in bfloat16 (the pillar encoder writes its pseudo-image in bfloat16,
+the backbone hands bfloat16 features to the fusion, the past term is added to the fused map in
+bfloat16 and the head takes that map as it is); the pillar features, the memory's features
+(gathered as float32), the past term and GeoNet, the head's final 1x1 projections and the
+decoding stay float32, so
 box parameters and scores come from float32 maps and the memory holds float32 features.
 :func:`resolve_precision` picks bfloat16 for ``auto`` only where the CPU has those units.
 """
@@ -142,7 +143,9 @@ def _low_precision(model: nn.Module, dtype: torch.dtype) -> int:
         wrapped += 1
     fusion = getattr(model, 'fusion', None)
     if fusion is not None and isinstance(getattr(fusion, 'current', None), nn.Conv2d):
-        fusion.current = Cast(fusion.current, dtype, torch.float32)
+        # the fused map stays in low precision too (the past term is added in it): the head
+        # takes it as it is; the memory's features are gathered from it as float32
+        fusion.current = Cast(fusion.current, dtype, dtype)
         wrapped += 1
     head = getattr(model, 'head', None)
     if head is not None and isinstance(getattr(head, 'shared', None), nn.Sequential):

@@ -140,7 +140,7 @@ class StreamingDetector:
         fused = m.fuse(current, past)
         if self.keep_terms:
             own = m.fusion.current(current) if m.fusion is not None else current
-            self.last_terms = (own, past)
+            self.last_terms = (own.float(), past)
         t3 = self._sync()
         preds = m.head(fused)
         h = self.cfg.head
