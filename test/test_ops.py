@@ -45,6 +45,24 @@ def test_bev_iou_special_cases():
     assert bev_iou(torch.zeros(0, 7), box).shape == (0, 1)
 
 
+def test_paired_iou_edge_configurations_match_shapely():
+    """Shared edges, containment, a cross (no corner inside the other box), touching boxes."""
+    from suit_ros.ops.iou import paired_bev_iou
+    a = torch.tensor([[0, 0, 0, 4, 2, 1, 0.0],      # shifted by half its length: shared edges
+                      [0, 0, 0, 4, 2, 1, 0.4],      # contains the small box
+                      [0, 0, 0, 6, 1, 1, 0.0],      # a cross with the turned box
+                      [0, 0, 0, 2, 2, 1, 0.0],      # touching along a whole edge
+                      [0, 0, 0, 2, 2, 1, 0.0]])     # touching at a corner
+    b = torch.tensor([[2, 0, 0, 4, 2, 1, 0.0],
+                      [0.2, 0.1, 0, 1, 0.5, 1, 1.0],
+                      [0, 0, 0, 6, 1, 1, np.pi / 2],
+                      [2, 0, 0, 2, 2, 1, 0.0],
+                      [2, 2, 0, 2, 2, 1, 0.0]])
+    want = np.diag(shapely_iou(a, b))
+    np.testing.assert_allclose(paired_bev_iou(a, b).numpy(), want, atol=1e-5)
+    assert want[0] == pytest.approx(1 / 3) and want[3] == 0.0
+
+
 def brute_nms(boxes, scores, thr):
     order = np.argsort(-scores, kind='stable')
     iou = shapely_iou(boxes, boxes)

@@ -1,12 +1,16 @@
 """Rotated bird's-eye-view IoU of ``(x, y, z, l, w, h, yaw)`` boxes, pure torch (vectorised).
 
-The intersection of two convex quadrilaterals is computed by Sutherland-Hodgman clipping of A
-against the four edges of B, for all pairs at once, with fixed-size padded polygons.
+The intersection of two rectangles is the convex polygon of their mutually contained corners
+and their edge crossings, ordered by angle (:func:`paired_bev_iou`), for all pairs at once with
+fixed-size padded polygons.
 """
 from __future__ import annotations
 
 import torch
 from torch import Tensor
+
+_INSIDE_TOL = 1e-6      # m: a corner on the other box's edge counts as inside
+_PARALLEL_TOL = 1e-12   # m^2: edges this close to parallel do not cross (their ends are corners)
 
 
 def bev_corners(boxes: Tensor) -> Tensor:
@@ -33,49 +37,55 @@ def _polygon_area(poly: Tensor, valid: Tensor) -> Tensor:
     return 0.5 * (cross * mask).sum(-1).abs()
 
 
-def _clip(subject: Tensor, count: Tensor, a: Tensor, b: Tensor) -> tuple[Tensor, Tensor]:
-    """Clip padded polygons ``(K, P, 2)`` (``count`` valid points) by the half-plane left of a->b.
-
-    Returns new padded polygons ``(K, P + 1 ... )`` with at most P + 1 points (capped at 8).
-    """
-    K, P, _ = subject.shape
-    idx = torch.arange(P, device=subject.device)
-    valid = idx[None] < count[:, None]
-    nxt = torch.where(idx[None] + 1 < count[:, None], idx[None] + 1, torch.zeros_like(idx[None]))
-    cur = subject
-    nex = torch.gather(subject, 1, nxt.unsqueeze(-1).expand(K, P, 2))
-    e = (b - a)[:, None, :]
-
-    def side(p: Tensor) -> Tensor:
-        return e[..., 0] * (p[..., 1] - a[:, None, 1]) - e[..., 1] * (p[..., 0] - a[:, None, 0])
-
-    sc, sn = side(cur), side(nex)
-    inc, inn = sc >= 0, sn >= 0
-    t = sc / torch.where((sc - sn).abs() < 1e-12, torch.full_like(sc, 1e-12), sc - sn)
-    inter = cur + t.unsqueeze(-1) * (nex - cur)
-    # each edge emits: (cur if inside) then (intersection if it crosses)
-    emit_cur = inc & valid
-    emit_int = (inc != inn) & valid
-    pts = torch.stack([cur, inter], dim=2).reshape(K, 2 * P, 2)
-    keep = torch.stack([emit_cur, emit_int], dim=2).reshape(K, 2 * P)
-    order = torch.argsort((~keep).to(torch.int8), dim=1, stable=True)
-    pts = torch.gather(pts, 1, order.unsqueeze(-1).expand(K, 2 * P, 2))[:, :8]
-    new_count = keep.sum(1).clamp(max=8)
-    return pts, new_count
+def _cross(a: Tensor, b: Tensor) -> Tensor:
+    """z of the 2-D cross product of ``(..., 2)`` vectors."""
+    return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
 def paired_bev_iou(boxes_a: Tensor, boxes_b: Tensor) -> Tensor:
-    """Element-wise rotated BEV IoU ``(K,)`` of two ``(K, 7)`` box lists."""
+    """Element-wise rotated BEV IoU ``(K,)`` of two ``(K, 7)`` box lists.
+
+    The intersection of two rectangles is convex, and its vertices are among the corners of
+    each rectangle that lie inside the other and the crossings of their edges (4 + 4 + 16
+    candidates): the valid candidates, sorted by angle around their mean, form the polygon.
+    A fixed number of tensor operations for all pairs at once (about half the time of clipping
+    one rectangle by the other's four edges, measured on 20-400 pairs).
+    """
     K = boxes_a.shape[0]
     if K == 0:
         return boxes_a.new_zeros(0)
-    subject = bev_corners(boxes_a.double())
-    subject = torch.cat([subject, subject.new_zeros(K, 4, 2)], dim=1)
-    count = torch.full((K,), 4, dtype=torch.long, device=boxes_a.device)
-    clip = bev_corners(boxes_b.double())
-    for k in range(4):
-        subject, count = _clip(subject, count, clip[:, k], clip[:, (k + 1) % 4])
-    inter = _polygon_area(subject, count).where(count >= 3, subject.new_zeros(()))
+    boxes = torch.cat([boxes_a, boxes_b]).double()
+    corners = bev_corners(boxes)                                               # (2K, 4, 2)
+    ca, cb = corners[:K], corners[K:]
+    # each corner in the frame of the other box of its pair
+    other = torch.cat([boxes[K:], boxes[:K]])
+    d = corners - other[:, None, :2]
+    c, s = torch.cos(other[:, 6])[:, None], torch.sin(other[:, 6])[:, None]
+    along = (d[..., 0] * c + d[..., 1] * s).abs()
+    across = (d[..., 1] * c - d[..., 0] * s).abs()
+    inside = ((along <= other[:, None, 3] * 0.5 + _INSIDE_TOL)
+              & (across <= other[:, None, 4] * 0.5 + _INSIDE_TOL))
+    # edge i of a (p + t r, t in [0, 1]) against edge j of b (q + u v, u in [0, 1])
+    r = torch.roll(ca, -1, 1) - ca                                             # (K, 4, 2)
+    v = torch.roll(cb, -1, 1) - cb
+    qp = cb[:, None, :, :] - ca[:, :, None, :]                                 # (K, 4, 4, 2)
+    denom = _cross(r[:, :, None, :], v[:, None, :, :])                         # (K, 4, 4)
+    parallel = denom.abs() < _PARALLEL_TOL
+    safe = torch.where(parallel, torch.ones_like(denom), denom)
+    t = _cross(qp, v[:, None, :, :]) / safe
+    u = _cross(qp, r[:, :, None, :]) / safe
+    crossing = ~parallel & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+    points = torch.cat([ca, cb, (ca[:, :, None, :] + t[..., None] * r[:, :, None, :])
+                        .reshape(K, 16, 2)], dim=1)                            # (K, 24, 2)
+    valid = torch.cat([inside[:K], inside[K:], crossing.reshape(K, 16)], dim=1)
+    count = valid.sum(1)
+    mean = ((points * valid[..., None].to(points.dtype)).sum(1)
+            / count.clamp(min=1)[:, None].to(points.dtype))
+    rel = points - mean[:, None]
+    angle = torch.atan2(rel[..., 1], rel[..., 0]).masked_fill(~valid, 10.0)  # invalid last
+    order = torch.argsort(angle, dim=1)
+    polygon = torch.gather(points, 1, order[..., None].expand(K, 24, 2))
+    inter = _polygon_area(polygon, count).where(count >= 3, points.new_zeros(()))
     area_a = (boxes_a[:, 3] * boxes_a[:, 4]).double()
     area_b = (boxes_b[:, 3] * boxes_b[:, 4]).double()
     iou = inter / (area_a + area_b - inter).clamp(min=1e-9)
