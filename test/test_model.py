@@ -199,7 +199,14 @@ def test_fusion_equation_11_single_sample(dt):
     for k in range(2):
         c, r = torch.floor(GRID.xy_to_cell(pos[0, 0] + disp[0, k])).long().tolist()
         expect[0, :, r, c] += 0.8 * q[0, k] * 2.0 * f[0, 0]
-    torch.testing.assert_close(out, expect)
+    torch.testing.assert_close(out.dense(), expect)
+    # added in place: only the touched rows of a channels-last map, a dense add otherwise
+    base = torch.randn(1, C, GRID.H, GRID.W)
+    for x in (base.clone(), base.clone().contiguous(memory_format=torch.channels_last)):
+        assert out.add_to(x) is x
+        torch.testing.assert_close(x, base + expect)
+    with pytest.raises(ValueError, match='shape'):
+        out.add_to(torch.zeros(2, C, GRID.H, GRID.W))
 
 
 def frame(t, seed=0, n=3000):
@@ -422,7 +429,7 @@ def test_bfloat16_inference_copy_wraps_the_convolutions_and_keeps_float32_output
         memory = fast.sample_memory(fused, pb, np.eye(4)[None], [0])
         assert memory.num_samples > 0 and memory.features.dtype == torch.float32
         past, _ = fast.past_term(memory, np.eye(4)[None], [100_000_000])
-        assert past is not None and past.dtype == torch.float32
+        assert past is not None and past.values.dtype == torch.float32
         assert fast.fuse(b, past).dtype == torch.bfloat16
     with pytest.raises(ValueError, match='precision'):
         inference_copy(model, precision='float16')

@@ -19,7 +19,7 @@ from torch import Tensor, nn
 
 from suit_ros.config import ModelConfig
 from suit_ros.model.backbone import BEVBackbone
-from suit_ros.model.fusion import TemporalFusion, sparse_past_term, warp_dense
+from suit_ros.model.fusion import PastTerm, TemporalFusion, sparse_past_term, warp_dense
 from suit_ros.model.geonet import GeoNet
 from suit_ros.model.grid import BEVGrid
 from suit_ros.model.head import CenterHead
@@ -87,10 +87,12 @@ class SUITDetector(nn.Module):
         return dt > 0, dt
 
     def past_term(self, memory: Memory | None, poses: NDArray[np.float64],
-                  stamps_ns: Sequence[int]) -> tuple[Tensor | None, dict[str, Tensor]]:
+                  stamps_ns: Sequence[int]
+                  ) -> tuple[Tensor | PastTerm | None, dict[str, Tensor]]:
         """The W2-projected past features in the current grid, or None when nothing is fused.
 
-        :return: the term ``(B, C, H, W)`` and aux outputs (``geo_logits``, ``sample_index``,
+        :return: the term (``(B, C, H, W)`` for a dense memory, a sparse :class:`PastTerm` for
+            a sparse one) and aux outputs (``geo_logits``, ``sample_index``,
             ``T_now_prev``) for the GeoNet loss.
         """
         aux: dict[str, Tensor] = {}
@@ -135,7 +137,7 @@ class SUITDetector(nn.Module):
                                 self.grid, B, prune)
         return term, aux
 
-    def fuse(self, current: Tensor, past: Tensor | None) -> Tensor:
+    def fuse(self, current: Tensor, past: Tensor | PastTerm | None) -> Tensor:
         """Concatenate-and-fuse (a no-op for the single-frame model)."""
         return current if self.fusion is None else self.fusion(current, past)
 

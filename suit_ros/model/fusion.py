@@ -10,10 +10,15 @@ single zero displacement, ``sparse_velocity`` the predicted velocity times dt.
 The warped map F^_t is concatenated with F_t and fused by a 1x1 conv. Because the conv is
 linear, its half that acts on F^_t is applied to the few memory features *before* they are
 scattered (``W2 sum_i w_i f_i == sum_i w_i W2 f_i``): the result equals concat + 1x1 conv on
-the dense maps at a fraction of the cost. W1 starts as the identity and W2 at zero, so a
-fine-tuned SUIT model starts exactly as the single-frame model it was initialised from.
+the dense maps at a fraction of the cost. The projected term stays sparse (:class:`PastTerm`:
+the rows it touches) and is added into the fused map in place, so no dense past map is built
+when the map is channels-last (the inference copy's layout). W1 starts as the identity and W2
+at zero, so a fine-tuned SUIT model starts exactly as the single-frame model it was
+initialised from.
 """
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,6 +27,35 @@ from torch import Tensor, nn
 import torch.nn.functional as F
 
 from suit_ros.model.grid import BEVGrid
+
+
+@dataclass
+class PastTerm:
+    """A sparse past term: ``values (R, C)`` to add at the flat cells ``index (R,)``
+    (``(b * H + row) * W + col``, repeats allowed) of a ``shape = (B, C, H, W)`` map."""
+
+    index: Tensor
+    values: Tensor
+    shape: tuple[int, int, int, int]
+
+    def dense(self) -> Tensor:
+        """The term as a ``(B, C, H, W)`` map (channels-last memory)."""
+        B, C, H, W = self.shape
+        out = self.values.new_zeros(B * H * W, C)
+        out.index_add_(0, self.index, self.values)
+        return out.view(B, H, W, C).permute(0, 3, 1, 2)
+
+    def add_to(self, x: Tensor) -> Tensor:
+        """``x += term`` in place (in ``x``'s dtype); only the touched rows when ``x`` is
+        channels-last, a dense add otherwise. Returns ``x``."""
+        B, C, H, W = x.shape
+        if (B, C, H, W) != self.shape:
+            raise ValueError(f'past term of shape {self.shape} added to a map of {tuple(x.shape)}')
+        if x.is_contiguous(memory_format=torch.channels_last):
+            x.permute(0, 2, 3, 1).view(B * H * W, C).index_add_(0, self.index,
+                                                                 self.values.to(x.dtype))
+            return x
+        return x.add_(self.dense().to(x.dtype))
 
 
 class TemporalFusion(nn.Module):
@@ -41,19 +75,24 @@ class TemporalFusion(nn.Module):
         """Apply W2 to a dense ``(B, C, H, W)`` map."""
         return torch.einsum('oc,bchw->bohw', self.past.weight, warped)
 
-    def forward(self, current: Tensor, past_term: Tensor | None) -> Tensor:
+    def forward(self, current: Tensor, past_term: Tensor | PastTerm | None) -> Tensor:
         """Fuse ``(B, C, H, W)`` current features with an already W2-projected past term."""
         out: Tensor = self.current(current)
         # in place: the conv's output is fresh (and autograd does not need it for the conv);
         # in the conv's dtype (bfloat16 in a bfloat16 inference copy)
-        return out if past_term is None else out.add_(past_term.to(out.dtype))
+        if past_term is None:
+            return out
+        if isinstance(past_term, PastTerm):
+            return past_term.add_to(out)
+        return out.add_(past_term.to(out.dtype))
 
 
 def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: Tensor,
                      batch_index: Tensor, displacements: Tensor, q: Tensor,
                      projection: nn.Linear, grid: BEVGrid, batch_size: int,
-                     prune: float = 0.0) -> Tensor:
-    """Equation (11): the W2-projected past term from a sparse memory, ``(B, C, H, W)``.
+                     prune: float = 0.0) -> PastTerm:
+    """Equation (11): the W2-projected past term from a sparse memory, for a ``(B, C, H, W)``
+    map (:class:`PastTerm`; ``.dense()`` for the map).
 
     Every (sample, cell, bin) triple adds ``p * q * W2 f`` at the current-grid cell that
     contains ``position + displacement``. Implemented per sample as a small matrix product:
@@ -70,8 +109,10 @@ def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: T
     """
     M, P, C = features.shape
     H, W = grid.H, grid.W
+    shape = (batch_size, projection.out_features, H, W)
     if M == 0:
-        return features.new_zeros(batch_size, C, H, W)
+        return PastTerm(torch.zeros(0, dtype=torch.long, device=features.device),
+                        features.new_zeros(0, shape[1]), shape)
     if prune > 0:
         q = q * (q >= prune)
     g = projection(features)                                                   # (M, P, C)
@@ -94,9 +135,7 @@ def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: T
     row = centre[:, 0, 1, None] + dr.reshape(1, -1)
     ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
     flat = (batch_index[:, None] * H + row) * W + col
-    out = features.new_zeros(batch_size * H * W, C)
-    out.index_add_(0, flat[ok], out_local[ok])
-    return out.view(batch_size, H, W, C).permute(0, 3, 1, 2)
+    return PastTerm(flat[ok], out_local[ok], shape)
 
 
 def warp_dense(previous: Tensor, T_prev_now: NDArray[np.float64], grid: BEVGrid) -> Tensor:

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 import torch
 
 from suit_ros.model.detector import Memory, SUITDetector
+from suit_ros.model.fusion import PastTerm
 from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.structures import Detections
@@ -140,7 +141,8 @@ class StreamingDetector:
         fused = m.fuse(current, past)
         if self.keep_terms:
             own = m.fusion.current(current) if m.fusion is not None else current
-            self.last_terms = (own.float(), past)
+            self.last_terms = (own.float(),
+                               past.dense() if isinstance(past, PastTerm) else past)
         t3 = self._sync()
         preds = m.head(fused)
         h = self.cfg.head
