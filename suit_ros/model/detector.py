@@ -150,11 +150,11 @@ class SUITDetector(nn.Module):
         if self.cfg.temporal == 'dense':
             return DenseMemory(fused.float(), list(stamps_ns), poses)
         head = self.head
+        prob = torch.sigmoid(preds['heatmap']).amax(dim=1)
         samples = significant_sampling(
             preds['heatmap'], lambda b, c: head.decode_cells(preds, b, c), self.cfg.sampling,
-            self.grid)
+            self.grid, prob)
         cells, mask = relaxation_window(samples, self.cfg.sampling, self.grid)
-        prob = torch.sigmoid(preds['heatmap']).amax(dim=1)
         feats, probs = gather_window(fused, prob, samples.batch_index, cells, mask)
         feats = feats.float()           # float32 memory, also from a bfloat16 inference copy
         return SparseMemory(samples.batch_index, self.grid.cell_to_xy(cells), feats, probs,

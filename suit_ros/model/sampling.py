@@ -99,14 +99,17 @@ def relaxation_window(samples: Samples, cfg: SamplingConfig, grid: BEVGrid
 def significant_sampling(heatmap_logits: Tensor,
                          decode_cells: Callable[[Tensor, Tensor], tuple[Tensor, Tensor]],
                          cfg: SamplingConfig,
-                         grid: BEVGrid) -> Samples:
+                         grid: BEVGrid, prob: Tensor | None = None) -> Samples:
     """Select the significant samples of a batch of frames.
 
     :param heatmap_logits: ``(B, K, H, W)``.
     :param decode_cells: ``(batch_index, cells) -> (boxes (N, 7), velocities (N, 2))``, the
         head's decoder at given cells.
+    :param prob: the max-class probability ``(B, H, W)`` of ``heatmap_logits`` when the caller
+        has it already.
     """
-    prob = torch.sigmoid(heatmap_logits).amax(dim=1)
+    if prob is None:
+        prob = torch.sigmoid(heatmap_logits).amax(dim=1)
     b, cells, scores = coarse_topk(prob, cfg.alpha, cfg.top_k)
     boxes, vel = decode_cells(b, cells)
     keep = refined_nms(boxes.detach(), scores.detach(), b, cfg.nms_iou_threshold, grid.cell)
