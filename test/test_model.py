@@ -209,6 +209,36 @@ def test_fusion_equation_11_single_sample(dt):
         out.add_to(torch.zeros(2, C, GRID.H, GRID.W))
 
 
+def test_sparse_past_term_in_place_add_has_the_dense_gradients():
+    """Training adds the sparse term in place into the channels-last conv output: W2, the
+    features and the current conv get the same gradients as with a dense add."""
+    torch.manual_seed(0)
+    C, M, P = 6, 5, 9
+    conv = torch.nn.Conv2d(C, C, 1)
+    proj = torch.nn.Linear(C, C, bias=False)
+    feats = torch.randn(M, P, C, requires_grad=True)
+    pos = torch.rand(M, P, 2) * 30 - 15
+    disp = torch.randn(M, 3, 2)
+    q = torch.softmax(torch.randn(M, 3), 1)
+    probs = torch.rand(M, P)
+    x = torch.randn(1, C, GRID.H, GRID.W).contiguous(memory_format=torch.channels_last)
+    weight = torch.randn(1, C, GRID.H, GRID.W)
+    grads = []
+    for sparse in (True, False):
+        for t in (conv.weight, proj.weight, feats):
+            t.grad = None
+        term = sparse_past_term(feats, probs, torch.ones(M, P, dtype=torch.bool), pos,
+                                torch.zeros(M, dtype=torch.long), disp, q, proj, GRID, 1)
+        out = conv(x)
+        assert out.is_contiguous(memory_format=torch.channels_last)
+        fused = term.add_to(out) if sparse else out + term.dense()
+        (fused * weight).sum().backward()
+        grads.append([t.grad.clone() for t in (conv.weight, proj.weight, feats)])
+    for a, b in zip(*grads):
+        torch.testing.assert_close(a, b)
+    assert grads[0][1].abs().sum() > 0
+
+
 def frame(t, seed=0, n=3000):
     rng = np.random.default_rng(seed)
     pts = np.c_[rng.uniform(-25, 25, (n, 2)), rng.uniform(-2, 0, n), rng.uniform(0, 1, n),
