@@ -258,15 +258,17 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     metrics: dict[str, Any] = {'steps': step, 'train_minutes': round(elapsed / 60, 2),
                                'device': str(dev), 'world_size': world}
     if rank == 0:
+        extra = {'train_config': {k: (list(v) if isinstance(v, tuple) else v)
+                                  for k, v in tc.__dict__.items()}}
+        # written before the evaluation too, so a failing evaluation cannot lose the model
+        save_checkpoint(out / 'model.safetensors', module, mcfg, metrics, extra)
         if tc.eval_at_end:
             from suit_ros.evaluate import evaluate_model
             val = synthetic_split('val', tc.val_sequences, tc.val_frames, tc.cache_dir)
             result = evaluate_model(module, val, dev)
             metrics.update(result.summary())
             print(result.table())
-        save_checkpoint(out / 'model.safetensors', module, mcfg, metrics,
-                        {'train_config': {k: (list(v) if isinstance(v, tuple) else v)
-                                          for k, v in tc.__dict__.items()}})
+            save_checkpoint(out / 'model.safetensors', module, mcfg, metrics, extra)
         print(f'[train] wrote {out / "model.safetensors"} ({elapsed / 60:.1f} min)')
     if log_file:
         log_file.close()
