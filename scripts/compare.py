@@ -70,6 +70,8 @@ def main() -> int:
     lines = ['# Checkpoint comparison', '', f'`scripts/compare.py`, {time.strftime("%Y-%m-%d")}: '
              f'{args.drives} validation drives x {args.frames} frames, {args.precision}, value '
              f'[95% per-drive bootstrap interval, {args.resamples} resamples].', '',
+             'The step times come from runs one after another (not interleaved): on a machine '
+             'whose speed drifts they are not a speed comparison.', '',
              '| run | checkpoint | step p50 (ms, 2 threads) |', '|---|---|---|']
     lines += [f'| {n} | `{p}` | {latency[n]:.1f} |' for n, p in args.run]
     for title, rows in (('Metrics', stats), (f'Paired differences (against {first})', diffs)):
