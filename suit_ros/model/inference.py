@@ -13,8 +13,8 @@ head's 3x3 convolutions in bfloat16 (the pillar encoder writes its pseudo-image 
 the backbone hands bfloat16 features to the fusion, the past term is added to the fused map in
 bfloat16 and the head takes that map as it is); the pillar features, the memory's features
 (gathered as float32), the past term and GeoNet, the head's final 1x1 projections and the
-decoding stay float32, so
-box parameters and scores come from float32 maps and the memory holds float32 features.
+decoding stay float32, so box parameters and scores come from float32 maps and the memory holds
+float32 features.
 :func:`resolve_precision` picks bfloat16 for ``auto`` only where the CPU has those units.
 """
 from __future__ import annotations
@@ -168,8 +168,9 @@ def inference_copy(model: nn.Module, channels_last: bool = True,
     :param channels_last: store the 4-D convolution weights channels-last (NHWC), which
         oneDNN's CPU convolutions run faster (the BEV maps then flow NHWC through the backbone
         and head; ``scripts/bench_inference.py`` measures it).
-    :param precision: ``bfloat16`` runs the backbone and the head's 3x3 convolutions in
-        bfloat16 (see the module docstring); resolve ``auto`` with :func:`resolve_precision`.
+    :param precision: ``bfloat16`` runs the backbone, the fusion's current-feature conv and
+        the head's 3x3 convolutions in bfloat16 (see the module docstring); resolve ``auto``
+        with :func:`resolve_precision`.
     """
     if precision not in ('float32', 'bfloat16'):
         raise ValueError(f'precision must be float32 or bfloat16, got {precision!r}')
