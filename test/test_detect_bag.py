@@ -29,6 +29,10 @@ def test_flags_override_the_yaml_which_overrides_defaults(tmp_path):
     assert p.intensity_scale == 1.0 and p.max_range == 40.0 and p.min_range == 2.0
     assert p.score_thresholds == (0.3,) and p.extrinsic_xyz == (0.0, 0.0, 1.9)
     assert p.extrinsic_rpy == (0.0, 0.1, 0.0)
+    assert p.precision == 'auto'
+    assert params_from_args(parse('--precision', 'float32')).precision == 'float32'
+    with pytest.raises(SystemExit):
+        parse('--precision', 'float16')
     with pytest.raises(ConfigError, match='min_range'):
         params_from_args(parse('--min-range', '50', '--max-range', '40'))
 
