@@ -106,7 +106,7 @@ def main() -> int:
     args = parser.parse_args()
     import torch
     torch.set_num_threads(2)
-    from suit_ros.benchmark import bootstrap
+    from suit_ros.benchmark import bootstrap, plain_intervals
     from suit_ros.data.sequences import split_drives, synthetic_split
     from suit_ros.evaluate import run_model
 
@@ -145,14 +145,12 @@ def main() -> int:
             'heldout_drives': [list(d) for d in split_drives('heldout', args.heldout_drives)],
             'frames_per_drive': args.frames, 'resamples': args.resamples,
             'minutes': round((time.monotonic() - t0) / 60, 1)}
-
-    def plain(d: dict[str, Any]) -> dict[str, Any]:
-        return {r: {k: [v.value, v.low, v.high] for k, v in m.items()} for r, m in d.items()}
     out = Path(args.out)
     out.mkdir(exist_ok=True)
     (out / 'results.json').write_text(json.dumps(
-        {'meta': meta, 'runs': plain(stats), 'differences': plain(diffs),
-         'heldout_sensor': plain(held), 'latency_p50_ms': latency, 'memory_bytes': memory,
+        {'meta': meta, 'runs': plain_intervals(stats), 'differences': plain_intervals(diffs),
+         'heldout_sensor': plain_intervals(held), 'latency_p50_ms': latency,
+         'memory_bytes': memory,
          'clutter_fp_per_frame': clutter, 'past_share_at_car_centres': share},
         indent=1))
     text = render(stats, diffs, held, latency, memory, meta, list(names), clutter, share)

@@ -38,7 +38,7 @@ def main() -> int:
         parser.error('run names must differ')
     import torch
     torch.set_num_threads(2)
-    from suit_ros.benchmark import Interval, bootstrap
+    from suit_ros.benchmark import bootstrap, plain_intervals
     from suit_ros.checkpoint import load_checkpoint
     from suit_ros.data.sequences import synthetic_split
     from suit_ros.evaluate import run_model
@@ -60,11 +60,9 @@ def main() -> int:
     latency = {k: float(np.median(r.latency_s)) * 1e3 for k, r in runs.items()}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-
-    def plain(d: dict[str, dict[str, Interval]]) -> dict[str, dict[str, list[float]]]:
-        return {r: {k: [v.value, v.low, v.high] for k, v in m.items()} for r, m in d.items()}
     (out / 'results.json').write_text(json.dumps(
-        {'runs': plain(stats), 'differences': plain(diffs), 'latency_p50_ms': latency,
+        {'runs': plain_intervals(stats), 'differences': plain_intervals(diffs),
+         'latency_p50_ms': latency,
          'checkpoints': dict(args.run), 'drives': args.drives, 'frames': args.frames,
          'precision': args.precision, 'date': time.strftime('%Y-%m-%d')}, indent=1))
     lines = ['# Checkpoint comparison', '', f'`scripts/compare.py`, {time.strftime("%Y-%m-%d")}: '

@@ -243,6 +243,11 @@ class Interval:
         return f'{self.value:.{digits}f} [{self.low:.{digits}f}, {self.high:.{digits}f}]'
 
 
+def plain_intervals(d: dict[str, dict[str, Interval]]) -> dict[str, dict[str, list[float]]]:
+    """``{run: {metric: Interval}}`` as JSON-ready ``{run: {metric: [value, low, high]}}``."""
+    return {r: {k: [v.value, v.low, v.high] for k, v in m.items()} for r, m in d.items()}
+
+
 def drive_frames(run: ModelRun) -> list[list[int]]:
     """Frame indices of each drive of a run."""
     drives: dict[int, list[int]] = {}
