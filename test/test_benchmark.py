@@ -72,6 +72,11 @@ def test_bootstrap_intervals_and_paired_differences():
     iv = stats['good']['mAP']
     assert iv.low <= iv.value <= iv.high
     assert diffs['good - bad']['mAP'].low > 0.3               # holds in every resample
+    from suit_ros.benchmark import plain_intervals
+    as_json = plain_intervals(diffs)
+    assert as_json['good - bad']['mAP'] == [diffs['good - bad']['mAP'].value,
+                                            diffs['good - bad']['mAP'].low,
+                                            diffs['good - bad']['mAP'].high]
     same = diffs['good - same']['mAP']
     assert same.value == same.low == same.high == 0.0         # identical runs: exactly zero
     assert stats['good']['moving car vel err'].value == pytest.approx(0.0, abs=1e-6)
