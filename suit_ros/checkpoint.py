@@ -157,14 +157,23 @@ def load_weights_into(model: torch.nn.Module, path: str | os.PathLike[str]) -> l
     """Initialise ``model`` from a checkpoint's shared tensors (stage-2 fine-tuning).
 
     Tensors present in both with equal shapes are copied; the model's own extra modules (the
-    temporal path) keep their initialisation. :return: the names that were not initialised.
+    temporal path) keep their initialisation. Pillar weights learned at another
+    ``pillars.time_scale`` are rescaled so the copied encoder computes the same features.
+    :return: the names that were not initialised.
     """
     from safetensors.torch import load_file
-    read_metadata(path)
+
+    from suit_ros.model.pillars import PillarEncoder
+    meta = read_metadata(path)
     state = load_file(str(path), device='cpu')
     own = model.state_dict()
     shared = {k: v for k, v in state.items() if k in own and own[k].shape == v.shape}
     if not shared:
         raise CheckpointError(f'{path} shares no tensors with this model')
     model.load_state_dict(shared, strict=False)
+    pillars = getattr(model, 'pillars', None)
+    if isinstance(pillars, PillarEncoder) and 'pillars.linear.weight' in shared:
+        config = meta.get('config')
+        pillar_cfg = config.get('pillars', {}) if isinstance(config, dict) else {}
+        pillars.rescale_time_weights(float(pillar_cfg.get('time_scale', 1.0)))
     return sorted(set(own) - set(shared))

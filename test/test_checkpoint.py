@@ -84,6 +84,27 @@ def test_stage2_initialisation_from_single_frame(tmp_path):
         assert torch.equal(suit.state_dict()[k], v)
 
 
+def test_initialisation_at_another_time_scale_keeps_the_function(tmp_path):
+    """Fine-tuning at a new ``pillars.time_scale`` starts from the same pillar features."""
+    from dataclasses import replace
+
+    from suit_ros.config import PillarConfig
+    torch.manual_seed(0)
+    old = SUITDetector(ModelConfig(temporal='none')).eval()
+    path = save_checkpoint(tmp_path / 's.safetensors', old, ModelConfig(temporal='none'))
+    cfg = replace(ModelConfig(temporal='none'), pillars=PillarConfig(time_scale=10.0))
+    new = SUITDetector(cfg).eval()
+    load_weights_into(new, path)
+    g = torch.Generator().manual_seed(1)
+    pts = torch.rand(4000, 6, generator=g) * torch.tensor([0, 80, 80, 4, 1, 0.3]) \
+        - torch.tensor([0, 40, 40, 2, 0, 0])
+    with torch.no_grad():
+        assert torch.allclose(new.pillars(pts, 1), old.pillars(pts, 1), atol=1e-5)
+    w_old, w_new = old.pillars.linear.weight, new.pillars.linear.weight
+    assert torch.allclose(w_new[:, 4] * 10.0, w_old[:, 4])
+    assert torch.equal(w_new[:, :4], w_old[:, :4])
+
+
 @pytest.mark.parametrize('name, temporal', [('suit_default', 'suit'),
                                             ('centerpoint_single', 'none')])
 def test_shipped_checkpoints_load_and_detect(name, temporal):

@@ -312,6 +312,8 @@ def test_config_validation():
         ModelConfig(temporal='lstm')
     with pytest.raises(ConfigError, match='alpha'):
         replace(ModelConfig(), sampling=SamplingConfig(alpha=1.5))
+    with pytest.raises(ConfigError, match='time_scale'):
+        replace(ModelConfig(), pillars=PillarConfig(time_scale=0.0))
 
 
 def test_decode_turns_moving_boxes_to_face_their_velocity():
@@ -391,6 +393,32 @@ def cloud_in_grid(seed: int, n: int = 3000) -> np.ndarray:
     rng = np.random.default_rng(seed)
     return np.c_[rng.uniform(-20, 20, (n, 2)), rng.uniform(-1, 2, (n, 1)),
                  rng.uniform(0, 1, (n, 1)), np.zeros((n, 1))].astype(np.float32)
+
+
+def test_time_scale_multiplies_the_lag_in_training_and_in_the_folded_copy():
+    """``time_scale`` = the lag multiplied before the encoder, in the training path and in the
+    folded inference path (which scales the weight column instead of the points)."""
+    from suit_ros.model.inference import fold_batchnorm
+    grid = BEVGrid((-25.6, -25.6, -3.0, 25.6, 25.6, 3.0), 0.4, 2)
+    torch.manual_seed(0)
+    plain = PillarEncoder(grid, 5, 16)
+    plain.norm.running_mean.uniform_(-0.5, 0.5)                      # as after training
+    scaled = PillarEncoder(grid, 5, 16, time_scale=10.0)
+    scaled.load_state_dict(plain.state_dict())
+    pts = torch.from_numpy(cloud_in_grid(1))
+    pts[:, 4] = torch.randint(0, 3, (len(pts),)).float() * 0.1       # lags of 3 sweeps
+    rows = torch.cat([torch.zeros(len(pts), 1), pts], 1)
+    times10 = rows.clone()
+    times10[:, 5] *= 10.0
+    plain.eval()
+    scaled.eval()
+    with torch.no_grad():
+        want = plain(times10, 1)
+        assert torch.allclose(scaled(rows, 1), want, atol=1e-5)
+        assert not torch.allclose(plain(rows, 1), want, atol=1e-3)   # the scale matters
+        fold_batchnorm(plain)
+        fold_batchnorm(scaled)
+        assert torch.allclose(scaled(rows, 1), want, atol=1e-4)
 
 
 def test_inference_copy_folds_batch_norms_exactly():

@@ -19,13 +19,21 @@ class PillarEncoder(nn.Module):
     Each point is decorated with its offsets to the pillar's point mean (3) and to the pillar
     centre (2), as PointPillars does, passed through Linear + BatchNorm + ReLU, and max-pooled
     per pillar.
+
+    :param time_scale: the time lag (input channel 4) is multiplied by this; applied to the
+        linear layer's lag column, so it costs nothing per point. A checkpoint trained at
+        another scale is moved to this one by :meth:`rescale_time_weights`.
     """
 
-    def __init__(self, grid: BEVGrid, in_channels: int = 5, channels: int = 32) -> None:
+    TIME_CHANNEL = 4
+
+    def __init__(self, grid: BEVGrid, in_channels: int = 5, channels: int = 32,
+                 time_scale: float = 1.0) -> None:
         super().__init__()
         self.grid = grid
         self.in_channels = in_channels
         self.out_channels = channels
+        self.time_scale = time_scale
         self.linear = nn.Linear(in_channels + 5, channels, bias=False)
         self.norm: nn.Module = nn.BatchNorm1d(channels, eps=1e-3, momentum=0.01)
         # the pseudo-image's dtype (None: the pillar features'); an inference copy that runs
@@ -34,6 +42,22 @@ class PillarEncoder(nn.Module):
 
     # (layer, norm) attribute pairs an inference copy may fold (suit_ros.model.inference)
     fold_pairs = (('linear', 'norm'),)
+
+    def weight(self) -> Tensor:
+        """The linear layer's weight with the time-lag column scaled by ``time_scale``."""
+        W = self.linear.weight
+        if self.time_scale == 1.0 or self.in_channels <= self.TIME_CHANNEL:
+            return W
+        scale = torch.ones(W.shape[1], dtype=W.dtype, device=W.device)
+        scale[self.TIME_CHANNEL] = self.time_scale
+        return W * scale
+
+    @torch.no_grad()
+    def rescale_time_weights(self, from_scale: float) -> None:
+        """Make weights learned with ``time_scale = from_scale`` compute the same function
+        at this encoder's ``time_scale``."""
+        if self.in_channels > self.TIME_CHANNEL and from_scale != self.time_scale:
+            self.linear.weight[:, self.TIME_CHANNEL] *= from_scale / self.time_scale
 
     def voxelize(self, points: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Assign points to pillars.
@@ -67,7 +91,7 @@ class PillarEncoder(nn.Module):
         points is taken on the per-point term, then the per-pillar term is subtracted and the
         ReLU applied (both commute with that max)."""
         C = feats.shape[1]
-        W = self.linear.weight
+        W = self.weight()
         A = W[:, :C].clone()
         A[:, :3] += W[:, C:C + 3]
         A[:, 0] += W[:, C + 3]
@@ -106,7 +130,8 @@ class PillarEncoder(nn.Module):
                 (feats[:, 0] - centre_x[inverse])[:, None],
                 (feats[:, 1] - centre_y[inverse])[:, None],
             ], dim=1)
-            x = torch.relu(self.norm(self.linear(decorated)))
+            x = torch.relu(self.norm(nn.functional.linear(decorated, self.weight(),
+                                                          self.linear.bias)))
             pillar = torch.zeros(U, self.out_channels, dtype=x.dtype, device=x.device)
             pillar = pillar.scatter_reduce_(0, inverse[:, None].expand_as(x), x, 'amax',
                                             include_self=False)
