@@ -106,6 +106,9 @@ class ModelConfig:
     geonet: GeoNetConfig = field(default_factory=GeoNetConfig)
     geo_loss_weight: float = 1.0
     sweeps: int = 1               # LiDAR sweeps per input (current + previous), model frame
+    # frames between a memory's sampling and its use: the memory fused at frame t was sampled
+    # at frame t - memory_stride (0.1 s x stride at 10 Hz); the node keeps that many memories
+    memory_stride: int = 1
 
     def __post_init__(self) -> None:
         validate(self)
@@ -180,6 +183,8 @@ def validate(cfg: ModelConfig) -> None:
         raise bad('geonet.velocity_step must be > 0')
     if not 1 <= cfg.sweeps <= 20:
         raise bad('sweeps must be within 1..20')
+    if not 1 <= cfg.memory_stride <= 10:
+        raise bad('memory_stride must be within 1..10')
     if cfg.head.top_k < 1:
         raise bad('head.top_k must be >= 1')
     if cfg.head.yaw_velocity_min_speed < 0:

@@ -288,6 +288,26 @@ def test_memory_size_constant_over_frames_and_reset():
     assert d.memory_bytes > sizes[10]
 
 
+def test_memory_stride_fuses_the_memory_of_stride_frames_ago():
+    """With ``memory_stride`` k the frame at t fuses the memory sampled at t - k (the oldest
+    there is in the first frames after a reset); the node holds k memories."""
+    torch.manual_seed(0)
+    model = SUITDetector(replace(small_config('suit'), memory_stride=3))
+    runner = StreamingDetector(model)
+    f = frame(0)
+    stamps = [int(1e9 + t * 1e8) for t in range(6)]
+    fused_from = []
+    for s in stamps:
+        fused_from.append(None if runner.memory is None else runner.memory.stamps_ns[0])
+        r = runner.step(f.points, s, f.pose)
+    assert fused_from == [None, stamps[0], stamps[0], stamps[0], stamps[1], stamps[2]]
+    assert len(runner.memories) == 3
+    assert r.memory_bytes == sum(m.nbytes for m in runner.memories) > runner.memories[-1].nbytes
+    runner.reset('test')
+    assert runner.memory is None and runner.memory_bytes == 0
+    assert not runner.step(f.points, stamps[-1] + int(1e8), f.pose).used_memory
+
+
 @pytest.mark.slow
 def test_optimisation_reduces_every_loss():
     torch.manual_seed(0)
@@ -312,6 +332,8 @@ def test_config_validation():
         ModelConfig(temporal='lstm')
     with pytest.raises(ConfigError, match='alpha'):
         replace(ModelConfig(), sampling=SamplingConfig(alpha=1.5))
+    with pytest.raises(ConfigError, match='memory_stride'):
+        ModelConfig(memory_stride=0)
     with pytest.raises(ConfigError, match='time_scale'):
         replace(ModelConfig(), pillars=PillarConfig(time_scale=0.0))
 

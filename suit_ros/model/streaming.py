@@ -5,6 +5,7 @@ detections for the same frames.
 """
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 import time
 from typing import cast
@@ -58,7 +59,9 @@ class StreamingDetector:
         self.model = cast(SUITDetector, inference_copy(model.to(self.device),
                                                        precision=self.precision))
         self.cfg = model.cfg
-        self.memory: Memory | None = None
+        # the memories of the last ``memory_stride`` frames, oldest first: a frame fuses the
+        # oldest (sampled memory_stride frames ago, or the oldest there is after a reset)
+        self.memories: deque[Memory] = deque(maxlen=self.cfg.memory_stride)
         self.sweeps = SweepBuffer(self.cfg.sweeps)
         self.last_reset_reason = 'start'
         # set keep_terms to inspect the fusion: (W1 F_t, past term or None) of the last step
@@ -92,15 +95,20 @@ class StreamingDetector:
     def reset(self, reason: str = 'reset', sweeps: bool = True) -> None:
         """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps: the
         next frame runs single-frame."""
-        self.memory = None
+        self.memories.clear()
         if sweeps:
             self.sweeps.clear()
         self.last_reset_reason = reason
 
     @property
+    def memory(self) -> Memory | None:
+        """The memory the next frame fuses (None after a reset)."""
+        return self.memories[0] if self.memories else None
+
+    @property
     def memory_bytes(self) -> int:
-        """Bytes held by the temporal feature memory now (the sweep buffer not included)."""
-        return 0 if self.memory is None else self.memory.nbytes
+        """Bytes held by the temporal feature memories now (the sweep buffer not included)."""
+        return sum(mem.nbytes for mem in self.memories)
 
     def _sync(self) -> float:
         if self.device.type == 'cuda':
@@ -150,8 +158,10 @@ class StreamingDetector:
         out = m.head.decode(preds, self.candidates, self.score_thresholds, h.nms,
                             self.nms_iou_threshold, radius, self.max_detections)[0]
         t4 = self._sync()
-        self.memory = (m.sample_memory(fused, preds, poses, [stamp_ns])
-                       if T_odom_base is not None else None)
+        if T_odom_base is not None:
+            memory = m.sample_memory(fused, preds, poses, [stamp_ns])
+            if memory is not None:
+                self.memories.append(memory)
         t5 = self._sync()
         det = Detections(out['boxes'].float().cpu().numpy(),
                          out['velocities'].float().cpu().numpy(),
@@ -159,5 +169,5 @@ class StreamingDetector:
         det = boxes_to_lidar(det, T_bl)
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
                    'head_decode': t4 - t3, 'sampling': t5 - t4, 'total': t5 - t0}
-        samples = 0 if self.memory is None else self.memory.num_samples
+        samples = self.memories[-1].num_samples if self.memories else 0
         return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings)
