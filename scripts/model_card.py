@@ -86,7 +86,10 @@ def main() -> int:
         '**Data.** The embedded synthetic world, detailed variant (`train-real`: vehicles with a '
         'front and a back, articulated pedestrians, cyclists and motorcycles, street clutter), '
         '576 drives over the stages (training drives 0-575, seeds 1000-1575; '
-        f'{train["suit"].get("train_sequences", "?")} in the last stage) of '
+        f'{train["suit"].get("train_sequences", "?")} in the last stage, drives '
+        f'{train["suit"].get("train_first_sequence", 0)}-'
+        f'{train["suit"].get("train_first_sequence", 0) + train["suit"].get("train_sequences", 0) - 1}'
+        ') of '
         f'{train["suit"].get("train_frames", "?")} frames at 10 Hz, sensor '
         'models mixed (sim32, hdl32e, vlp16, hdl64e, os1-64; docs/sensors.md); GT boxes with at '
         'least one return.', '',
@@ -95,12 +98,17 @@ def main() -> int:
         'one-sweep checkpoint shipped before at commit 1e0d6b8), then 45 min each on 48, 144, '
         '288 and 288 fresh drives (`params/train_single_cont.yaml`, `_moredata`, `_288`, '
         '`_fresh`), one thread, beside a SUIT run of the same stage, a new one-cycle per stage '
-        "(lr 5e-4 from stage 3). Last stage, as the paper's second stage: from that single-frame "
+        "(lr 5e-4 from stage 3). Stage 6, as the paper's second stage: from that single-frame "
         'model, SUIT fine-tuning (`params/train_suit_from_single.yaml`, clips of 2-4 frames, '
         'temporal modules starting as a no-op at 3x lr) and the single-frame continuation '
         '(`params/train_single_cont288.yaml`) side by side for the same 30 min with one thread '
-        'each: same data, same budget. AdamW, one-cycle following wall time, weight decay 0.01, '
-        'rotation +-45 degrees, scaling 0.95-1.05, intensity dropout 20%, no flip.', '',
+        'each. Last stage (7): each model of stage 6 on training drives 288-575 with the time '
+        'lag scaled by 10 before the pillar encoder (`pillars.time_scale`, the weights rescaled '
+        'so each starts as the same function; `params/train_suit_time10.yaml`, '
+        '`params/train_single_time10.yaml`, lr 3e-4), side by side for the same 60 min with one '
+        'thread each: same data, same budget at every stage. AdamW, one-cycle following wall '
+        'time, weight decay 0.01, rotation +-45 degrees, scaling 0.95-1.05, intensity dropout '
+        '20%, no flip.', '',
         f'**Validation** ({len(res["meta"]["val_drives"])} drives from seeds 9000+, 40 frames '
         f'each, sensors {", ".join(sensors)}; value [95% per-drive bootstrap interval]):', '',
         '| | SUIT | single frame | SUIT - single |', '|---|---|---|---|']

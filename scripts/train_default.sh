@@ -10,8 +10,12 @@
 #   stage 5: each model of stage 4 on 288 fresh drives (training drives 288-575), 45 min;
 #   stage 6: the paper's second stage again, from the stage-5 single-frame model, side by side
 #            with one thread each for 30 min on training drives 0-287:
-#            SUIT fine-tuning  -> suit_default.safetensors
-#            single frame continued -> centerpoint_single.safetensors
+#            SUIT fine-tuning, single frame continued;
+#   stage 7: each model of stage 6 on training drives 288-575 with the time lag scaled by 10
+#            before the pillar encoder (pillars.time_scale; weights rescaled to the same
+#            function at the start), side by side with one thread each for 60 min:
+#            SUIT                  -> suit_default.safetensors
+#            single frame          -> centerpoint_single.safetensors
 #   then the benchmark (docs/results.md). The SUIT runs of stages 2-5 are not in the shipped
 #   SUIT model's lineage (README, "More drives, not more steps"), but they shared the 2 cores
 #   with the single-frame runs of the same stages, which set how many steps those got in their
@@ -27,6 +31,7 @@ STAGE1_MIN=${STAGE1_MIN:-55}
 STAGE2_MIN=${STAGE2_MIN:-45}
 STAGE34_MIN=${STAGE34_MIN:-45}     # stages 3, 4 and 5
 STAGE6_MIN=${STAGE6_MIN:-30}
+STAGE7_MIN=${STAGE7_MIN:-60}
 resume=()
 [ -n "${RESUME:-}" ] && resume=(--resume)
 mkdir -p runs/prev
@@ -56,7 +61,12 @@ done
 "$suit" train --config params/train_single_cont288.yaml --out runs/single_s6 --threads 1 \
   --max-minutes "$STAGE6_MIN" "${resume[@]}" > runs/single_s6.log 2>&1 &
 wait
-cp runs/suit_s6/model.safetensors suit_ros/checkpoints/suit_default.safetensors
-cp runs/single_s6/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
+"$suit" train --config params/train_suit_time10.yaml --out runs/suit_t10 --threads 1 \
+  --max-minutes "$STAGE7_MIN" "${resume[@]}" > runs/suit_t10.log 2>&1 &
+"$suit" train --config params/train_single_time10.yaml --out runs/single_t10 --threads 1 \
+  --max-minutes "$STAGE7_MIN" "${resume[@]}" > runs/single_t10.log 2>&1 &
+wait
+cp runs/suit_t10/model.safetensors suit_ros/checkpoints/suit_default.safetensors
+cp runs/single_t10/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
 "$py" scripts/ablation.py --single suit_ros/checkpoints/centerpoint_single.safetensors \
   --suit suit_ros/checkpoints/suit_default.safetensors
