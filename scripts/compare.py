@@ -6,6 +6,9 @@ drives as ``scripts/ablation.py``; every metric gets a per-drive bootstrap 95% i
 every run after the first a paired difference against the first. Writes ``OUT/results.md`` and
 ``OUT/results.json``.
 
+``--drop-memory`` adds, for each temporal checkpoint, a run with its memory dropped before every
+frame, paired with it.
+
 Usage: scripts/compare.py --run 3-sweeps runs/a/model.safetensors \\
                           --run 5-sweeps runs/b/model.safetensors --out docs/experiments/x
 """
@@ -32,6 +35,9 @@ def main() -> int:
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--precision', default='float32',
                         choices=['auto', 'float32', 'bfloat16'])
+    parser.add_argument('--drop-memory', action='store_true',
+                        help='also run each temporal checkpoint with its memory dropped before '
+                             'every frame (sweeps kept), paired with it: what its memory is worth')
     parser.add_argument('--out', required=True)
     args = parser.parse_args()
     if len({name for name, _ in args.run}) != len(args.run):
@@ -46,16 +52,20 @@ def main() -> int:
     t0 = time.monotonic()
     val = synthetic_split('val', args.drives, args.frames, args.cache_dir)
     runs, names = {}, None
+    pairs = [(name, args.run[0][0]) for name, _ in args.run[1:]]
     for name, path in args.run:
         model, cfg, _ = load_checkpoint(path, 'cpu')
         if names is not None and tuple(cfg.class_names) != names:
             parser.error(f'{path} has classes {cfg.class_names}, not {names}')
         names = tuple(cfg.class_names)
         runs[name] = run_model(model, val, precision=args.precision)
+        if args.drop_memory and cfg.temporal != 'none':
+            runs[f'{name}, memory dropped'] = run_model(model, val, drop_memory=True,
+                                                        precision=args.precision)
+            pairs.append((name, f'{name}, memory dropped'))
         print(f'[compare] {name}: {(time.monotonic() - t0) / 60:.1f} min', flush=True)
     assert names is not None
     first = args.run[0][0]
-    pairs = [(name, first) for name, _ in args.run[1:]]
     stats, diffs = bootstrap(runs, names, pairs, args.resamples)
     latency = {k: float(np.median(r.latency_s)) * 1e3 for k, r in runs.items()}
     out = Path(args.out)
@@ -72,7 +82,9 @@ def main() -> int:
              'whose speed drifts they are not a speed comparison.', '',
              '| run | checkpoint | step p50 (ms, 2 threads) |', '|---|---|---|']
     lines += [f'| {n} | `{p}` | {latency[n]:.1f} |' for n, p in args.run]
-    for title, rows in (('Metrics', stats), (f'Paired differences (against {first})', diffs)):
+    for title, rows in (('Metrics', stats), (f'Paired differences (runs against {first}'
+                                              + (', each against its memory dropped'
+                                                 if args.drop_memory else '') + ')', diffs)):
         lines += ['', f'## {title}', '', '| run | ' + ' | '.join(COLUMNS) + ' |',
                   '|---' * (len(COLUMNS) + 1) + '|']
         lines += [f'| {r} | ' + ' | '.join(m[c].fmt(3) if c in m else 'n/a' for c in COLUMNS)
