@@ -34,6 +34,9 @@ class PillarConfig:
     # 0.2 s weighs 1/40 of a metre-scale coordinate and its weight learns slowly (Adam moves
     # every weight at the same rate); 10 = the lag in 100 ms units
     time_scale: float = 1.0
+    # 3 per-pillar channels appended to the pseudo-image: log point counts of the current and
+    # of earlier sweeps, mean time lag (suit_ros.model.pillars.PillarEncoder)
+    time_channels: bool = False
 
 
 @dataclass(frozen=True)
@@ -142,6 +145,9 @@ def validate(cfg: ModelConfig) -> None:
         raise bad('pillars.pillar_size must be > 0')
     if not cfg.pillars.time_scale > 0:
         raise bad(f'pillars.time_scale must be > 0, got {cfg.pillars.time_scale}')
+    if cfg.pillars.time_channels and cfg.pillars.in_channels < 5:
+        raise bad('pillars.time_channels needs the time-lag input channel '
+                  f'(in_channels >= 5), got {cfg.pillars.in_channels}')
     for extent in (r[3] - r[0], r[4] - r[1]):
         cells = extent / cfg.pillars.pillar_size
         if abs(cells - round(cells)) > 1e-6:

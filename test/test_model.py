@@ -336,6 +336,8 @@ def test_config_validation():
         ModelConfig(memory_stride=0)
     with pytest.raises(ConfigError, match='time_scale'):
         replace(ModelConfig(), pillars=PillarConfig(time_scale=0.0))
+    with pytest.raises(ConfigError, match='time_channels'):
+        replace(ModelConfig(), pillars=PillarConfig(time_channels=True, in_channels=4))
 
 
 def test_decode_turns_moving_boxes_to_face_their_velocity():
@@ -441,6 +443,34 @@ def test_time_scale_multiplies_the_lag_in_training_and_in_the_folded_copy():
         fold_batchnorm(plain)
         fold_batchnorm(scaled)
         assert torch.allclose(scaled(rows, 1), want, atol=1e-4)
+
+
+def test_time_channels_count_current_and_earlier_sweeps_per_pillar():
+    """``time_channels``: three channels after the learned ones, log(1 + current points),
+    log(1 + earlier points), mean lag x time_scale; the same in the folded inference copy."""
+    from suit_ros.model.inference import fold_batchnorm
+    grid = BEVGrid((-25.6, -25.6, -3.0, 25.6, 25.6, 3.0), 0.4, 2)
+    torch.manual_seed(0)
+    enc = PillarEncoder(grid, 5, 16, time_scale=10.0, time_channels=True).eval()
+    assert enc.out_channels == 19
+    # one pillar (centre 0.2, 0.2): 2 current points and 3 of the sweep 0.2 s back; another
+    # (centre 4.2, 0.2) with only one point of the sweep 0.1 s back
+    pts = torch.tensor([[0.1, 0.1, 0.0, 0.5, 0.0], [0.3, 0.3, 0.5, 0.5, 0.0],
+                        [0.1, 0.3, 0.0, 0.5, 0.2], [0.2, 0.1, 0.2, 0.5, 0.2],
+                        [0.3, 0.1, 0.1, 0.5, 0.2], [4.1, 0.1, 0.0, 0.5, 0.1]])
+    rows = torch.cat([torch.zeros(len(pts), 1), pts], 1)
+    ix0, iy0 = int(25.6 / 0.4), int(25.6 / 0.4)
+    with torch.no_grad():
+        out = enc(rows, 1)
+        a = out[0, 16:, iy0, ix0]
+        b = out[0, 16:, iy0, ix0 + 10]
+        torch.testing.assert_close(a, torch.tensor([math.log(3), math.log(4), 0.6 * 10 / 5]))
+        torch.testing.assert_close(b, torch.tensor([0.0, math.log(2), 1.0]))
+        assert out[0, 16:].abs().sum() == pytest.approx(float(a.sum() + b.sum()), rel=1e-5)
+        fold_batchnorm(enc)
+        torch.testing.assert_close(enc(rows, 1), out, atol=1e-5, rtol=1e-5)
+    with pytest.raises(ValueError, match='time-lag'):
+        PillarEncoder(grid, 4, 16, time_channels=True)
 
 
 def test_inference_copy_folds_batch_norms_exactly():
