@@ -404,19 +404,31 @@ class DetectorNode(Node):
                                     else 'outside_odometry'] += 1
             self._stats.append(stats)
             self._last = out
+            # counted with the frame, so a diagnostic never shows a frame without its reasons
+            counts = [self._count_reason(key) for key in out.warnings]
         if out.reset_reason:
             self.get_logger().info(f'memory reset: {out.reset_reason}')
-        for key, text in out.warnings.items():
-            self._warn_reason(key, text)
+        for (key, text), count in zip(out.warnings.items(), counts):
+            self._log_reason(key, text, count)
+
+    def _count_reason(self, key: str) -> int:
+        """Count a reason (call with ``self._cv`` held); :return: its count so far."""
+        self.reason_counts[key] += 1
+        return self.reason_counts[key]
 
     def _warn_reason(self, key: str, text: str) -> None:
-        """Count a reason; log it the first time and then at most every 30 s (per reason)."""
-        self.reason_counts[key] += 1
+        """Count a reason and log it (see :meth:`_log_reason`)."""
+        with self._cv:
+            count = self._count_reason(key)
+        self._log_reason(key, text, count)
+
+    def _log_reason(self, key: str, text: str, count: int) -> None:
+        """Log a reason the first time and then at most every 30 s (per reason)."""
         now = time.monotonic()
         last = self._reason_logged.get(key)
         if last is None or now - last >= REASON_LOG_PERIOD_S:
             self._reason_logged[key] = now
-            self.get_logger().warn(f'{text} [{key}: {self.reason_counts[key]} so far]')
+            self.get_logger().warn(f'{text} [{key}: {count} so far]')
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_status(self) -> DiagnosticStatus:
@@ -430,6 +442,8 @@ class DetectorNode(Node):
             reader_delays = list(self._reader_delays)
             losses = [t for t in self._losses if t >= now - RATE_WINDOW_S]
             last = self._last
+            single_reasons = sorted(self.single_reasons.items())
+            reason_counts = sorted(self.reason_counts.items())
         levels: list[tuple[bytes, str]] = []
         values: dict[str, str] = {}
         recent = [t for t in arrivals if t >= now - RATE_WINDOW_S]
@@ -498,9 +512,9 @@ class DetectorNode(Node):
                 levels.append((DiagnosticStatus.WARN, text))
             if not last.pose_source.startswith('odometry'):
                 levels.append((DiagnosticStatus.WARN, f'single-frame: {last.pose_source}'))
-        for key, count in sorted(self.single_reasons.items()):
+        for key, count in single_reasons:
             values[f'single_frame.{key}'] = str(count)
-        for key, count in sorted(self.reason_counts.items()):
+        for key, count in reason_counts:
             values[f'warnings.{key}'] = str(count)
         values['last_reset_reason'] = self.pipeline.last_reset_reason
         values['memory_resets'] = str(self.pipeline.resets)
