@@ -37,7 +37,7 @@ PAIRS = [('suit', 'single'), ('suit', 'suit, memory dropped'),
          ('suit', 'suit, zero displacement'), ('suit, no intensity', 'suit'),
          ('suit, bfloat16', 'suit')]
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
-        'car heading err', 'car flipped %', 'moving car vel err']
+        'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
 
 
 def _load(path: str, temporal: str | None = None) -> Any:

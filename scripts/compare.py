@@ -22,7 +22,7 @@ import time
 import numpy as np
 
 COLUMNS = ['mAP', 'NDS', 'mAP moving', 'mAVE', 'mAOE', 'moving car vel err',
-           'moving car speed ratio', 'car heading err']
+           'moving car speed ratio', 'moving car speed slope', 'car heading err']
 
 
 def main() -> int:

@@ -131,8 +131,10 @@ def main() -> int:
                   f'{fmt(bf16, "mAP")}, NDS {fmt(bf16, "NDS")}, mAVE {fmt(bf16, "mAVE")}.']
     lines += ['', 'Limitations: trained only on the synthetic world (see docs/results.md for the '
               'held-out sensor and clutter figures, and the README for what to expect on real '
-              'sensors); velocities are under-estimated along the direction of travel (the '
-              '`moving car speed ratio` in docs/results.md).']
+              'sensors); speed is read only partly: on moving cars the predicted along-track '
+              'speed follows GT speed with a least-squares slope of '
+              f'{fmt(runs["suit"], "moving car speed slope")} (1 would read it fully; '
+              '`moving car speed slope` in docs/results.md).']
     Path('docs/model_card.md').write_text('\n'.join(lines) + '\n')
     print('\n'.join(lines))
     return 0

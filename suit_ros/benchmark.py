@@ -140,15 +140,20 @@ def bucket_metrics(run: ModelRun, class_names: Sequence[str], frames: Sequence[i
     return RunMetrics(run, class_names)(frames)
 
 
-MotionFrame = tuple[list[float], list[float], list[float]]
+# per frame, over matched cars: heading errors; for moving cars: velocity errors, speed ratios,
+# GT speeds and the predicted velocity's component along the GT direction of travel
+MotionFrame = tuple[list[float], list[float], list[float], list[float], list[float]]
 
 
 def car_motion_frame(g: Detections, d: Detections, car: int, min_score: float = 0.3,
                      max_dist: float = 2.0) -> MotionFrame:
-    """One frame's matched cars: heading errors, moving-car velocity errors, speed ratios."""
+    """One frame's matched cars: heading errors, moving-car velocity errors, speed ratios, GT
+    speeds and predicted along-track speeds."""
     head: list[float] = []
     vel_moving: list[float] = []
     speed: list[float] = []
+    gt_speed: list[float] = []
+    along: list[float] = []
     gm = np.nonzero(g.labels == car)[0]
     dm = np.nonzero((d.labels == car) & (d.scores >= min_score))[0]
     dm = dm[np.argsort(-d.scores[dm], kind='stable')]
@@ -165,22 +170,34 @@ def car_motion_frame(g: Detections, d: Detections, car: int, min_score: float = 
         err = (d.boxes[j, 6] - g.boxes[gm[k], 6] + np.pi) % (2 * np.pi) - np.pi
         head.append(float(abs(err)))
         v = g.velocities[gm[k]]
-        if np.hypot(*v) > MOVING_SPEED:
+        s = float(np.hypot(*v))
+        if s > MOVING_SPEED:
             vel_moving.append(float(np.hypot(*(d.velocities[j] - v))))
-            speed.append(float(np.hypot(*d.velocities[j])) / float(np.hypot(*v)))
-    return head, vel_moving, speed
+            speed.append(float(np.hypot(*d.velocities[j])) / s)
+            gt_speed.append(s)
+            along.append(float(d.velocities[j] @ v) / s)
+    return head, vel_moving, speed, gt_speed, along
 
 
 def car_motion_summary(frames: Sequence[MotionFrame]) -> dict[str, float]:
-    """Mean heading error, flipped share (> 135 deg), moving-car velocity error and median
-    speed ratio over frames."""
+    """Mean heading error, flipped share (> 135 deg), moving-car velocity error, median speed
+    ratio, and how far predicted speed follows GT speed over moving cars: the least-squares
+    slope of the predicted along-track speed on the GT speed (1: reads speed, 0: predicts one
+    speed for all) and their correlation."""
     h = np.asarray([x for f in frames for x in f[0]])
     vel = [x for f in frames for x in f[1]]
     speed = [x for f in frames for x in f[2]]
+    gs = np.asarray([x for f in frames for x in f[3]])
+    al = np.asarray([x for f in frames for x in f[4]])
+    slope = corr = float('nan')
+    if len(gs) >= 2 and gs.std() > 0:
+        slope = float(np.mean((gs - gs.mean()) * (al - al.mean())) / gs.var())
+        corr = float(np.corrcoef(gs, al)[0, 1]) if al.std() > 0 else 0.0
     return {'car heading err': float(h.mean()) if len(h) else float('nan'),
             'car flipped %': float(100 * (h > 0.75 * np.pi).mean()) if len(h) else float('nan'),
             'moving car vel err': float(np.mean(vel)) if vel else float('nan'),
-            'moving car speed ratio': float(np.median(speed)) if speed else float('nan')}
+            'moving car speed ratio': float(np.median(speed)) if speed else float('nan'),
+            'moving car speed slope': slope, 'moving car speed corr': corr}
 
 
 def car_motion(gt: Sequence[Detections], det: Sequence[Detections], car: int,

@@ -93,6 +93,28 @@ def test_car_motion_heading_and_flips():
     assert m['car heading err'] == pytest.approx((np.pi + 0.1) / 2, abs=1e-5)
     assert m['moving car vel err'] == pytest.approx(1.0, abs=1e-6)
     assert m['moving car speed ratio'] == pytest.approx(5 / 6, abs=1e-6)
+    assert np.isnan(m['moving car speed slope'])                  # one moving car: no slope
+
+
+def test_car_motion_speed_slope_reads_whether_speed_follows_gt():
+    """Slope 1 and correlation 1 when predicted speed follows GT speed (even with an offset);
+    slope 0 when every moving car gets the same speed; along-track only (a sideways error does
+    not count as speed)."""
+    speeds = np.array([3.0, 6.0, 9.0, 12.0])
+    boxes = [[10.0 * (i + 1), 0, 0, 4, 2, 1.5, 0.0] for i in range(4)]
+    g = dets(boxes, vel=np.c_[speeds, np.zeros(4)])
+
+    def motion(pred):
+        d = dets(boxes, vel=pred, scores=np.full(4, 0.9))
+        return car_motion([g], [d], 0)
+    m = motion(np.c_[speeds + 1.0, np.full(4, 2.0)])
+    assert m['moving car speed slope'] == pytest.approx(1.0)
+    assert m['moving car speed corr'] == pytest.approx(1.0)
+    m = motion(np.c_[np.full(4, 7.0), np.zeros(4)])
+    assert m['moving car speed slope'] == pytest.approx(0.0)
+    assert m['moving car speed corr'] == 0.0
+    m = motion(np.c_[0.5 * speeds, np.zeros(4)])
+    assert m['moving car speed slope'] == pytest.approx(0.5)
     # low-score detections and far ones are not matched
     low = dets([[10.2, 0, 0, 4, 2, 1.5, 0.5]], scores=np.array([0.1]))
     assert np.isnan(car_motion([g], [low], 0)['car heading err'])
