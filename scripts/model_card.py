@@ -102,16 +102,13 @@ def main() -> int:
         'model, SUIT fine-tuning (`params/train_suit_from_single.yaml`, clips of 2-4 frames, '
         'temporal modules starting as a no-op at 3x lr) and the single-frame continuation '
         '(`params/train_single_cont288.yaml`) side by side for the same 30 min with one thread '
-        'each. Stage 7: each model of stage 6 on training drives 288-575 with the time '
+        'each. Last stage (7): each model of stage 6 on training drives 288-575 with the time '
         'lag scaled by 10 before the pillar encoder (`pillars.time_scale`, the weights rescaled '
         'so each starts as the same function; `params/train_suit_time10.yaml`, '
         '`params/train_single_time10.yaml`, lr 3e-4), side by side for the same 60 min with one '
-        'thread each. Last stage (8): each model of stage 7 on training drives 0-287 (seed 8) '
-        'for a fixed number of steps, 1,000 SUIT and 1,500 single frame (the step ratio of stage '
-        '7 in equal time; `params/train_suit_stage8.yaml`, `params/train_single_stage8.yaml`): '
-        'same data, same budget at every stage. AdamW, one-cycle (following wall time up to '
-        'stage 7, steps in stage 8), weight decay 0.01, rotation +-45 degrees, scaling '
-        '0.95-1.05, intensity dropout 20%, no flip.', '',
+        'thread each: same data, same budget at every stage. AdamW, one-cycle following wall '
+        'time, weight decay 0.01, rotation +-45 degrees, scaling 0.95-1.05, intensity dropout '
+        '20%, no flip.', '',
         f'**Validation** ({len(res["meta"]["val_drives"])} drives from seeds 9000+, 40 frames '
         f'each, sensors {", ".join(sensors)}; value [95% per-drive bootstrap interval]):', '',
         '| | SUIT | single frame | SUIT - single |', '|---|---|---|---|']

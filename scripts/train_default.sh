@@ -13,9 +13,7 @@
 #            SUIT fine-tuning, single frame continued;
 #   stage 7: each model of stage 6 on training drives 288-575 with the time lag scaled by 10
 #            before the pillar encoder (pillars.time_scale; weights rescaled to the same
-#            function at the start), side by side with one thread each for 60 min;
-#   stage 8: each model of stage 7 on training drives 0-287 for a fixed number of steps,
-#            1,000 SUIT and 1,500 single frame (the step ratio stage 7 gave in equal time):
+#            function at the start), side by side with one thread each for 60 min:
 #            SUIT                  -> suit_default.safetensors
 #            single frame          -> centerpoint_single.safetensors
 #   then the benchmark (docs/results.md). The SUIT runs of stages 2-5 are not in the shipped
@@ -68,13 +66,7 @@ wait
 "$suit" train --config params/train_single_time10.yaml --out runs/single_t10 --threads 1 \
   --max-minutes "$STAGE7_MIN" "${resume[@]}" > runs/single_t10.log 2>&1 &
 wait
-# stage 8: fixed steps (1,000 SUIT, 1,500 single frame: the stage-7 step ratio), drives 0-287
-"$suit" train --config params/train_suit_stage8.yaml --out runs/suit_s8 --threads 1 \
-  "${resume[@]}" > runs/suit_s8.log 2>&1 &
-"$suit" train --config params/train_single_stage8.yaml --out runs/single_s8 --threads 1 \
-  "${resume[@]}" > runs/single_s8.log 2>&1 &
-wait
-cp runs/suit_s8/model.safetensors suit_ros/checkpoints/suit_default.safetensors
-cp runs/single_s8/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
+cp runs/suit_t10/model.safetensors suit_ros/checkpoints/suit_default.safetensors
+cp runs/single_t10/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
 "$py" scripts/ablation.py --single suit_ros/checkpoints/centerpoint_single.safetensors \
   --suit suit_ros/checkpoints/suit_default.safetensors
