@@ -62,8 +62,17 @@ def save_checkpoint(path: str | os.PathLike[str], model: torch.nn.Module, config
 
 
 def _sniff(path: Path) -> None:
+    """Refuse pickles and torch.save archives before any parser sees them.
+
+    A safetensors file starts with its JSON header's length (8 bytes, little endian) followed by
+    ``{``; that is checked first, because the length's low byte may be anything, 0x80 (a pickle's
+    first byte) included.
+    """
+    size = path.stat().st_size
     with open(path, 'rb') as f:
-        head = f.read(8)
+        head = f.read(9)
+    if len(head) == 9 and head[8:9] == b'{' and 8 + int.from_bytes(head[:8], 'little') <= size:
+        return
     if head[:1] == b'\x80' or head[:2] == b'PK':
         kind = 'a pickle' if head[:1] == b'\x80' else 'a torch.save (zip/pickle) archive'
         raise CheckpointError(

@@ -58,6 +58,26 @@ def test_pickle_is_refused_without_running_it(tmp_path):
     assert not os.path.exists('/tmp/suit_ros_pwned')
 
 
+@pytest.mark.parametrize('low', [b'\x80', b'PK'])
+def test_header_length_that_looks_like_a_pickle_still_loads(tmp_path, low):
+    """A safetensors file starts with its header length, whose low bytes may read as 0x80 or PK
+    (a pickle's and a zip's first bytes): such a checkpoint must load, not be refused."""
+    model = SUITDetector(ModelConfig())
+    path = tmp_path / 'm.safetensors'
+    want = int.from_bytes(low, 'little')
+    mod = 256 ** len(low)
+
+    def low_bytes(pad: int) -> int:
+        save_checkpoint(path, model, ModelConfig(), extra={'pad': 'x' * pad})
+        return int.from_bytes(path.read_bytes()[:len(low)], 'little')
+
+    start = (want - low_bytes(0)) % mod - 16      # the header grows one byte per pad character
+    pad = next((p for p in range(max(start, 0), start + 64) if low_bytes(p) == want), None)
+    assert pad is not None, 'no padding gave the header length wanted'
+    _, cfg, meta = load_checkpoint(path)
+    assert cfg == ModelConfig() and len(meta['extra']['pad']) == pad
+
+
 def test_corrupt_truncated_foreign_missing(tmp_path, ckpt):
     with pytest.raises(CheckpointError, match='does not exist'):
         read_metadata(tmp_path / 'nope.safetensors')
