@@ -2,7 +2,8 @@
 
 The PointCloud2 has one point per box with fields (FLOAT32) ``x y z length width height yaw vx
 vy score`` and ``label`` (UINT8, index into the class names); GT adds ``num_points`` and
-``instance_id`` (UINT32).
+``instance_id`` (UINT32); detections from the velocity filter add ``track_id`` (UINT32, the same
+object keeps its id across frames; 0: not tracked).
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ from .pointcloud2 import array_to_pointcloud2, pointcloud2_to_array
 
 FLOAT_FIELDS = ('x', 'y', 'z', 'length', 'width', 'height', 'yaw', 'vx', 'vy', 'score')
 GT_FIELDS = ('num_points', 'instance_id')
+TRACK_FIELD = 'track_id'
 # class colours (RGBA) by label index; cycles for more classes
 PALETTE = ((0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16),
            (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5))
@@ -26,8 +28,9 @@ ARROW, CUBE, LINE_LIST, TEXT_VIEW_FACING = 0, 1, 5, 9
 ADD, DELETEALL = 0, 3
 
 
-def detection_dtype(with_gt: bool) -> np.dtype[Any]:
-    """Structured dtype of the detections cloud (4-byte aligned)."""
+def detection_dtype(with_gt: bool, with_track: bool = False) -> np.dtype[Any]:
+    """Structured dtype of the detections cloud (4-byte aligned): GT fields, then
+    ``track_id``, after the common ones."""
     names = list(FLOAT_FIELDS) + ['label']
     formats: list[str] = ['<f4'] * len(FLOAT_FIELDS) + ['u1']
     offsets = [4 * i for i in range(len(FLOAT_FIELDS))] + [40]
@@ -35,8 +38,13 @@ def detection_dtype(with_gt: bool) -> np.dtype[Any]:
     if with_gt:
         names += list(GT_FIELDS)
         formats += ['<u4', '<u4']
-        offsets += [44, 48]
-        size = 52
+        offsets += [size, size + 4]
+        size += 8
+    if with_track:
+        names.append(TRACK_FIELD)
+        formats.append('<u4')
+        offsets.append(size)
+        size += 4
     return np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': size})
 
 
@@ -56,12 +64,19 @@ def _box_inputs(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[A
 
 
 def detections_to_array(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[Any],
-                        labels: NDArray[Any], extra_fields: dict[str, NDArray[Any]] | None = None
-                        ) -> NDArray[Any]:
+                        labels: NDArray[Any], extra_fields: dict[str, NDArray[Any]] | None = None,
+                        track_ids: NDArray[Any] | None = None) -> NDArray[Any]:
     """The structured array behind the detections cloud (see :func:`detection_dtype`)."""
     b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
     n = len(b)
-    arr = np.zeros(n, detection_dtype(bool(extra_fields)))
+    arr = np.zeros(n, detection_dtype(bool(extra_fields), track_ids is not None))
+    if track_ids is not None:
+        ids = np.asarray(track_ids).reshape(-1)
+        if len(ids) != n:
+            raise MessageError(f'{len(ids)} track ids for {n} boxes')
+        if n and (ids.min() < 0 or ids.max() > np.iinfo(np.uint32).max):
+            raise PointCloudError('track ids must fit the UINT32 track_id field')
+        arr[TRACK_FIELD] = ids.astype(np.uint32)
     for i, name in enumerate(FLOAT_FIELDS[:7]):
         arr[name] = b[:, i]
     arr['vx'], arr['vy'], arr['score'] = v[:, 0], v[:, 1], s
@@ -83,15 +98,17 @@ def detections_to_array(boxes: NDArray[Any], velocities: NDArray[Any], scores: N
 def detections_to_pointcloud2(boxes: NDArray[Any], velocities: NDArray[Any],
                               scores: NDArray[Any], labels: NDArray[Any], header: Any,
                               classes: MessageClasses,
-                              extra_fields: dict[str, NDArray[Any]] | None = None) -> Any:
-    """Build the detections (or GT, with ``extra_fields``) PointCloud2."""
-    arr = detections_to_array(boxes, velocities, scores, labels, extra_fields)
+                              extra_fields: dict[str, NDArray[Any]] | None = None,
+                              track_ids: NDArray[Any] | None = None) -> Any:
+    """Build the detections (or GT, with ``extra_fields``) PointCloud2; ``track_ids`` adds the
+    ``track_id`` field."""
+    arr = detections_to_array(boxes, velocities, scores, labels, extra_fields, track_ids)
     return array_to_pointcloud2(arr, header, classes, is_dense=True)
 
 
 def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
     """Read a detections/GT cloud: ``boxes (N, 7)``, ``velocities (N, 2)``, ``scores``,
-    ``labels`` (int64), and ``num_points``/``instance_id`` when present."""
+    ``labels`` (int64), and ``num_points``/``instance_id``/``track_id`` when present."""
     arr = pointcloud2_to_array(msg).reshape(-1)
     names = set(arr.dtype.names or ())
     missing = [n for n in FLOAT_FIELDS + ('label',) if n not in names]
@@ -102,7 +119,7 @@ def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
            'velocities': np.stack([arr['vx'], arr['vy']], 1).astype(np.float32).reshape(-1, 2),
            'scores': arr['score'].astype(np.float32),
            'labels': arr['label'].astype(np.int64)}
-    for n in GT_FIELDS:
+    for n in GT_FIELDS + (TRACK_FIELD,):
         if n in names:
             out[n] = arr[n].astype(np.uint32)
     return out
@@ -134,7 +151,8 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
                               class_names: tuple[str, ...] | list[str],
                               classes: MessageClasses, min_arrow_speed: float = 0.2,
                               factory: MessageFactory | None = None,
-                              line_width: float = 0.08) -> Any:
+                              line_width: float = 0.08,
+                              track_ids: NDArray[Any] | None = None) -> Any:
     """A MarkerArray: DELETEALL, one LINE_LIST per class, one TEXT label per box.
 
     The LINE_LIST of a class (namespace ``<class>/boxes``, id 0, coloured by class from
@@ -142,7 +160,8 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
     (24 points per box, in the order of :func:`box_corners` and :data:`BOX_EDGES`) followed by
     one velocity segment per box moving at ``min_arrow_speed`` m/s or more: from the centre of
     the box's top face to where it will be in one second. The text (namespace
-    ``<class>/labels``, id the box index) reads ``'<class> <score:.2f>'`` above the box.
+    ``<class>/labels``, id the box index) reads ``'<class> <score:.2f>'`` above the box, and
+    ``' #<track id>'`` after it for a tracked box (``track_ids`` given, id > 0).
     ``lifetime`` 0 (the next array's DELETEALL clears them); every marker carries ``header``.
 
     Sub-messages equal between markers (the header, the lifetime, colours, the identity pose)
@@ -185,9 +204,14 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
                                 f.vector3(line_width, 0.0, 0.0), f.color(r, g, bl, 1.0),
                                 lifetime, points=points))
     z_text = (top[:, 2] + 0.5).tolist()
-    for i, (x, y, z, k, score) in enumerate(zip(b[:, 0].tolist(), b[:, 1].tolist(), z_text,
-                                                 lab.tolist(), s.tolist())):
+    ids = (np.zeros(len(b), np.int64) if track_ids is None
+           else np.asarray(track_ids, np.int64).reshape(-1))
+    if len(ids) != len(b):
+        raise MessageError(f'{len(ids)} track ids for {len(b)} boxes')
+    for i, (x, y, z, k, score, tid) in enumerate(zip(b[:, 0].tolist(), b[:, 1].tolist(), z_text,
+                                                      lab.tolist(), s.tolist(), ids.tolist())):
+        text = f'{names[k]} {score:.2f}' + (f' #{tid}' if tid > 0 else '')
         markers.append(f.marker(header, f'{names[k]}/labels', i, TEXT_VIEW_FACING, ADD,
                                 f.pose(f.point(x, y, z), ident.orientation), text_scale, white,
-                                lifetime, f'{names[k]} {score:.2f}'))
+                                lifetime, text))
     return C.MarkerArray(markers=markers)

@@ -10,6 +10,8 @@ models; training used seeds 1000+):
   kept): what the temporal path is worth;
 - ``suit, zero displacement``: SUIT's weights with GeoNet replaced by zero displacement;
 - ``... no intensity``: the same clouds with the intensity channel removed;
+- ``single, velocity filter`` and ``suit, velocity filter``: the node's default output, the
+  head's velocities filtered over frames (:mod:`suit_ros.tracking`);
 - ``suit, bfloat16``: the same weights with the backbone and head convolutions in bfloat16 (the
   node's ``precision: auto`` on a CPU with bfloat16 units); every other run is float32;
 - the held-out sensor (``heldout`` seeds 9500+, a sensor no training drive used).
@@ -35,7 +37,9 @@ import numpy as np
 
 PAIRS = [('suit', 'single'), ('suit', 'suit, memory dropped'),
          ('suit', 'suit, zero displacement'), ('suit, no intensity', 'suit'),
-         ('suit, bfloat16', 'suit')]
+         ('suit, bfloat16', 'suit'), ('suit, velocity filter', 'suit'),
+         ('single, velocity filter', 'single'),
+         ('suit, velocity filter', 'single, velocity filter')]
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
 
@@ -109,6 +113,7 @@ def main() -> int:
     from suit_ros.benchmark import bootstrap, plain_intervals
     from suit_ros.data.sequences import split_drives, synthetic_split
     from suit_ros.evaluate import run_model
+    from suit_ros.tracking import FilterConfig
 
     t0 = time.monotonic()
     val = synthetic_split('val', args.drives, args.frames, args.cache_dir)
@@ -120,6 +125,8 @@ def main() -> int:
         runs['suit, zero displacement'] = run_model(_load(args.suit, 'sparse'), val)
         runs['suit, no intensity'] = run_model(suit, val, transform=_no_intensity)
         runs['suit, bfloat16'] = run_model(suit, val, precision='bfloat16')
+        runs['single, velocity filter'] = run_model(single, val, velocity_filter=FilterConfig())
+        runs['suit, velocity filter'] = run_model(suit, val, velocity_filter=FilterConfig())
     print(f'[ablation] ran {len(runs)} variants in {(time.monotonic() - t0) / 60:.1f} min',
           flush=True)
     pairs = [p for p in PAIRS if p[0] in runs and p[1] in runs]

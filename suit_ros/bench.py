@@ -74,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         detections_to_pointcloud2,
     )
     from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2, pointcloud2_to_xyzi
+    from suit_ros.tracking import FilterConfig
     torch.set_num_threads(args.threads)
     n = args.frames
     sim = Simulation(preset('demo-real', frames=max(n, 12)), 7)
@@ -89,9 +90,12 @@ def run(args: argparse.Namespace) -> int:
     # --- per stage, SUIT (memory carried) and single frame; the three models step frame by
     # frame in turn, so a change of the machine's speed hits all of them alike
     stage_times: dict[str, list[float]] = {k: [] for k in (
-        'convert', 'sweeps', 'encode', 'head_decode', 'sampling', 'fusion', 'output')}
+        'convert', 'sweeps', 'encode', 'head_decode', 'sampling', 'fusion', 'tracking',
+        'output')}
     temporals: tuple[TemporalMode, ...] = ('none', 'suit', 'dense')
-    runners = {t: StreamingDetector(_model(args, t), args.device, precision=args.precision)
+    # as the node runs them by default: velocity filter on
+    runners = {t: StreamingDetector(_model(args, t), args.device, precision=args.precision,
+                                    velocity_filter=FilterConfig())
                for t in temporals}
     names = runners['suit'].cfg.class_names
     steps: dict[str, list[float]] = {t: [] for t in temporals}
@@ -106,9 +110,9 @@ def run(args: argparse.Namespace) -> int:
             t2 = time.perf_counter()
             d = r.detections
             detections_to_pointcloud2(d.boxes, d.velocities, d.scores, d.labels,
-                                      msg.header, C)
+                                      msg.header, C, track_ids=r.track_ids)
             detections_to_markerarray(d.boxes, d.velocities, d.scores, d.labels, msg.header,
-                                      names, C)
+                                      names, C, track_ids=r.track_ids)
             t3 = time.perf_counter()
             if i + 1 in (2, 10):
                 memory[temporal][i + 1] = r.memory_bytes
@@ -118,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
             if temporal == 'suit':
                 stage_times['convert'].append(t1 - t0)
                 stage_times['output'].append(t3 - t2)
-                for k in ('sweeps', 'encode', 'head_decode', 'sampling', 'fusion'):
+                for k in ('sweeps', 'encode', 'head_decode', 'sampling', 'fusion', 'tracking'):
                     stage_times[k].append(r.timings[k])
     res['stages_ms'] = {k: {'p50': pct(v, 50), 'p95': pct(v, 95)} for k, v in
                         stage_times.items()}

@@ -504,6 +504,8 @@ class DetectorNode(Node):
                 'memory_samples': str(last.memory_samples),
                 'memory_bytes': str(last.memory_bytes),
                 'used_memory': str(last.used_memory),
+                'velocity_filter_tracks': ('off' if last.track_ids is None
+                                           else str(last.tracks)),
                 'pose_source': last.pose_source,
                 'pose_age_s': f'{last.pose_age_s:.3f}',
                 'input_warnings': ','.join(last.warnings) or 'none',

@@ -63,6 +63,9 @@ class DetectorParams:
     candidates: int = field(default=500, metadata=_spec(
         'heatmap peaks kept before the score threshold and NMS (busy scenes need hundreds)',
         lo=1, hi=10000))
+    velocity_filter: bool = field(default=True, metadata=_spec(
+        "filter each detection's velocity over frames with a constant-velocity Kalman track "
+        "(odometry frame) and publish its track id; false: the head's one-frame velocity"))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
     max_range: float = field(default=80.0, metadata=_spec(
@@ -247,6 +250,8 @@ def _yaml_value(value: Any) -> str:
         return '[' + ', '.join(_yaml_value(v) for v in value) + ']'
     if isinstance(value, str):
         return f"'{value}'"
+    if isinstance(value, bool):
+        return 'true' if value else 'false'
     return repr(value)
 
 

@@ -24,6 +24,7 @@ from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
 from suit_ros.ops.geometry import pose_from_xyz_rpy
 from suit_ros.params import DetectorParams
 from suit_ros.structures import Detections
+from suit_ros.tracking import FilterConfig
 
 # the pipeline's settings are the node's: one owner (suit_ros.params)
 PipelineParams = DetectorParams
@@ -63,6 +64,8 @@ class PipelineOutput:
     has_intensity: bool = True
     pose_source: str = 'none'
     pose_age_s: float = float('nan')
+    track_ids: NDArray[np.int64] | None = None          # None: the velocity filter is off
+    tracks: int = 0                                      # the velocity filter's live tracks
     used_memory: bool = False
     memory_samples: int = 0
     memory_bytes: int = 0
@@ -113,6 +116,8 @@ class DetectionPipeline:
         self.detector.set_thresholds(params.class_thresholds(len(self.class_names)),
                                      params.nms_iou_threshold, params.max_detections,
                                      params.candidates)
+        self.detector.set_velocity_filter(FilterConfig(max_gap_s=params.max_gap_s)
+                                          if params.velocity_filter else None)
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,
@@ -182,15 +187,19 @@ class DetectionPipeline:
             model_timings = result.timings
         else:   # nothing to detect in: publish an empty result, keep the memory as it is
             out.memory_bytes = self.detector.memory_bytes
+        if self.detector.tracks is not None:
+            out.track_ids = result.track_ids if len(points) else np.zeros(0, np.int64)
+            out.tracks = len(self.detector.tracks)
         t3 = time.perf_counter()
         if self.classes is not None:
             d = out.detections
             out.detections_msg = detections_to_pointcloud2(
-                d.boxes, d.velocities, d.scores, d.labels, header, self.classes)
+                d.boxes, d.velocities, d.scores, d.labels, header, self.classes,
+                track_ids=out.track_ids)
             if markers:
                 out.markers_msg = detections_to_markerarray(
                     d.boxes, d.velocities, d.scores, d.labels, header, self.class_names,
-                    self.classes)
+                    self.classes, track_ids=out.track_ids)
         t4 = time.perf_counter()
         out.timings = {'convert': (t1 - t0) + (t2 - t1), 'model': t3 - t2, 'publish': t4 - t3}
         out.timings.update({f'model.{k}': v for k, v in model_timings.items()})

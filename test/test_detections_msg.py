@@ -60,6 +60,33 @@ def test_cloud_layout_and_round_trip_with_gt_fields(C):
     np.testing.assert_array_equal(back['instance_id'], extra['instance_id'])
 
 
+@pytest.mark.parametrize('C', BOTH, **KIND)
+def test_track_ids_field_and_marker_text(C):
+    boxes, vel, scores, labels = random_boxes(5)
+    ids = np.array([3, 0, 7, 4_000_000_000, 1])
+    msg = detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                    track_ids=ids)
+    layout = [(f.name, f.offset, f.datatype) for f in msg.fields]
+    assert layout[-2:] == [('label', 40, UINT8), ('track_id', 44, UINT32)]
+    assert msg.point_step == 48
+    np.testing.assert_array_equal(pointcloud2_to_detections(msg)['track_id'], ids)
+    plain = detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C)
+    assert 'track_id' not in pointcloud2_to_detections(plain)
+    arr = detections_to_markerarray(boxes, vel, scores, labels, C.header(5, 'lidar'), NAMES, C,
+                                    track_ids=ids)
+    texts = [m.text for m in arr.markers if m.type == TEXT_VIEW_FACING]
+    assert texts[0].endswith(' #3') and '#' not in texts[1] and texts[3].endswith(' #4000000000')
+    with pytest.raises(MessageError, match='track ids'):
+        detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                  track_ids=ids[:2])
+    with pytest.raises(MessageError, match='track ids'):
+        detections_to_markerarray(boxes, vel, scores, labels, C.header(5, 'lidar'), NAMES, C,
+                                  track_ids=ids[:2])
+    with pytest.raises(PointCloudError, match='UINT32'):
+        detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                  track_ids=-ids)
+
+
 def test_cloud_through_cdr_both_ways():
     boxes, vel, scores, labels = random_boxes(12, 5)
     m = detections_to_pointcloud2(boxes, vel, scores, labels, RCLPY.header(1, 'lidar'), RCLPY)

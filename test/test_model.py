@@ -288,6 +288,34 @@ def test_memory_size_constant_over_frames_and_reset():
     assert d.memory_bytes > sizes[10]
 
 
+def test_velocity_filter_in_the_stream_follows_the_reset_rules():
+    from suit_ros.tracking import FilterConfig
+    torch.manual_seed(0)
+    model = SUITDetector(small_config('suit'))
+    K = len(model.cfg.class_names)
+    filt = FilterConfig(birth_score=0.0)         # an untrained head is never confident
+    runner = StreamingDetector(model, score_thresholds=[0.0] * K, velocity_filter=filt)
+    f = frame(0)
+    r1 = runner.step(f.points, int(1e9), f.pose)
+    assert len(r1.detections) > 0 and (r1.track_ids > 0).all()
+    assert len(set(r1.track_ids.tolist())) == len(r1.detections)
+    r2 = runner.step(f.points, int(1.1e9), f.pose)
+    assert set(r2.track_ids.tolist()) & set(r1.track_ids.tolist())
+    assert runner.tracks is not None and 'tracking' in r2.timings
+    tracks = runner.tracks
+    runner.reset('drop memory', sweeps=False)     # the feature memory only: tracks stay
+    assert len(tracks) > 0
+    runner.set_velocity_filter(filt)              # unchanged settings keep the tracks
+    assert runner.tracks is tracks
+    runner.reset('test')
+    assert len(tracks) == 0
+    r3 = runner.step(f.points, int(1.2e9), None)  # no pose: no odometry frame to track in
+    assert len(r3.detections) and not r3.track_ids.any()
+    runner.set_velocity_filter(None)
+    r4 = runner.step(f.points, int(1.3e9), f.pose)
+    assert runner.tracks is None and not r4.track_ids.any()
+
+
 def test_memory_stride_fuses_the_memory_of_stride_frames_ago():
     """With ``memory_stride`` k the frame at t fuses the memory sampled at t - k (the oldest
     there is in the first frames after a reset); the node holds k memories."""

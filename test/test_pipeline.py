@@ -76,7 +76,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
-                       'intensity_field',
+                       'intensity_field', 'velocity_filter',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -114,6 +114,31 @@ def test_nms_iou_threshold_reaches_the_decoder(model, classes, scene):
     assert pipe.detector.nms_iou_threshold == pytest.approx(0.7)
     pipe.configure(replace(pipe.params, nms_iou_threshold=0.05))
     assert pipe.detector.nms_iou_threshold == pytest.approx(0.05)
+
+
+def test_velocity_filter_tracks_and_can_be_turned_off(model, classes, scene):
+    from suit_ros.msg_adapters.detections import pointcloud2_to_detections
+    pipe = make_pipeline(model, classes, score_thresholds=(0.05,))
+    assert pipe.params.velocity_filter and pipe.detector.tracks is not None
+    feed_odometry(pipe, T0, T0 + S, speed=0.0)
+    outs = [pipe.process(cloud(classes, T0 + k * S // 10, scene)) for k in range(3)]
+    first, last = outs[0], outs[-1]
+    assert len(first.detections) >= 3 and first.track_ids is not None
+    msg = pointcloud2_to_detections(last.detections_msg)
+    assert np.array_equal(msg['track_id'], last.track_ids)
+    assert 0 not in set(last.track_ids)
+    # the same static scene: the confident objects keep their ids
+    sure = last.track_ids[last.detections.scores >= 0.25]
+    assert len(sure) >= 3 and set(sure) <= set(first.track_ids)
+    raw = pipe.detector.tracks
+    assert raw is not None and len(raw) >= len(first.detections)
+    pipe.configure(replace(pipe.params, velocity_filter=False))
+    off = pipe.process(cloud(classes, T0 + 3 * S // 10, scene))
+    assert pipe.detector.tracks is None and off.track_ids is None
+    assert 'track_id' not in pointcloud2_to_detections(off.detections_msg)
+    # the filter's gap is the pipeline's one staleness threshold
+    pipe.configure(replace(pipe.params, velocity_filter=True, max_gap_s=2.0))
+    assert pipe.detector.tracks is not None and pipe.detector.tracks.config.max_gap_s == 2.0
 
 
 def test_intensity_field_chooses_or_ignores_intensity(model, classes):

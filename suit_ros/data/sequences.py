@@ -5,11 +5,13 @@ A dataset is a list of sequences, each a list of :class:`~suit_ros.structures.Fr
 order. Training samples clips of 1-4 consecutive frames from them.
 
 The synthetic splits use disjoint seed ranges: ``train`` seeds 1000+, ``val`` seeds 9000+,
-``heldout`` (a sensor no training drive uses) 9500+. Drive ``i`` of a split uses the sensor
-``SPLIT_SENSORS[split][i % len]``. The fixed validation set of docs/results.md is ``val`` seeds
-9000..9015 (16 drives of 40 frames at 10 Hz, four sensor models). Splits use the detailed world
-(presets ``train-real`` and ``val-real``: vehicles with a front and a back, articulated
-pedestrians, cyclists and motorcycles, street clutter as negatives).
+``heldout`` (a sensor no training drive uses) 9500+, ``tune`` 8000+ (for choosing
+post-processing settings such as the velocity filter's; never trained or validated on). Drive
+``i`` of a split uses the sensor ``SPLIT_SENSORS[split][i % len]``. The fixed validation set of
+docs/results.md is ``val`` seeds 9000..9015 (16 drives of 40 frames at 10 Hz, four sensor
+models). Splits use the detailed world (presets ``train-real`` and ``val-real``: vehicles with a
+front and a back, articulated pedestrians, cyclists and motorcycles, street clutter as
+negatives).
 
 Data sources yield *sensor frames* (one sweep, LiDAR frame); :class:`ClipSampler` turns them into
 *model frames* (accumulated sweeps in base_link) with :func:`suit_ros.model.sweeps.model_frame`.
@@ -31,10 +33,11 @@ from suit_ros.structures import Detections, Frame
 if TYPE_CHECKING:
     from suit_ros.data.kitti import KittiSequence
 
-SPLIT_SEEDS = {'train': 1000, 'val': 9000, 'heldout': 9500, 'demo': 7}
+SPLIT_SEEDS = {'train': 1000, 'tune': 8000, 'val': 9000, 'heldout': 9500, 'demo': 7}
 SPLIT_SENSORS: dict[str, tuple[str, ...]] = {
     'train': ('sim32', 'hdl32e', 'sim32', 'vlp16', 'sim32', 'hdl64e', 'sim32', 'os1-64'),
     'val': ('sim32', 'hdl32e', 'vlp16', 'hdl64e'),
+    'tune': ('sim32', 'hdl32e', 'vlp16', 'hdl64e'),
     'heldout': ('os1-128',),
 }
 VAL_SEQUENCES = 16
@@ -96,8 +99,8 @@ def synthetic_split(split: str, sequences: int, frames: int,
                     cache_dir: str | os.PathLike[str] | None = None,
                     preset_name: str | None = None, points_dtype: PointsDtype = np.float32,
                     first: int = 0) -> list[list[Frame]]:
-    """A split (``train``, ``val``, ``heldout``): ``sequences`` drives from drive number ``first``
-    (see module docstring)."""
+    """A split (``train``, ``tune``, ``val``, ``heldout``): ``sequences`` drives from drive
+    number ``first`` (see module docstring)."""
     name = preset_name or ('train-real' if split == 'train' else 'val-real')
     return [synthetic_sequence(name, seed, frames, cache_dir, sensor, points_dtype)
             for seed, sensor in split_drives(split, sequences, first)]

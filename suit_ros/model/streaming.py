@@ -19,6 +19,7 @@ from suit_ros.model.fusion import PastTerm
 from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.structures import Detections
+from suit_ros.tracking import FilterConfig, VelocityFilter
 
 
 @dataclass
@@ -28,6 +29,7 @@ class StepResult:
     :param model_points: points in the model input (all accumulated sweeps).
     :param timings: seconds per stage: ``sweeps`` (accumulation), ``encode`` (pillars +
         backbone), ``fusion`` (GeoNet + fusion), ``head_decode``, ``sampling``, ``total``.
+    :param track_ids: per detection, its velocity-filter track (0: no filter, or no pose).
     """
 
     detections: Detections
@@ -36,6 +38,7 @@ class StepResult:
     used_memory: bool
     model_points: int = 0
     timings: dict[str, float] = field(default_factory=dict)
+    track_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 class StreamingDetector:
@@ -46,13 +49,15 @@ class StreamingDetector:
     :param precision: the inference copy's precision (:mod:`suit_ros.model.inference`):
         ``float32`` (default), ``bfloat16``, or ``auto`` (bfloat16 on a CPU with bfloat16
         units); the one chosen is :attr:`precision`.
+    :param velocity_filter: when given, the detections' velocities are filtered over frames
+        (:mod:`suit_ros.tracking`) and each gets a track id; None: the head's velocities.
     """
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
                  score_thresholds: list[float] | None = None,
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
-                 candidates: int | None = None, precision: PrecisionChoice = 'float32'
-                 ) -> None:
+                 candidates: int | None = None, precision: PrecisionChoice = 'float32',
+                 velocity_filter: FilterConfig | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
         self.precision = resolve_precision(precision, self.device)
         # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
@@ -63,6 +68,7 @@ class StreamingDetector:
         # oldest (sampled memory_stride frames ago, or the oldest there is after a reset)
         self.memories: deque[Memory] = deque(maxlen=self.cfg.memory_stride)
         self.sweeps = SweepBuffer(self.cfg.sweeps)
+        self.tracks = None if velocity_filter is None else VelocityFilter(velocity_filter)
         self.last_reset_reason = 'start'
         # set keep_terms to inspect the fusion: (W1 F_t, past term or None) of the last step
         self.keep_terms = False
@@ -92,12 +98,22 @@ class StreamingDetector:
         if self.candidates < 1:
             raise ValueError(f'candidates must be >= 1, got {self.candidates}')
 
+    def set_velocity_filter(self, config: FilterConfig | None) -> None:
+        """Turn the velocity filter on (with ``config``; tracks kept when it is unchanged) or
+        off (None)."""
+        if config is None:
+            self.tracks = None
+        elif self.tracks is None or self.tracks.config != config:
+            self.tracks = VelocityFilter(config)
+
     def reset(self, reason: str = 'reset', sweeps: bool = True) -> None:
-        """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps: the
-        next frame runs single-frame."""
+        """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps and
+        the velocity filter's tracks: the next frame runs single-frame."""
         self.memories.clear()
         if sweeps:
             self.sweeps.clear()
+            if self.tracks is not None:
+                self.tracks.reset()
         self.last_reset_reason = reason
 
     @property
@@ -166,8 +182,14 @@ class StreamingDetector:
         det = Detections(out['boxes'].float().cpu().numpy(),
                          out['velocities'].float().cpu().numpy(),
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
+        ids = np.zeros(len(det), np.int64)
+        if self.tracks is not None and T_odom_base is not None:
+            det, ids = self.tracks.update(det, stamp_ns, poses[0])
         det = boxes_to_lidar(det, T_bl)
+        t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
-                   'head_decode': t4 - t3, 'sampling': t5 - t4, 'total': t5 - t0}
+                   'head_decode': t4 - t3, 'sampling': t5 - t4, 'tracking': t6 - t5,
+                   'total': t6 - t0}
         samples = self.memories[-1].num_samples if self.memories else 0
-        return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings)
+        return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings,
+                          ids)

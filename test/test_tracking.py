@@ -1,0 +1,128 @@
+"""The velocity filter (suit_ros.tracking): tracks in the odometry frame, filtered velocities."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suit_ros.ops.geometry import pose_from_xyz_rpy
+from suit_ros.structures import Detections
+from suit_ros.tracking import FilterConfig, VelocityFilter
+
+DT_NS = 100_000_000          # 10 Hz
+
+
+def frame(centres, velocities, labels=None, yaw=0.0, scores=None):
+    centres = np.asarray(centres, np.float64).reshape(-1, 2)
+    n = len(centres)
+    boxes = np.zeros((n, 7))
+    boxes[:, :2] = centres
+    boxes[:, 3:6] = (4.5, 1.9, 1.6)
+    boxes[:, 6] = yaw
+    labels = np.zeros(n, np.int64) if labels is None else np.asarray(labels)
+    scores = np.full(n, 0.8) if scores is None else np.asarray(scores)
+    return Detections(boxes, np.asarray(velocities, np.float64).reshape(n, 2), scores, labels)
+
+
+def ego_pose(t, speed=8.0, yaw_rate=0.3):
+    """A vehicle turning at constant speed and yaw rate: its pose in odom at ``t`` s."""
+    yaw = yaw_rate * t
+    x = speed / yaw_rate * np.sin(yaw)
+    y = speed / yaw_rate * (1 - np.cos(yaw))
+    return pose_from_xyz_rpy((x, y, 0.0), (0.0, 0.0, yaw))
+
+
+def to_frame(T, xy_odom, v_odom):
+    """Odometry-frame centres and velocities seen from pose ``T``."""
+    R = T[:2, :2]
+    return (np.asarray(xy_odom) - T[:2, 3]) @ R, np.asarray(v_odom) @ R
+
+
+def test_a_moving_car_seen_from_a_turning_ego_gets_its_velocity():
+    """Centres with 0.2 m noise and a head that says 'standing still': after a second the
+    filtered velocity (in the detections' frame) is the car's, and the track id holds."""
+    rng = np.random.default_rng(0)
+    vf = VelocityFilter()
+    v_true = np.array([9.0, -3.0])
+    errs, ids = [], set()
+    for k in range(20):
+        t = k * 0.1
+        T = ego_pose(t)
+        xy, v = to_frame(T, np.array([20.0, 5.0]) + v_true * t, v_true)
+        xy = xy + rng.normal(0, 0.2, 2)
+        out, tid = vf.update(frame(xy, [0.0, 0.0]), k * DT_NS, T)
+        ids.add(int(tid[0]))
+        errs.append(np.linalg.norm(out.velocities[0] - v))
+    assert ids == {1}
+    assert errs[0] == pytest.approx(np.linalg.norm(v_true))     # first frame: the head's reading
+    assert np.mean(errs[10:]) < 1.0
+    assert len(vf) == 1
+
+
+def test_static_objects_stay_static_under_ego_motion():
+    vf = VelocityFilter()
+    walls = np.array([[15.0, 4.0], [30.0, -6.0], [8.0, 10.0]])
+    for k in range(15):
+        T = ego_pose(k * 0.1)
+        xy, _ = to_frame(T, walls, np.zeros((3, 2)))
+        out, ids = vf.update(frame(xy, np.zeros((3, 2))), k * DT_NS, T)
+    assert ids.tolist() == [1, 2, 3]
+    assert np.abs(out.velocities).max() < 1e-6
+
+
+def test_classes_never_share_a_track_and_new_objects_get_new_ids():
+    vf = VelocityFilter()
+    T = np.eye(4)
+    _, ids0 = vf.update(frame([[10, 0]], [[0, 0]], labels=[0]), 0, T)
+    _, ids1 = vf.update(frame([[10, 0], [10.1, 0]], [[0, 0], [0, 0]], labels=[2, 0]), DT_NS, T)
+    assert ids0.tolist() == [1] and ids1.tolist() == [2, 1]
+    _, ids2 = vf.update(frame([[40, 0]], [[0, 0]], labels=[0]), 2 * DT_NS, T)   # far: new
+    assert ids2.tolist() == [3]
+
+
+def test_tracks_end_after_misses_and_on_time_jumps():
+    cfg = FilterConfig(max_misses=2)
+    vf = VelocityFilter(cfg)
+    T = np.eye(4)
+    vf.update(frame([[10, 0]], [[0, 0]]), 0, T)
+    for k in (1, 2):                                   # two empty frames: still alive
+        out, ids = vf.update(Detections.empty(), k * DT_NS, T)
+        assert len(out) == 0 and len(ids) == 0 and len(vf) == 1
+    vf.update(Detections.empty(), 3 * DT_NS, T)        # third miss: gone
+    assert len(vf) == 0
+    vf.update(frame([[10, 0]], [[0, 0]]), 4 * DT_NS, T)
+    _, ids = vf.update(frame([[10, 0]], [[0, 0]]), 4 * DT_NS, T)   # same stamp again: reset
+    assert ids.tolist() == [3] and len(vf) == 1
+    _, ids = vf.update(frame([[10, 0]], [[0, 0]]), 9 * DT_NS + 10 ** 9, T)   # 1.5 s gap
+    assert ids.tolist() == [4]
+
+
+def test_nearest_pairs_win_and_each_track_takes_one_detection():
+    vf = VelocityFilter()
+    T = np.eye(4)
+    vf.update(frame([[10, 0], [13, 0]], np.zeros((2, 2))), 0, T)
+    _, ids = vf.update(frame([[12.9, 0], [10.1, 0], [11.5, 0]], np.zeros((3, 2))), DT_NS, T)
+    assert ids.tolist() == [2, 1, 3]
+
+
+def test_only_confident_detections_start_tracks_and_they_are_matched_first():
+    vf = VelocityFilter(FilterConfig(birth_score=0.3))
+    T = np.eye(4)
+    out, ids = vf.update(frame([[10, 0], [20, 0]], [[1, 0], [2, 0]], scores=[0.8, 0.1]), 0, T)
+    assert ids.tolist() == [1, 0] and len(vf) == 1
+    assert out.velocities[1].tolist() == [2.0, 0.0]          # untracked: the head's velocity
+    # a faint detection nearer the track loses it to a confident one
+    _, ids = vf.update(frame([[10.05, 0], [10.4, 0]], np.zeros((2, 2)), scores=[0.1, 0.7]),
+                       DT_NS, T)
+    assert ids.tolist() == [0, 1]
+    # with no confident candidate, a faint detection continues the track
+    _, ids = vf.update(frame([[10.5, 0]], [[0, 0]], scores=[0.1]), 2 * DT_NS, T)
+    assert ids.tolist() == [1]
+
+
+@pytest.mark.parametrize('field,value', [('pos_sigma', 0.0), ('vel_sigma', -1.0),
+                                         ('accel_sigma', float('nan')), ('gate', 0.0),
+                                         ('max_gap_s', float('inf')), ('max_misses', -1),
+                                         ('birth_score', 1.5)])
+def test_config_is_validated(field, value):
+    with pytest.raises(ValueError, match=field):
+        FilterConfig(**{field: value})
