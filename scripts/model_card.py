@@ -32,9 +32,15 @@ def claims(res: dict[str, Any]) -> list[tuple[str, str, str]]:
     row('car heading error <= 0.3 rad, flipped < 5%',
         f'{s["car heading err"][0]:.3f} rad, {s["car flipped %"][0]:.1f}%',
         s['car heading err'][0] <= 0.3 and s['car flipped %'][0] < 5)
-    row('moving-car velocity error <= 1.0 m/s', f'{s["moving car vel err"][0]:.2f} m/s',
-        s['moving car vel err'][0] <= 1.0)
-    row('mAVE <= 1.0 m/s', f'{s["mAVE"][0]:.2f} m/s', s['mAVE'][0] <= 1.0)
+    row("moving-car velocity error <= 1.0 m/s (the head's)",
+        f'{s["moving car vel err"][0]:.2f} m/s', s['moving car vel err'][0] <= 1.0)
+    row("mAVE <= 1.0 m/s (the head's)", f'{s["mAVE"][0]:.2f} m/s', s['mAVE'][0] <= 1.0)
+    if 'suit, velocity filter' in runs:
+        f = runs['suit, velocity filter']
+        row('moving-car velocity error <= 1.0 m/s, velocity filter on (the node default)',
+            f'{f["moving car vel err"][0]:.2f} m/s', f['moving car vel err'][0] <= 1.0)
+        row('mAVE <= 1.0 m/s, velocity filter on (the node default)',
+            f'{f["mAVE"][0]:.2f} m/s', f['mAVE'][0] <= 1.0)
     for key in ('mAP', 'NDS'):
         d = diffs['suit - single'][key]
         row(f'SUIT {key} >= single + 0.03, interval above 0',
@@ -126,6 +132,18 @@ def main() -> int:
                   'on a CPU with bfloat16 units: backbone, neck and head convolutions in '
                   'bfloat16, the rest in float32) against float32, same drive resamples: mAP '
                   f'{fmt(bf16, "mAP")}, NDS {fmt(bf16, "NDS")}, mAVE {fmt(bf16, "mAVE")}.']
+    filt = diffs.get('suit, velocity filter - suit')
+    if filt:
+        f, g = runs['suit, velocity filter'], runs.get('single, velocity filter', {})
+        lines += ['', "**Velocity filter** (the node's `velocity_filter: true`, "
+                  '`suit_ros/tracking.py`: constant-velocity Kalman tracks over the detections '
+                  "in the odometry frame). What the node publishes, against the head's "
+                  'velocities, same drive resamples: mAVE '
+                  f'{fmt(f, "mAVE")} (difference {fmt(filt, "mAVE")}), moving-car velocity '
+                  f'error {fmt(f, "moving car vel err")}, NDS {fmt(f, "NDS")} (difference '
+                  f'{fmt(filt, "NDS")}); boxes and scores are unchanged, so mAP is too.'
+                  + (f' Single frame with the filter: mAVE {fmt(g, "mAVE")}, NDS '
+                     f'{fmt(g, "NDS")}.' if g else '')]
     lines += ['', 'Limitations: trained only on the synthetic world (see docs/results.md for the '
               'held-out sensor and clutter figures, and the README for what to expect on real '
               'sensors); speed is read only partly: on moving cars the predicted along-track '
