@@ -126,12 +126,12 @@ def test_velocity_filter_tracks_and_can_be_turned_off(model, classes, scene):
     assert len(first.detections) >= 3 and first.track_ids is not None
     msg = pointcloud2_to_detections(last.detections_msg)
     assert np.array_equal(msg['track_id'], last.track_ids)
-    assert 0 not in set(last.track_ids)
-    # the same static scene: the confident objects keep their ids
-    sure = last.track_ids[last.detections.scores >= 0.25]
-    assert len(sure) >= 3 and set(sure) <= set(first.track_ids)
-    raw = pipe.detector.tracks
-    assert raw is not None and len(raw) >= len(first.detections)
+    # the same static scene: the confident objects are tracked and keep their ids
+    birth = pipe.detector.tracks.config.birth_score
+    sure = last.track_ids[last.detections.scores >= birth]
+    began = first.track_ids[first.detections.scores >= birth]
+    assert len(began) >= 3 and 0 not in set(sure) and set(began) <= set(sure)
+    assert last.tracks == len(pipe.detector.tracks) >= len(sure)
     pipe.configure(replace(pipe.params, velocity_filter=False))
     off = pipe.process(cloud(classes, T0 + 3 * S // 10, scene))
     assert pipe.detector.tracks is None and off.track_ids is None
