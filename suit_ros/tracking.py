@@ -69,7 +69,12 @@ class FilterConfig:
 
 
 class VelocityFilter:
-    """Tracks over frames; :meth:`update` returns the detections with filtered velocities."""
+    """Tracks over frames; :meth:`update` returns the detections with filtered velocities.
+
+    The two horizontal axes have the same noise and are measured together, so their
+    ``(position, velocity)`` covariances are equal and uncorrelated: one 2 x 2 covariance per
+    track (:attr:`P`) serves both, and every inverse is a 2 x 2 one in closed form.
+    """
 
     def __init__(self, config: FilterConfig | None = None) -> None:
         self.config = config or FilterConfig()
@@ -80,7 +85,7 @@ class VelocityFilter:
     def reset(self) -> None:
         """Forget every track (ids keep counting up)."""
         self.x = np.zeros((0, 4))               # x, y, vx, vy (odometry frame)
-        self.P = np.zeros((0, 4, 4))
+        self.P = np.zeros((0, 2, 2))            # per axis: (position, velocity) covariance
         self.labels = np.zeros(0, np.int64)
         self.ids = np.zeros(0, np.int64)
         self.misses = np.zeros(0, np.int64)
@@ -90,14 +95,10 @@ class VelocityFilter:
         return len(self.x)
 
     def _predict(self, dt: float) -> None:
-        F = np.eye(4)
-        F[0, 2] = F[1, 3] = dt
-        a2 = self.config.accel_sigma ** 2
-        q = np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]) * a2
-        Q = np.zeros((4, 4))
-        for i in range(2):
-            Q[np.ix_([i, i + 2], [i, i + 2])] = q
-        self.x = self.x @ F.T
+        F = np.array([[1.0, dt], [0.0, 1.0]])
+        Q = np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]]) \
+            * self.config.accel_sigma ** 2
+        self.x[:, :2] += dt * self.x[:, 2:]
         self.P = F @ self.P @ F.T + Q
 
     def _associate(self, centres: NDArray[np.float64], labels: NDArray[np.int64],
@@ -107,10 +108,9 @@ class VelocityFilter:
         match = np.full(len(centres), -1, np.int64)
         if len(self.x) == 0 or len(centres) == 0:
             return match
-        r2 = self.config.pos_sigma ** 2
-        S_inv = np.linalg.inv(self.P[:, :2, :2] + r2 * np.eye(2))       # (M, 2, 2)
+        var = self.P[:, 0, 0] + self.config.pos_sigma ** 2                # (M,) per axis
         d = centres[None, :, :] - self.x[:, None, :2]                    # (M, N, 2)
-        m2 = np.einsum('mni,mij,mnj->mn', d, S_inv, d)
+        m2 = (d ** 2).sum(-1) / var[:, None]                             # squared Mahalanobis
         ok = (self.labels[:, None] == labels[None, :]) & (m2 < self.config.gate)
         used_t = np.zeros(len(self.x), bool)
         for stage in (confident, ~confident):
@@ -143,17 +143,24 @@ class VelocityFilter:
         R = T[:2, :2]
         centres = det.boxes[:, :2].astype(np.float64) @ R.T + T[:2, 3]
         vel = det.velocities.astype(np.float64) @ R.T
-        z = np.concatenate([centres, vel], axis=1)                     # (N, 4)
         confident = det.scores >= cfg.birth_score
         match = self._associate(centres, np.asarray(det.labels, np.int64), confident)
-        Rm = np.diag([cfg.pos_sigma ** 2] * 2 + [cfg.vel_sigma ** 2] * 2)
+        Rm = np.diag([cfg.pos_sigma ** 2, cfg.vel_sigma ** 2])            # per axis
         hit = match >= 0
         if hit.any():
             t = match[hit]
-            P = self.P[t]
-            K = P @ np.linalg.inv(P + Rm)                              # H = I
-            self.x[t] = self.x[t] + np.einsum('nij,nj->ni', K, z[hit] - self.x[t])
-            self.P[t] = (np.eye(4) - K) @ P
+            P = self.P[t]                                                  # (H, 2, 2)
+            S = P + Rm                                                     # measurement: H = I
+            det_S = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+            S_inv = np.stack([np.stack([S[:, 1, 1], -S[:, 0, 1]], -1),
+                              np.stack([-S[:, 1, 0], S[:, 0, 0]], -1)], -2) / det_S[:, None, None]
+            K = P @ S_inv                                                  # (H, 2, 2)
+            for axis in range(2):                                          # x then y
+                cols = np.array([axis, axis + 2])
+                state = self.x[t][:, cols]
+                meas = np.stack([centres[hit, axis], vel[hit, axis]], -1)
+                self.x[np.ix_(t, cols)] = state + np.einsum('nij,nj->ni', K, meas - state)
+            self.P[t] = P - K @ P
         seen = np.zeros(len(self.x), bool)
         seen[match[hit]] = True
         self.misses = np.where(seen, 0, self.misses + 1)
@@ -167,8 +174,8 @@ class VelocityFilter:
         rows = np.full(len(det), -1, np.int64)
         rows[hit] = match[hit]
         rows[new] = len(self.x) + np.arange(n_new)
-        self.x = np.concatenate([self.x, z[new]])
-        self.P = np.concatenate([self.P, np.broadcast_to(Rm, (n_new, 4, 4))])
+        self.x = np.concatenate([self.x, np.concatenate([centres, vel], 1)[new]])
+        self.P = np.concatenate([self.P, np.broadcast_to(Rm, (n_new, 2, 2))])
         self.labels = np.concatenate([self.labels, det.labels[new]])
         self.ids = np.concatenate([self.ids, new_ids])
         self.misses = np.concatenate([self.misses, np.zeros(n_new, np.int64)])
