@@ -109,3 +109,13 @@ def test_pr_plot(tmp_path):
     r = evaluate(gts, dets, NAMES)
     r.plot_pr(str(tmp_path / 'pr.png'))
     assert (tmp_path / 'pr.png').stat().st_size > 5000
+
+
+def test_eval_synthetic_val_is_the_fixed_validation_set(monkeypatch):
+    """``suit-ros eval --synthetic val`` runs on the drives docs/results.md reports."""
+    import suit_ros.data.sequences as seqs
+    from suit_ros.evaluate_cli import synthetic_sequences
+    calls = []
+    monkeypatch.setattr(seqs, 'synthetic_split', lambda *a, **k: calls.append(a) or [[1]])
+    assert synthetic_sequences('val', 'cache') == [[1]]
+    assert calls == [('val', seqs.VAL_SEQUENCES, 40, 'cache')]
