@@ -28,7 +28,8 @@ class StepResult:
 
     :param model_points: points in the model input (all accumulated sweeps).
     :param timings: seconds per stage: ``sweeps`` (accumulation), ``encode`` (pillars +
-        backbone), ``fusion`` (GeoNet + fusion), ``head_decode``, ``sampling``, ``total``.
+        backbone), ``fusion`` (GeoNet + fusion), ``head_decode``, ``sampling``, ``tracking``
+        (detections to numpy, the velocity filter, boxes into the LiDAR frame), ``total``.
     :param track_ids: per detection, its velocity-filter track (0: no filter, or no pose).
     """
 
