@@ -10,8 +10,8 @@ models; training used seeds 1000+):
   kept): what the temporal path is worth;
 - ``suit, zero displacement``: SUIT's weights with GeoNet replaced by zero displacement;
 - ``... no intensity``: the same clouds with the intensity channel removed;
-- ``single, velocity filter`` and ``suit, velocity filter``: the node's default output, the
-  head's velocities filtered over frames (:mod:`suit_ros.tracking`);
+- ``single, tracking`` and ``suit, tracking``: the node's default output, the detections
+  tracked over frames (:mod:`suit_ros.tracking`: velocities filtered, scores smoothed);
 - ``suit, bfloat16``: the same weights with the backbone and head convolutions in bfloat16 (the
   node's ``precision: auto`` on a CPU with bfloat16 units); every other run is float32;
 - the held-out sensor (``heldout`` seeds 9500+, a sensor no training drive used).
@@ -37,9 +37,9 @@ import numpy as np
 
 PAIRS = [('suit', 'single'), ('suit', 'suit, memory dropped'),
          ('suit', 'suit, zero displacement'), ('suit, no intensity', 'suit'),
-         ('suit, bfloat16', 'suit'), ('suit, velocity filter', 'suit'),
-         ('single, velocity filter', 'single'),
-         ('suit, velocity filter', 'single, velocity filter')]
+         ('suit, bfloat16', 'suit'), ('suit, tracking', 'suit'),
+         ('single, tracking', 'single'),
+         ('suit, tracking', 'single, tracking')]
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
 
@@ -125,8 +125,8 @@ def main() -> int:
         runs['suit, zero displacement'] = run_model(_load(args.suit, 'sparse'), val)
         runs['suit, no intensity'] = run_model(suit, val, transform=_no_intensity)
         runs['suit, bfloat16'] = run_model(suit, val, precision='bfloat16')
-        runs['single, velocity filter'] = run_model(single, val, velocity_filter=FilterConfig())
-        runs['suit, velocity filter'] = run_model(suit, val, velocity_filter=FilterConfig())
+        runs['single, tracking'] = run_model(single, val, velocity_filter=FilterConfig())
+        runs['suit, tracking'] = run_model(suit, val, velocity_filter=FilterConfig())
     print(f'[ablation] ran {len(runs)} variants in {(time.monotonic() - t0) / 60:.1f} min',
           flush=True)
     pairs = [p for p in PAIRS if p[0] in runs and p[1] in runs]

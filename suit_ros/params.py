@@ -66,6 +66,9 @@ class DetectorParams:
     velocity_filter: bool = field(default=True, metadata=_spec(
         "filter each detection's velocity over frames with a constant-velocity Kalman track "
         "(odometry frame) and publish its track id; false: the head's one-frame velocity"))
+    track_score_mix: float = field(default=0.7, metadata=_spec(
+        "with velocity_filter: a tracked detection's score is (1 - mix) x its own + mix x its "
+        "track's running score; 0: the model's scores", lo=0.0, hi=1.0))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
     max_range: float = field(default=80.0, metadata=_spec(

@@ -116,8 +116,9 @@ class DetectionPipeline:
         self.detector.set_thresholds(params.class_thresholds(len(self.class_names)),
                                      params.nms_iou_threshold, params.max_detections,
                                      params.candidates)
-        self.detector.set_velocity_filter(FilterConfig(max_gap_s=params.max_gap_s)
-                                          if params.velocity_filter else None)
+        self.detector.set_velocity_filter(
+            FilterConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix)
+            if params.velocity_filter else None)
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,

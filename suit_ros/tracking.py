@@ -15,6 +15,11 @@ acceleration); the detection's output velocity is the track's posterior. A new t
 the head's velocity, so an object's first frame is unchanged, and a faint detection no track
 takes keeps the head's velocity.
 
+A tracked detection's score is also smoothed over its track (``score_mix``): ``(1 - mix) x``
+its own score ``+ mix x`` the track's running score (each earlier detection weighing half as
+much as the next), so an object seen confidently for a while keeps its rank through one weak
+frame.
+
 Tracks live in the odometry frame, so ego motion does not move them; they are forgotten by the
 same rules as the sweeps (no pose, a time jump, a new sequence, a reset). Every detection gets
 a track id (``0``: none).
@@ -44,6 +49,8 @@ class FilterConfig:
     :param birth_score: detections at least this confident are associated first and may start
         tracks; the others only continue tracks (their velocity is the head's when none is
         left for them).
+    :param score_mix: weight of the track's running score in a tracked detection's score (0:
+        the model's scores unchanged).
     :param max_misses: frames a track survives without a detection.
     :param max_gap_s: a longer gap between frames (or time going back) drops every track.
     """
@@ -53,6 +60,7 @@ class FilterConfig:
     accel_sigma: float = 2.0
     gate: float = 13.8
     birth_score: float = 0.4
+    score_mix: float = 0.7
     max_misses: int = 6
     max_gap_s: float = 0.5
 
@@ -61,9 +69,10 @@ class FilterConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f'FilterConfig.{name} must be finite and > 0, got {value}')
-        if not 0.0 <= self.birth_score <= 1.0:
-            raise ValueError(f'FilterConfig.birth_score must be within 0..1, got '
-                             f'{self.birth_score}')
+        for name in ('birth_score', 'score_mix'):
+            value = getattr(self, name)
+            if not 0.0 <= value <= 1.0:
+                raise ValueError(f'FilterConfig.{name} must be within 0..1, got {value}')
         if self.max_misses < 0:
             raise ValueError(f'FilterConfig.max_misses must be >= 0, got {self.max_misses}')
 
@@ -89,6 +98,7 @@ class VelocityFilter:
         self.labels = np.zeros(0, np.int64)
         self.ids = np.zeros(0, np.int64)
         self.misses = np.zeros(0, np.int64)
+        self.score = np.zeros(0)                # running score (halving weights)
         self.stamp_ns = None
 
     def __len__(self) -> int:
@@ -128,8 +138,9 @@ class VelocityFilter:
 
         :param det: detections in some frame (absolute velocities in that frame).
         :param T_odom_frame: that frame's pose in the odometry frame at ``stamp_ns``.
-        :return: the detections with filtered velocities, and their track ids (0, and the
-            head's velocity, for a detection below ``birth_score`` that no track took).
+        :return: the detections with filtered velocities and smoothed scores, and their track
+            ids (0, and the model's velocity and score, for a detection below ``birth_score``
+            that no track took).
         """
         cfg = self.config
         T = np.asarray(T_odom_frame, np.float64)
@@ -161,6 +172,11 @@ class VelocityFilter:
                 meas = np.stack([centres[hit, axis], vel[hit, axis]], -1)
                 self.x[np.ix_(t, cols)] = state + np.einsum('nij,nj->ni', K, meas - state)
             self.P[t] = P - K @ P
+        scores = det.scores.astype(np.float64)
+        if hit.any():
+            t = match[hit]
+            scores[hit] = (1 - cfg.score_mix) * scores[hit] + cfg.score_mix * self.score[t]
+            self.score[t] = 0.5 * (self.score[t] + det.scores[hit])
         seen = np.zeros(len(self.x), bool)
         seen[match[hit]] = True
         self.misses = np.where(seen, 0, self.misses + 1)
@@ -179,10 +195,12 @@ class VelocityFilter:
         self.labels = np.concatenate([self.labels, det.labels[new]])
         self.ids = np.concatenate([self.ids, new_ids])
         self.misses = np.concatenate([self.misses, np.zeros(n_new, np.int64)])
+        self.score = np.concatenate([self.score, det.scores[new]])
         out_vel = det.velocities.astype(np.float64)             # untracked: the head's
         tracked = rows >= 0
         out_vel[tracked] = self.x[rows[tracked], 2:] @ R
         keep = self.misses <= cfg.max_misses
         self.x, self.P = self.x[keep], self.P[keep]
         self.labels, self.ids, self.misses = self.labels[keep], self.ids[keep], self.misses[keep]
-        return Detections(det.boxes, out_vel, det.scores, det.labels), ids
+        self.score = self.score[keep]
+        return Detections(det.boxes, out_vel, scores, det.labels), ids

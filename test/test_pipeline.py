@@ -76,7 +76,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
-                       'intensity_field', 'velocity_filter',
+                       'intensity_field', 'velocity_filter', 'track_score_mix',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -139,6 +139,21 @@ def test_velocity_filter_tracks_and_can_be_turned_off(model, classes, scene):
     # the filter's gap is the pipeline's one staleness threshold
     pipe.configure(replace(pipe.params, velocity_filter=True, max_gap_s=2.0))
     assert pipe.detector.tracks is not None and pipe.detector.tracks.config.max_gap_s == 2.0
+
+
+def test_track_score_mix_smooths_tracked_scores(model, classes, scene):
+    def scores(mix):
+        pipe = make_pipeline(model, classes, score_thresholds=(0.05,), track_score_mix=mix)
+        feed_odometry(pipe, T0, T0 + S, speed=0.0)
+        outs = [pipe.process(cloud(classes, T0 + k * S // 10, scene)) for k in range(3)]
+        return outs[-1]
+    raw, mixed = scores(0.0), scores(1.0)
+    assert np.array_equal(raw.track_ids, mixed.track_ids)     # the same tracks either way
+    tracked = raw.track_ids > 0
+    assert tracked.sum() >= 3
+    # mix 0: the model's scores; mix 1: each tracked score is its track's history alone
+    assert not np.allclose(raw.detections.scores[tracked], mixed.detections.scores[tracked])
+    assert np.array_equal(raw.detections.scores[~tracked], mixed.detections.scores[~tracked])
 
 
 def test_intensity_field_chooses_or_ignores_intensity(model, classes):

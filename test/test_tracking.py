@@ -122,7 +122,21 @@ def test_only_confident_detections_start_tracks_and_they_are_matched_first():
 @pytest.mark.parametrize('field,value', [('pos_sigma', 0.0), ('vel_sigma', -1.0),
                                          ('accel_sigma', float('nan')), ('gate', 0.0),
                                          ('max_gap_s', float('inf')), ('max_misses', -1),
-                                         ('birth_score', 1.5)])
+                                         ('birth_score', 1.5), ('score_mix', -0.1)])
 def test_config_is_validated(field, value):
     with pytest.raises(ValueError, match=field):
         FilterConfig(**{field: value})
+
+
+def test_scores_are_smoothed_over_the_track():
+    vf = VelocityFilter(FilterConfig(score_mix=0.5))
+    T = np.eye(4)
+    out, _ = vf.update(frame([[10, 0]], [[0, 0]], scores=[0.8]), 0, T)
+    assert out.scores.tolist() == pytest.approx([0.8])        # a new track: its own score
+    out, _ = vf.update(frame([[10, 0]], [[0, 0]], scores=[0.2]), DT_NS, T)
+    assert out.scores.tolist() == pytest.approx([0.5 * 0.2 + 0.5 * 0.8])
+    out, _ = vf.update(frame([[10, 0]], [[0, 0]], scores=[0.6]), 2 * DT_NS, T)
+    running = 0.5 * (0.8 + 0.2)                                # halving weights
+    assert out.scores.tolist() == pytest.approx([0.5 * 0.6 + 0.5 * running])
+    out, ids = vf.update(frame([[30, 0]], [[0, 0]], scores=[0.1]), 3 * DT_NS, T)
+    assert ids.tolist() == [0] and out.scores.tolist() == pytest.approx([0.1])   # untracked
