@@ -33,8 +33,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
     parser.add_argument('--history', type=int, help='frames of history (default: all)')
     parser.add_argument('--velocity-filter', action='store_true',
-                        help="filter velocities over frames as the node does by default "
-                        "(suit_ros/tracking.py); default: the head's velocities")
+                        help='track the detections as the node does by default (velocities '
+                        "filtered, scores smoothed: suit_ros/tracking.py); default: the model's "
+                        'own output')
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--json-out', help='write the metrics as JSON here')
     parser.add_argument('--plot', help='write precision-recall curves (PNG) here')
