@@ -31,6 +31,7 @@ docs/experiments/velocity_filter.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -51,6 +52,10 @@ class FilterConfig:
         left for them).
     :param score_mix: weight of the track's running score in a tracked detection's score (0:
         the model's scores unchanged).
+    :param sweep_sigma: noise (m/s, per axis) of the velocity read from the sweeps
+        (:func:`sweep_velocities`), fused with the head's; None: not read.
+    :param sweep_classes: the classes it is read for (they move along their heading), on
+        detections scoring at least ``sweep_min_score``.
     :param max_misses: frames a track survives without a detection.
     :param max_gap_s: a longer gap between frames (or time going back) drops every track.
     """
@@ -61,6 +66,9 @@ class FilterConfig:
     gate: float = 13.8
     birth_score: float = 0.4
     score_mix: float = 0.7
+    sweep_sigma: float | None = 1.5
+    sweep_classes: tuple[str, ...] = ('car', 'truck', 'cyclist')
+    sweep_min_score: float = 0.2
     max_misses: int = 6
     max_gap_s: float = 0.5
 
@@ -69,7 +77,11 @@ class FilterConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f'FilterConfig.{name} must be finite and > 0, got {value}')
-        for name in ('birth_score', 'score_mix'):
+        if self.sweep_sigma is not None and not (np.isfinite(self.sweep_sigma)
+                                                  and self.sweep_sigma > 0):
+            raise ValueError(f'FilterConfig.sweep_sigma must be finite and > 0 (or None), got '
+                             f'{self.sweep_sigma}')
+        for name in ('birth_score', 'score_mix', 'sweep_min_score'):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f'FilterConfig.{name} must be within 0..1, got {value}')
@@ -132,12 +144,16 @@ class VelocityFilter:
                     match[n] = t
         return match
 
-    def update(self, det: Detections, stamp_ns: int, T_odom_frame: NDArray[np.float64]
+    def update(self, det: Detections, stamp_ns: int, T_odom_frame: NDArray[np.float64],
+               swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None
                ) -> tuple[Detections, NDArray[np.int64]]:
         """Filter one frame's detections.
 
         :param det: detections in some frame (absolute velocities in that frame).
         :param T_odom_frame: that frame's pose in the odometry frame at ``stamp_ns``.
+        :param swept: velocities read from the sweeps (:func:`sweep_velocities`, in the
+            detections' frame) and where they could be read; fused with the head's velocity
+            when ``sweep_sigma`` is set.
         :return: the detections with filtered velocities and smoothed scores, and their track
             ids (0, and the model's velocity and score, for a detection below ``birth_score``
             that no track took).
@@ -153,15 +169,25 @@ class VelocityFilter:
         self.stamp_ns = stamp_ns
         R = T[:2, :2]
         centres = det.boxes[:, :2].astype(np.float64) @ R.T + T[:2, 3]
-        vel = det.velocities.astype(np.float64) @ R.T
+        vel = det.velocities.astype(np.float64)
+        var_v = np.full(len(det), cfg.vel_sigma ** 2)
+        if swept is not None and cfg.sweep_sigma is not None:
+            read = swept[1]
+            w_h, w_s = 1.0 / cfg.vel_sigma ** 2, 1.0 / cfg.sweep_sigma ** 2
+            vel[read] = (w_h * vel[read] + w_s * swept[0][read]) / (w_h + w_s)
+            var_v[read] = 1.0 / (w_h + w_s)
+        measured_vel = vel.copy()                    # the detections' frame
+        vel = vel @ R.T
         confident = det.scores >= cfg.birth_score
         match = self._associate(centres, np.asarray(det.labels, np.int64), confident)
-        Rm = np.diag([cfg.pos_sigma ** 2, cfg.vel_sigma ** 2])            # per axis
+        Rm = np.zeros((len(det), 2, 2))                                   # per axis
+        Rm[:, 0, 0] = cfg.pos_sigma ** 2
+        Rm[:, 1, 1] = var_v
         hit = match >= 0
         if hit.any():
             t = match[hit]
             P = self.P[t]                                                  # (H, 2, 2)
-            S = P + Rm                                                     # measurement: H = I
+            S = P + Rm[hit]                                                # measurement: H = I
             det_S = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
             S_inv = np.stack([np.stack([S[:, 1, 1], -S[:, 0, 1]], -1),
                               np.stack([-S[:, 1, 0], S[:, 0, 0]], -1)], -2) / det_S[:, None, None]
@@ -191,12 +217,12 @@ class VelocityFilter:
         rows[hit] = match[hit]
         rows[new] = len(self.x) + np.arange(n_new)
         self.x = np.concatenate([self.x, np.concatenate([centres, vel], 1)[new]])
-        self.P = np.concatenate([self.P, np.broadcast_to(Rm, (n_new, 2, 2))])
+        self.P = np.concatenate([self.P, Rm[new]])
         self.labels = np.concatenate([self.labels, det.labels[new]])
         self.ids = np.concatenate([self.ids, new_ids])
         self.misses = np.concatenate([self.misses, np.zeros(n_new, np.int64)])
         self.score = np.concatenate([self.score, det.scores[new]])
-        out_vel = det.velocities.astype(np.float64)             # untracked: the head's
+        out_vel = measured_vel                                  # untracked: as measured
         tracked = rows >= 0
         out_vel[tracked] = self.x[rows[tracked], 2:] @ R
         keep = self.misses <= cfg.max_misses
@@ -204,3 +230,81 @@ class VelocityFilter:
         self.labels, self.ids, self.misses = self.labels[keep], self.ids[keep], self.misses[keep]
         self.score = self.score[keep]
         return Detections(det.boxes, out_vel, scores, det.labels), ids
+
+
+def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],
+                     which: NDArray[np.bool_], max_speed: float = 20.0, bin_m: float = 0.1,
+                     min_points: int = 10) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Each box's velocity read from the motion of its points between the accumulated sweeps.
+
+    The model input holds the current sweep and the previous ones, all in the current frame
+    with ego motion removed, each tagged with its time lag: a static object's returns line up,
+    a moving one's are smeared along its path. For a box, the returns inside it (widened along
+    its heading by ``max_speed`` x the largest lag, ground excluded) are projected on its
+    heading and histogrammed per sweep; the speed whose shifts best overlap every earlier
+    sweep's histogram with the current one (correlation, summed over the sweeps) is the box's
+    speed along its heading. Vehicles move along their heading, so the velocity is that speed
+    times the heading direction.
+
+    :param points: ``(N, 5)`` x, y, z, intensity, time lag (s) in the boxes' frame, ground at
+        z = 0 (the model input).
+    :param boxes: ``(M, 7)``; ``which``: ``(M,)`` the boxes to estimate (vehicles).
+    :return: ``(M, 2)`` velocities and ``(M,)`` whether each could be read (``min_points``
+        current returns and as many in an earlier sweep).
+    """
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    vel = np.zeros((len(b), 2))
+    ok = np.zeros(len(b), bool)
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] < 5 or len(pts) == 0 or not which.any():
+        return vel, ok
+    pts = pts[(pts[:, 2] > 0.3) & (pts[:, 2] < 5.0)]        # above the ground
+    lags = pts[:, 4]
+    past_lags = np.unique(lags[lags > 0])
+    if len(past_lags) == 0:
+        return vel, ok
+    # a coarse grid over the points (cells of ``cell`` m, sorted by cell key): each box reads
+    # only the cells its search area touches
+    cell = 4.0
+    ij = np.floor(pts[:, :2] / cell).astype(np.int64)
+    key = ij[:, 0] * 1_000_003 + ij[:, 1]
+    order = np.argsort(key, kind='stable')
+    keys = key[order]
+    speeds = np.arange(-max_speed, max_speed + 1e-9, 0.25)
+    reach = max_speed * float(past_lags.max())
+    for j in np.flatnonzero(which):
+        cx, cy, cz, length, width, height, yaw = b[j]
+        half = 0.5 * length + reach
+        r = half + width
+        i0, i1 = int(np.floor((cx - r) / cell)), int(np.floor((cx + r) / cell))
+        j0, j1 = int(np.floor((cy - r) / cell)), int(np.floor((cy + r) / cell))
+        want = (np.arange(i0, i1 + 1)[:, None] * 1_000_003 + np.arange(j0, j1 + 1)[None]).ravel()
+        starts = np.searchsorted(keys, want, 'left')
+        ends = np.searchsorted(keys, want, 'right')
+        sel = np.concatenate([order[a:e] for a, e in zip(starts, ends) if e > a] or
+                             [np.zeros(0, np.int64)])
+        p = pts[sel]
+        c, s = np.cos(yaw), np.sin(yaw)
+        dx, dy = p[:, 0] - cx, p[:, 1] - cy
+        u = dx * c + dy * s
+        inside = ((np.abs(u) < half) & (np.abs(-dx * s + dy * c) < 0.5 * width + 0.3)
+                  & (p[:, 2] < cz + 0.5 * height + 0.3))
+        bins = ((u[inside] + half) / bin_m).astype(np.int64)
+        lag = p[inside, 4]
+        n_bins = int(2 * half / bin_m) + 1
+        current = np.bincount(bins[lag == 0], minlength=n_bins).astype(np.float64)
+        if current.sum() < min_points:
+            continue
+        score = np.zeros(len(speeds))
+        for L in past_lags:
+            earlier = np.bincount(bins[lag == L], minlength=n_bins).astype(np.float64)
+            if earlier.sum() < min_points:
+                continue
+            # corr[k]: overlap when the earlier sweep is shifted by (k - (n - 1)) bins
+            corr = np.correlate(current, earlier, 'full') / (current.sum() * earlier.sum())
+            shift = speeds * L / bin_m + (len(current) - 1)
+            score += np.interp(shift, np.arange(len(corr)), corr)
+            ok[j] = True
+        if ok[j]:
+            vel[j] = speeds[int(np.argmax(score))] * np.array([c, s])
+    return vel, ok

@@ -1,6 +1,8 @@
 """The velocity filter (suit_ros.tracking): tracks in the odometry frame, filtered velocities."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -122,7 +124,8 @@ def test_only_confident_detections_start_tracks_and_they_are_matched_first():
 @pytest.mark.parametrize('field,value', [('pos_sigma', 0.0), ('vel_sigma', -1.0),
                                          ('accel_sigma', float('nan')), ('gate', 0.0),
                                          ('max_gap_s', float('inf')), ('max_misses', -1),
-                                         ('birth_score', 1.5), ('score_mix', -0.1)])
+                                         ('birth_score', 1.5), ('score_mix', -0.1),
+                                         ('sweep_sigma', 0.0)])
 def test_config_is_validated(field, value):
     with pytest.raises(ValueError, match=field):
         FilterConfig(**{field: value})
@@ -140,3 +143,55 @@ def test_scores_are_smoothed_over_the_track():
     assert out.scores.tolist() == pytest.approx([0.5 * 0.6 + 0.5 * running])
     out, ids = vf.update(frame([[30, 0]], [[0, 0]], scores=[0.1]), 3 * DT_NS, T)
     assert ids.tolist() == [0] and out.scores.tolist() == pytest.approx([0.1])   # untracked
+
+
+def car_points(centre, yaw, speed, lags, rng, n=60):
+    """Returns on the visible outline of a 4.5 x 1.9 m car moving ``speed`` m/s along its
+    heading, one cloud per time lag (the car was ``speed x lag`` behind then), ground at z 0."""
+    out = []
+    heading = np.array([np.cos(yaw), np.sin(yaw)])
+    side = np.array([-np.sin(yaw), np.cos(yaw)])
+    for lag in lags:
+        u = rng.uniform(-2.25, 2.25, n)
+        v = np.where(rng.random(n) < 0.5, -0.95, 0.95)
+        u[: n // 4] = 2.25                                   # the front face
+        xy = np.asarray(centre) + (u[:, None] - speed * lag) * heading + v[:, None] * side
+        z = rng.uniform(0.4, 1.5, n)
+        out.append(np.c_[xy, z, np.full(n, 0.5), np.full(n, lag)])
+    return np.concatenate(out)
+
+
+def test_sweep_velocities_read_motion_along_the_heading():
+    from suit_ros.tracking import sweep_velocities
+    rng = np.random.default_rng(3)
+    lags = (0.0, 0.1, 0.2)
+    moving = car_points((12.0, 4.0), 0.6, 9.0, lags, rng)
+    parked = car_points((-8.0, -6.0), -1.2, 0.0, lags, rng)
+    ground = np.c_[rng.uniform(-30, 30, (3000, 2)), np.zeros(3000), np.zeros(3000),
+                   rng.choice(lags, 3000)]
+    wall = np.c_[np.full(600, 20.0), rng.uniform(-10, 10, 600), rng.uniform(0, 3, 600),
+                 np.zeros(600), rng.choice(lags, 600)]
+    pts = np.concatenate([moving, parked, ground, wall]).astype(np.float32)
+    boxes = np.array([[12.0, 4.0, 0.8, 4.5, 1.9, 1.6, 0.6],
+                      [-8.0, -6.0, 0.8, 4.5, 1.9, 1.6, -1.2 + np.pi],   # heading flipped
+                      [12.0, 4.0, 0.8, 4.5, 1.9, 1.6, 0.6],
+                      [-20.0, 15.0, 0.8, 4.5, 1.9, 1.6, 0.0]])          # nothing there
+    vel, ok = sweep_velocities(pts, boxes, np.array([True, True, False, True]))
+    assert ok.tolist() == [True, True, False, False]
+    np.testing.assert_allclose(vel[0], 9.0 * np.array([np.cos(0.6), np.sin(0.6)]), atol=0.4)
+    np.testing.assert_allclose(vel[1], 0.0, atol=0.3)
+    assert not vel[2:].any()
+    one_sweep = pts[pts[:, 4] == 0]                       # no earlier sweep: nothing to read
+    assert not sweep_velocities(one_sweep, boxes, np.ones(4, bool))[1].any()
+
+
+def test_swept_velocity_is_fused_with_the_heads():
+    cfg = FilterConfig(vel_sigma=4.0, sweep_sigma=2.0)
+    vf = VelocityFilter(cfg)
+    det = frame([[10, 0], [20, 0]], [[0, 0], [5, 0]])
+    swept = (np.array([[10.0, 0.0], [9.0, 0.0]]), np.array([True, False]))
+    out, _ = vf.update(det, 0, np.eye(4), swept)
+    # inverse-variance weights 1/16 and 1/4: (0 * 1 + 10 * 4) / 5 = 8
+    np.testing.assert_allclose(out.velocities, [[8.0, 0.0], [5.0, 0.0]])
+    plain, _ = VelocityFilter(replace(cfg, sweep_sigma=None)).update(det, 0, np.eye(4), swept)
+    np.testing.assert_allclose(plain.velocities, [[0.0, 0.0], [5.0, 0.0]])

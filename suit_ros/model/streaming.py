@@ -19,7 +19,7 @@ from suit_ros.model.fusion import PastTerm
 from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.structures import Detections
-from suit_ros.tracking import FilterConfig, VelocityFilter
+from suit_ros.tracking import FilterConfig, VelocityFilter, sweep_velocities
 
 
 @dataclass
@@ -185,7 +185,13 @@ class StreamingDetector:
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
         ids = np.zeros(len(det), np.int64)
         if self.tracks is not None and T_odom_base is not None:
-            det, ids = self.tracks.update(det, stamp_ns, poses[0])
+            fc = self.tracks.config
+            swept = None
+            if fc.sweep_sigma is not None:       # boxes and model points both in base_link
+                rigid = [i for i, n in enumerate(self.cfg.class_names) if n in fc.sweep_classes]
+                which = np.isin(det.labels, rigid) & (det.scores >= fc.sweep_min_score)
+                swept = sweep_velocities(model_points, det.boxes, which)
+            det, ids = self.tracks.update(det, stamp_ns, poses[0], swept)
         det = boxes_to_lidar(det, T_bl)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
