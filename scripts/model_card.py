@@ -137,8 +137,9 @@ def main() -> int:
         f, g = runs['suit, tracking'], runs.get('single, tracking', {})
         lines += ['', "**Tracking** (the node's defaults `velocity_filter: true`, "
                   '`track_score_mix: 0.7`; `suit_ros/tracking.py`: constant-velocity Kalman '
-                  'tracks over the detections in the odometry frame, velocities filtered and '
-                  'scores smoothed over each track). What the node publishes, against the '
+                  "tracks over the detections in the odometry frame, fed with the head's "
+                  'velocity and the velocity read from the sweeps, scores smoothed over each '
+                  'track). What the node publishes, against the '
                   "model's own output, same drive resamples: mAP "
                   f'{fmt(f, "mAP")} (difference {fmt(filt, "mAP")}), NDS {fmt(f, "NDS")} '
                   f'(difference {fmt(filt, "NDS")}), mAVE {fmt(f, "mAVE")} (difference '

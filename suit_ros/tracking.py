@@ -15,6 +15,13 @@ acceleration); the detection's output velocity is the track's posterior. A new t
 the head's velocity, so an object's first frame is unchanged, and a faint detection no track
 takes keeps the head's velocity.
 
+The head is not the only velocity reading: the model input holds the current sweep and the
+earlier ones with ego motion removed, and a moving vehicle's returns are smeared along its path.
+:func:`sweep_velocities` reads each vehicle box's speed along its heading from how its returns
+shift between the sweeps; where it can be read it is fused with the head's velocity (inverse
+variance, ``sweep_sigma`` against ``vel_sigma``) before the Kalman update, so even an object's
+first frame gets it.
+
 A tracked detection's score is also smoothed over its track (``score_mix``): ``(1 - mix) x``
 its own score ``+ mix x`` the track's running score (each earlier detection weighing half as
 much as the next), so an object seen confidently for a while keeps its rank through one weak
