@@ -12,8 +12,8 @@ starts a track (the two-stage association of ByteTrack, so a faint false positiv
 track that takes a real object's detection). A matched detection's centre and the head's
 velocity update the track's Kalman filter on ``x, y, vx, vy`` (odometry frame, white-noise
 acceleration); the detection's output velocity is the track's posterior. A new track starts at
-the head's velocity, so an object's first frame is unchanged, and a faint detection no track
-takes keeps the head's velocity.
+the measured velocity (the head's, fused with the sweeps' below), and so does a faint detection
+that no track takes.
 
 The head is not the only velocity reading: the model input holds the current sweep and the
 earlier ones with ego motion removed, and a moving vehicle's returns are smeared along its path.
@@ -55,8 +55,8 @@ class FilterConfig:
     :param accel_sigma: process noise, white acceleration (m/s^2, per axis).
     :param gate: association gate, squared Mahalanobis distance of the centre (2 dof).
     :param birth_score: detections at least this confident are associated first and may start
-        tracks; the others only continue tracks (their velocity is the head's when none is
-        left for them).
+        tracks; the others only continue tracks (their velocity is the measured one when none
+        is left for them).
     :param score_mix: weight of the track's running score in a tracked detection's score (0:
         the model's scores unchanged).
     :param sweep_sigma: noise (m/s, per axis) of the velocity read from the sweeps
@@ -162,8 +162,8 @@ class VelocityFilter:
             detections' frame) and where they could be read; fused with the head's velocity
             when ``sweep_sigma`` is set.
         :return: the detections with filtered velocities and smoothed scores, and their track
-            ids (0, and the model's velocity and score, for a detection below ``birth_score``
-            that no track took).
+            ids (0, the measured velocity and the model's score, for a detection below
+            ``birth_score`` that no track took).
         """
         cfg = self.config
         T = np.asarray(T_odom_frame, np.float64)
