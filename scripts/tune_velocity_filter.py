@@ -1,14 +1,19 @@
 #!/usr/bin/env python3
-"""Choose the velocity filter's noise settings on the ``tune`` split (never trained or validated
-on): the checkpoint runs once with the head's velocities, then the filter replays over the
-stored detections for every setting of a grid; prints moving-car velocity error, mAVE and the
-speed slope per setting, sorted by mAVE + moving-car velocity error (the choice; ``--grid
-scores``: the score smoothing, by NDS), and writes them to ``--out`` (JSON).
+"""Choose the tracking settings on the ``tune`` split (never trained or validated on).
 
-The filter runs on the detections in the LiDAR frame with the LiDAR pose; the streaming detector
-runs it in base_link with the vehicle pose: the same centres and velocities in the odometry frame.
+The checkpoint runs once with its own output; then the velocity filter (``suit_ros/tracking.py``)
+replays over the stored detections for every setting of a grid, in base_link with the vehicle
+pose and the velocities read from each frame's accumulated sweeps, as the streaming detector
+runs it. Prints mAP, NDS, mAVE, per-class AVE and moving-car velocity error per setting and
+writes them to ``--out`` (JSON). The grids, in the order the choices were made (each fixes the
+settings the earlier ones chose):
 
-Usage: scripts/tune_velocity_filter.py [--checkpoint C] [--drives 16] [--out tune.json]
+- ``velocity``: noise and track settings (no score smoothing, no sweep reading); the choice:
+  the least mAVE + moving-car velocity error;
+- ``scores``: ``score_mix`` (no sweep reading); the choice: the highest NDS;
+- ``sweeps``: ``sweep_sigma``; the choice: the least mAVE + moving-car velocity error.
+
+Usage: scripts/tune_velocity_filter.py --grid velocity|scores|sweeps [--out tune.json]
 """
 from __future__ import annotations
 
@@ -17,6 +22,9 @@ from dataclasses import asdict, replace
 import itertools
 import json
 import time
+from typing import Any
+
+import numpy as np
 
 
 def main() -> int:
@@ -26,16 +34,19 @@ def main() -> int:
     parser.add_argument('--frames', type=int, default=40)
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--out', default='')
-    parser.add_argument('--grid', choices=['velocity', 'scores'], default='velocity',
-                        help='velocity: the noise and track settings; scores: score_mix')
+    parser.add_argument('--grid', choices=['velocity', 'scores', 'sweeps'], default='sweeps',
+                        help='which choice to make (see the module docstring)')
     args = parser.parse_args()
     import torch
     torch.set_num_threads(2)
     from suit_ros.benchmark import car_motion
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     from suit_ros.data.sequences import synthetic_split
-    from suit_ros.evaluate import evaluate, run_model
-    from suit_ros.tracking import FilterConfig, VelocityFilter
+    from suit_ros.evaluate import evaluate, run_model, step_inputs
+    from suit_ros.model.sweeps import boxes_to_lidar, model_frame
+    from suit_ros.ops.geometry import transform_boxes
+    from suit_ros.structures import Detections
+    from suit_ros.tracking import FilterConfig, VelocityFilter, sweep_velocities
 
     t0 = time.monotonic()
     seqs = synthetic_split('tune', args.drives, args.frames, args.cache_dir)
@@ -45,16 +56,30 @@ def main() -> int:
     frames = [f for seq in seqs for f in seq]
     car = names.index('car')
     print(f'[tune] model run over {len(frames)} frames in {time.monotonic() - t0:.0f} s')
+    # each frame as the streaming detector's filter sees it: detections in base_link, the
+    # vehicle pose, the velocities read from the sweeps
+    rigid = [i for i, n in enumerate(names) if n in FilterConfig().sweep_classes]
+    replay = []
+    for seq, first in zip(seqs, np.cumsum([0] + [len(q) for q in seqs])):
+        for t, f in enumerate(seq):
+            d = run.det[first + t]
+            _, _, T_ob, T_bl = step_inputs(f)
+            boxes, vel = transform_boxes(T_bl, d.boxes, d.velocities)
+            base_det = Detections(boxes, d.velocities if vel is None else vel, d.scores,
+                                  d.labels)
+            which = np.isin(d.labels, rigid) & (d.scores >= FilterConfig().sweep_min_score)
+            swept = sweep_velocities(model_frame(seq, t, cfg.sweeps).points, boxes, which)
+            replay.append((base_det, T_ob, T_bl, swept))
 
     def score(filt: FilterConfig | None) -> dict[str, float]:
         dets = run.det
         if filt is not None:
             dets, vf, drive = [], VelocityFilter(filt), -1
-            for d, f, k in zip(run.det, frames, run.drive):
+            for (d, T_ob, T_bl, swept), f, k in zip(replay, frames, run.drive):
                 if k != drive:
                     vf.reset()
                     drive = k
-                dets.append(vf.update(d, f.stamp_ns, f.pose)[0])
+                dets.append(boxes_to_lidar(vf.update(d, f.stamp_ns, T_ob, swept)[0], T_bl))
         res = evaluate(run.gt, dets, names, num_points=run.num_points)
         motion = car_motion(run.gt, dets, car)
         ave = {f'AVE {c}': round(res.tp[c]['vel_err'], 3) for c in res.evaluated}
@@ -64,29 +89,32 @@ def main() -> int:
                    if k in ('moving car vel err', 'moving car speed slope',
                             'static car vel err')}}
 
-    base = FilterConfig()
-    if args.grid == 'scores':      # the velocity settings fixed (chosen first), then the scores
-        grid: dict[str, tuple[float, ...]] = {'score_mix': (0.0, 0.3, 0.5, 0.7)}
-    else:
+    grid: dict[str, tuple[Any, ...]]
+    if args.grid == 'velocity':
+        base = FilterConfig(score_mix=0.0, sweep_sigma=None)
         grid = {'pos_sigma': (0.2, 0.3), 'vel_sigma': (3.0, 4.5), 'accel_sigma': (1.0, 2.0),
                 'birth_score': (0.4, 0.5), 'max_misses': (4, 6)}
-    rows = [{'setting': 'head velocities', **score(None)}]
+    elif args.grid == 'scores':
+        base = FilterConfig(sweep_sigma=None)
+        grid = {'score_mix': (0.0, 0.3, 0.5, 0.7)}
+    else:
+        base = FilterConfig()
+        grid = {'sweep_sigma': (None, 1.0, 1.5, 2.5, 4.0)}
+    rows: list[dict[str, Any]] = [{'setting': 'head velocities', **score(None)}]
     print(rows[0])
     for values in itertools.product(*grid.values()):
         filt = replace(base, **dict(zip(grid, values)))
         row = {'setting': {k: getattr(filt, k) for k in grid}, **score(filt)}
         print(row, flush=True)
         rows.append(row)
-    # the choice: the least mAVE + moving-car velocity error (both m/s); for the scores, the
-    # highest NDS
     rows[1:] = sorted(rows[1:], key=lambda r: (-r['NDS'] if args.grid == 'scores' else
                                                r['mAVE'] + r['moving car vel err']))
     print('[tune] best:', rows[1])
     if args.out:
-        with open(args.out, 'w', encoding='utf-8') as f:
+        with open(args.out, 'w', encoding='utf-8') as fh:
             json.dump({'checkpoint': args.checkpoint or str(default_checkpoint_path()),
                        'drives': args.drives, 'frames': args.frames, 'base': asdict(base),
-                       'rows': rows}, f, indent=1)
+                       'rows': rows}, fh, indent=1)
     print(f'[tune] {time.monotonic() - t0:.0f} s')
     return 0
 
