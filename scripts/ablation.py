@@ -140,7 +140,9 @@ def main() -> int:
     held: dict[str, Any] = {}
     if args.heldout_drives and not args.quick:
         hv = synthetic_split('heldout', args.heldout_drives, args.frames, args.cache_dir)
-        hruns = {'single': run_model(single, hv), 'suit': run_model(suit, hv)}
+        hruns = {'single': run_model(single, hv), 'suit': run_model(suit, hv),
+                 'single, tracking': run_model(single, hv, velocity_filter=FilterConfig()),
+                 'suit, tracking': run_model(suit, hv, velocity_filter=FilterConfig())}
         held, _ = bootstrap(hruns, names, (), args.resamples)
     latency = {k: float(np.median(r.latency_s)) * 1e3 for k, r in runs.items()}
     memory = {k: {n: int(np.median(v)) for n, v in r.memory_after.items()}
@@ -202,7 +204,7 @@ def render(stats: dict[str, Any], diffs: dict[str, Any], held: dict[str, Any],
         held_sensors = ', '.join(sorted({s for _, s in meta['heldout_drives']}))
         lines += ['', f'## Held-out sensor ({held_sensors}, never in training; seeds '
                   f'{meta["heldout_drives"][0][0]}+)', '']
-        lines += table(held, ['mAP', 'NDS'] + [f'AP {c}' for c in names])
+        lines += table(held, ['mAP', 'NDS', 'mAVE'] + [f'AP {c}' for c in names])
     if clutter:
         types = [t for t in next(iter(clutter.values())) if t != 'all']
         lines += ['', '## False positives on clutter (per frame, score >= 0.3, no GT within '
