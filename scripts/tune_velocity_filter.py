@@ -58,7 +58,6 @@ def main() -> int:
     print(f'[tune] model run over {len(frames)} frames in {time.monotonic() - t0:.0f} s')
     # each frame as the streaming detector's filter sees it: detections in base_link, the
     # vehicle pose, the velocities read from the sweeps
-    rigid = [i for i, n in enumerate(names) if n in FilterConfig().sweep_classes]
     replay = []
     for seq, first in zip(seqs, np.cumsum([0] + [len(q) for q in seqs])):
         for t, f in enumerate(seq):
@@ -67,8 +66,8 @@ def main() -> int:
             boxes, vel = transform_boxes(T_bl, d.boxes, d.velocities)
             base_det = Detections(boxes, d.velocities if vel is None else vel, d.scores,
                                   d.labels)
-            which = np.isin(d.labels, rigid) & (d.scores >= FilterConfig().sweep_min_score)
-            swept = sweep_velocities(model_frame(seq, t, cfg.sweeps).points, boxes, which)
+            swept = sweep_velocities(model_frame(seq, t, cfg.sweeps).points, boxes,
+                                     FilterConfig().sweep_targets(d, names))
             replay.append((base_det, T_ob, T_bl, swept))
 
     def score(filt: FilterConfig | None) -> dict[str, float]:

@@ -37,6 +37,7 @@ docs/experiments/velocity_filter.
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -94,6 +95,12 @@ class FilterConfig:
                 raise ValueError(f'FilterConfig.{name} must be within 0..1, got {value}')
         if self.max_misses < 0:
             raise ValueError(f'FilterConfig.max_misses must be >= 0, got {self.max_misses}')
+
+    def sweep_targets(self, det: Detections, class_names: Sequence[str]) -> NDArray[np.bool_]:
+        """The detections whose velocity is read from the sweeps: ``sweep_classes`` scoring at
+        least ``sweep_min_score``."""
+        wanted = [i for i, n in enumerate(class_names) if n in self.sweep_classes]
+        return np.isin(det.labels, wanted) & (det.scores >= self.sweep_min_score)
 
 
 class VelocityFilter:

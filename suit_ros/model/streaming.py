@@ -188,9 +188,8 @@ class StreamingDetector:
             fc = self.tracks.config
             swept = None
             if fc.sweep_sigma is not None:       # boxes and model points both in base_link
-                rigid = [i for i, n in enumerate(self.cfg.class_names) if n in fc.sweep_classes]
-                which = np.isin(det.labels, rigid) & (det.scores >= fc.sweep_min_score)
-                swept = sweep_velocities(model_points, det.boxes, which)
+                swept = sweep_velocities(model_points, det.boxes,
+                                         fc.sweep_targets(det, self.cfg.class_names))
             det, ids = self.tracks.update(det, stamp_ns, poses[0], swept)
         det = boxes_to_lidar(det, T_bl)
         t6 = self._sync()
