@@ -110,6 +110,31 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     return dict(meta)
 
 
+def published_thresholds(meta: dict[str, Any], class_names: tuple[str, ...] | list[str]
+                         ) -> list[float]:
+    """The per-class score thresholds the node publishes at: the checkpoint's
+    ``publish_thresholds`` (chosen for the published output, ``suit-ros choose-thresholds``),
+    else its decoding threshold (``head.score_threshold``, the low one AP evaluation uses)."""
+    stored = meta.get('publish_thresholds') or {}
+    config = meta.get('config') if isinstance(meta.get('config'), dict) else {}
+    head = config.get('head', {}) if isinstance(config, dict) else {}
+    decode = float(head.get('score_threshold', 0.1)) if isinstance(head, dict) else 0.1
+    return [float(stored.get(c, decode)) for c in class_names]
+
+
+def update_metadata(path: str | os.PathLike[str], **changes: Any) -> Path:
+    """Rewrite a checkpoint with the same tensors and its metadata updated (atomically)."""
+    from safetensors.torch import load_file, save_file
+    path = Path(path)
+    meta = read_metadata(path)
+    meta.update(changes)
+    state = load_file(str(path), device='cpu')
+    tmp = path.with_suffix(path.suffix + '.tmp')
+    save_file(state, str(tmp), metadata={'suit_ros': json.dumps(meta)})
+    os.replace(tmp, path)
+    return path
+
+
 def load_checkpoint(path: str | os.PathLike[str], device: torch.device | str | None = None,
                     expect_config: ModelConfig | None = None,
                     expect_classes: tuple[str, ...] | list[str] | None = None,

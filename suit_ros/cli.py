@@ -20,6 +20,10 @@ COMMANDS: dict[str, tuple[str, str]] = {
     'simulate': ('suit_ros.data.simulate_cli', 'write a synthetic LiDAR driving bag'),
     'train': ('suit_ros.train', 'train the detector (single-frame or SUIT)'),
     'eval': ('suit_ros.evaluate_cli', 'nuScenes-style mAP/NDS of detections against GT'),
+    'report': ('suit_ros.report', 'what the node publishes on a labelled dataset: recall, '
+               'precision, AP, headings, pictures'),
+    'choose-thresholds': ('suit_ros.thresholds_cli', 'choose the per-class thresholds the node '
+                          'publishes at (synthetic tune split) and store them'),
     'detect-bag': ('suit_ros.playback', 'run the detector over a bag and write a bag'),
     'play': ('suit_ros.player', 'publish a bag into the live ROS graph'),
     'bench': ('suit_ros.bench', 'benchmark latency, memory and scaling'),

@@ -314,6 +314,22 @@ def evaluate(gt: Sequence[Detections], det: Sequence[Detections],
     return result_from_matches(class_names, matches, len(gt))
 
 
+def drop_ignored(det: Detections, gt: Detections, ignore: NDArray[np.floating[Any]],
+                 radius: float = TP_DIST) -> Detections:
+    """``det`` without the detections on ignored things (real datasets: parked bicycles):
+    a detection whose BEV centre lies within ``radius`` of an ignored box's centre and not
+    within ``radius`` of any GT box counts as neither a true nor a false positive."""
+    ig = np.asarray(ignore, np.float64).reshape(-1, 7)
+    if len(ig) == 0 or len(det) == 0:
+        return det
+    xy = det.boxes[:, None, :2].astype(np.float64)
+    near_ignored = (np.hypot(*(xy - ig[None, :, :2]).transpose(2, 0, 1)) < radius).any(1)
+    if len(gt):
+        g = gt.boxes[None, :, :2].astype(np.float64)
+        near_ignored &= ~(np.hypot(*(xy - g).transpose(2, 0, 1)) < radius).any(1)
+    return det.select(~near_ignored)
+
+
 @dataclass
 class ModelRun:
     """Per-frame outputs of a model run over sequences (the inputs of :func:`evaluate`)."""
@@ -325,10 +341,20 @@ class ModelRun:
     memory_bytes: list[int]
     memory_after: dict[int, list[int]]
     drive: list[int] = field(default_factory=list)
+    ignore: list[NDArray[np.float32] | None] = field(default_factory=list)
 
-    def evaluate(self, class_names: Sequence[str]) -> EvalResult:
+    def scored_detections(self) -> list[Detections]:
+        """The detections, less those on ignored things (:func:`drop_ignored`)."""
+        if not self.ignore:
+            return self.det
+        return [d if ig is None else drop_ignored(d, g, ig)
+                for d, g, ig in zip(self.det, self.gt, self.ignore)]
+
+    def evaluate(self, class_names: Sequence[str],
+                 ranges: dict[str, float] | None = None) -> EvalResult:
         """Metrics of the run, with latency p50 and memory p50 in ``extra``."""
-        result = evaluate(self.gt, self.det, class_names, num_points=self.num_points)
+        result = evaluate(self.gt, self.scored_detections(), class_names, ranges=ranges,
+                          num_points=self.num_points)
         result.extra.update({'latency_p50_ms': round(float(np.median(self.latency_s)) * 1e3, 1),
                              'memory_bytes_p50': int(np.median(self.memory_bytes))})
         return result
@@ -376,6 +402,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.gt.append(frame.gt)
             out.num_points.append(frame.num_points)
             out.drive.append(drive)
+            out.ignore.append(frame.ignore_boxes)
     model.train(was_training)
     return out
 

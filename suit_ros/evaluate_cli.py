@@ -1,5 +1,5 @@
 """``suit-ros eval``: nuScenes-style metrics for a bag with detections and GT, or for a model
-on a synthetic split, nuScenes-format or KITTI-format data."""
+on a synthetic split, nuScenes-format, KITTI-format or Argoverse 2 data."""
 from __future__ import annotations
 
 import argparse
@@ -19,6 +19,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     src.add_argument('--kitti', metavar='ROOT',
                      help='run --checkpoint over KITTI-format data (velodyne/ label_2/ calib/, '
                      'or the tracking layout), scoring only the camera field of view')
+    src.add_argument('--av2', metavar='ROOT',
+                     help='run --checkpoint over Argoverse 2 sensor-dataset logs (the dataset '
+                     'folder, a split folder or one log folder); parked bicycles and '
+                     'motorcycles are neither objects nor false positives')
     parser.add_argument('--version', default='v1.0-mini', help='nuScenes table version')
     parser.add_argument('--sweeps', type=int, default=10, help='nuScenes sweeps per keyframe')
     parser.add_argument('--image-width', type=float, default=1242.0,
@@ -124,9 +128,13 @@ def run(args: argparse.Namespace) -> int:
         from suit_ros.evaluate import run_model
         filt = _velocity_filter(args)
         model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
+        seqs: Any
         if args.nuscenes:
             from suit_ros.data.sequences import nuscenes_sequences
             seqs = nuscenes_sequences(args.nuscenes, args.version, args.sweeps)
+        elif args.av2:
+            from suit_ros.data.av2 import av2_sequences
+            seqs = av2_sequences(args.av2, model.cfg.class_names)
         else:
             seqs = synthetic_sequences(args.synthetic, args.cache_dir)
         if not seqs or not seqs[0]:

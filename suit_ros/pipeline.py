@@ -46,8 +46,11 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     dev = ('cuda' if params.device == 'cuda'
            or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
+    from suit_ros.checkpoint import published_thresholds
     model, cfg, meta = load_checkpoint(params.checkpoint or default_checkpoint_path(), dev)
-    return StreamingDetector(model, dev, precision=params.precision), cfg, meta
+    runner = StreamingDetector(model, dev, precision=params.precision)
+    runner.published_thresholds = published_thresholds(meta, cfg.class_names)
+    return runner, cfg, meta
 
 
 @dataclass
@@ -113,7 +116,8 @@ class DetectionPipeline:
         params.validate(len(self.class_names))
         old = self.params
         self.params = params
-        self.detector.set_thresholds(params.class_thresholds(len(self.class_names)),
+        self.detector.set_thresholds(params.class_thresholds(len(self.class_names))
+                                     or self.detector.published_thresholds,
                                      params.nms_iou_threshold, params.max_detections,
                                      params.candidates)
         self.detector.set_velocity_filter(

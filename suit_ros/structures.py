@@ -61,6 +61,8 @@ class Frame:
     :param gt: ground-truth boxes in the points' frame at the stamp, or None at inference.
     :param T_base_lidar: ``(4, 4)`` float64 LiDAR mounting extrinsic (identity in a model
         frame, or when the points are already in base_link).
+    :param ignore_boxes: ``(M, 7)`` boxes (points' frame) of things that count as neither
+        objects nor false positives in evaluation (real datasets: parked bicycles), or None.
     """
 
     points: NDArray[np.float32]
@@ -72,3 +74,4 @@ class Frame:
     instance_ids: NDArray[np.uint32] | None = None
     sequence_id: str = ''
     T_base_lidar: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
+    ignore_boxes: NDArray[np.float32] | None = None

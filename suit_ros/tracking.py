@@ -64,6 +64,10 @@ class FilterConfig:
         (:func:`sweep_velocities`), fused with the head's; None: not read.
     :param sweep_classes: the classes it is read for (they move along their heading), on
         detections scoring at least ``sweep_min_score``.
+    :param heading_min_speed: a tracked vehicle (``sweep_classes``) whose filtered velocity is
+        faster than this (m/s) and at least twice its standard deviation is turned round when
+        its box's heading points more than 90 degrees away from that velocity (vehicles drive
+        forwards); None: headings as the model gives them.
     :param max_misses: frames a track survives without a detection.
     :param max_gap_s: a longer gap between frames (or time going back) drops every track.
     """
@@ -77,6 +81,7 @@ class FilterConfig:
     sweep_sigma: float | None = 1.5
     sweep_classes: tuple[str, ...] = ('car', 'truck', 'cyclist')
     sweep_min_score: float = 0.2
+    heading_min_speed: float | None = 1.5
     max_misses: int = 6
     max_gap_s: float = 0.5
 
@@ -111,8 +116,14 @@ class VelocityFilter:
     track (:attr:`P`) serves both, and every inverse is a 2 x 2 one in closed form.
     """
 
-    def __init__(self, config: FilterConfig | None = None) -> None:
+    def __init__(self, config: FilterConfig | None = None,
+                 class_names: Sequence[str] | None = None) -> None:
+        from suit_ros import CLASS_NAMES
         self.config = config or FilterConfig()
+        names = tuple(class_names or CLASS_NAMES)
+        # the classes that move along their heading (the sweep reading's, too)
+        self.vehicle_labels = frozenset(i for i, n in enumerate(names)
+                                        if n in self.config.sweep_classes)
         self.next_id = 1
         self.stamp_ns: int | None = None
         self.reset()
@@ -239,11 +250,33 @@ class VelocityFilter:
         out_vel = measured_vel                                  # untracked: as measured
         tracked = rows >= 0
         out_vel[tracked] = self.x[rows[tracked], 2:] @ R
+        boxes = det.boxes
+        if cfg.heading_min_speed is not None and tracked.any():
+            boxes = self._settle_headings(det, rows, out_vel)
         keep = self.misses <= cfg.max_misses
         self.x, self.P = self.x[keep], self.P[keep]
         self.labels, self.ids, self.misses = self.labels[keep], self.ids[keep], self.misses[keep]
         self.score = self.score[keep]
-        return Detections(det.boxes, out_vel, scores, det.labels), ids
+        return Detections(boxes, out_vel, scores, det.labels), ids
+
+    def _settle_headings(self, det: Detections, rows: NDArray[np.int64],
+                         vel: NDArray[np.float64]) -> NDArray[np.floating[Any]]:
+        """``det.boxes`` with the vehicles that drive backwards by a confident velocity turned
+        round (see ``heading_min_speed``)."""
+        cfg = self.config
+        assert cfg.heading_min_speed is not None
+        speed = np.hypot(vel[:, 0], vel[:, 1])
+        sigma = np.sqrt(np.where(rows >= 0, self.P[np.maximum(rows, 0), 1, 1], np.inf))
+        vehicle = np.isin(det.labels, list(self.vehicle_labels))
+        yaw = det.boxes[:, 6].astype(np.float64)
+        backwards = np.cos(yaw) * vel[:, 0] + np.sin(yaw) * vel[:, 1] < 0
+        turn = ((rows >= 0) & vehicle & (speed > cfg.heading_min_speed)
+                & (speed > 2.0 * sigma) & backwards)
+        if not turn.any():
+            return det.boxes
+        boxes = det.boxes.copy()
+        boxes[turn, 6] = (yaw[turn] + 2.0 * np.pi) % (2.0 * np.pi) - np.pi
+        return boxes
 
 
 def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],

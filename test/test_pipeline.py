@@ -99,6 +99,31 @@ def test_score_thresholds_and_max_detections(model, classes, scene):
     assert len(pipe.process(cloud(classes, T0 + 2 * S // 10, scene)).detections) < many
 
 
+def test_default_thresholds_are_the_checkpoints_published_ones(model, classes, scene):
+    """``score_thresholds: [0.0]`` publishes at the checkpoint's published thresholds, cut on
+    the final (track-smoothed) scores, while the model still decodes down to its low
+    evaluation threshold for the tracker; an explicit value overrides them."""
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.pipeline import DetectionPipeline
+    detector = StreamingDetector(model, 'cpu')
+    detector.published_thresholds = [0.5, 0.5, 0.6, 0.6]
+    pipe = DetectionPipeline(detector, DetectorParams(), classes)
+    assert pipe.detector.score_thresholds.tolist() == pytest.approx([0.5, 0.5, 0.6, 0.6])
+    low = model.cfg.head.score_threshold
+    assert pipe.detector.decode_thresholds.tolist() == pytest.approx([low] * 4)
+    feed_odometry(pipe, T0, T0 + S, speed=0.0)
+    outs = [pipe.process(cloud(classes, T0 + k * S // 10, scene)) for k in range(3)]
+    for out in outs:
+        d = out.detections
+        assert (d.scores >= np.array([0.5, 0.5, 0.6, 0.6])[d.labels] - 1e-6).all()
+    assert len(outs[-1].detections) >= 1
+    pipe.configure(replace(pipe.params, score_thresholds=(0.05,)))
+    assert pipe.detector.score_thresholds.tolist() == pytest.approx([0.05] * 4)
+    assert pipe.detector.decode_thresholds.tolist() == pytest.approx([0.05] * 4)
+    more = pipe.process(cloud(classes, T0 + 3 * S // 10, scene))
+    assert len(more.detections) > len(outs[-1].detections)
+
+
 def test_candidates_bound_the_detections_before_the_threshold(model, classes, scene):
     pipe = make_pipeline(model, classes, score_thresholds=(0.0,))
     pipe.configure(replace(pipe.params, score_thresholds=(1e-6,), candidates=3))

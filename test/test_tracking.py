@@ -195,3 +195,22 @@ def test_swept_velocity_is_fused_with_the_heads():
     np.testing.assert_allclose(out.velocities, [[8.0, 0.0], [5.0, 0.0]])
     plain, _ = VelocityFilter(replace(cfg, sweep_sigma=None)).update(det, 0, np.eye(4), swept)
     np.testing.assert_allclose(plain.velocities, [[0.0, 0.0], [5.0, 0.0]])
+
+
+def test_a_vehicle_driving_backwards_by_a_confident_velocity_is_turned_round():
+    """A car at 10 m/s along +x whose box says it faces -x: once the track's velocity is sure,
+    the box is turned round; a slow car, a pedestrian, or the setting off leave it."""
+    def drive(cfg, speed, label, frames=10):
+        vf = VelocityFilter(cfg)
+        for k in range(frames):
+            out, _ = vf.update(frame([[10.0 + speed * 0.1 * k, 3.0]], [speed, 0.0], [label],
+                                     yaw=np.pi - 0.2), k * DT_NS, np.eye(4))
+        return float(out.boxes[0, 6])
+    cfg = FilterConfig()
+    assert drive(cfg, 10.0, 0) == pytest.approx(-0.2, abs=1e-5)            # turned round
+    assert drive(cfg, 1.0, 0) == pytest.approx(np.pi - 0.2, abs=1e-5)      # too slow to tell
+    assert drive(cfg, 10.0, 2) == pytest.approx(np.pi - 0.2, abs=1e-5)     # a pedestrian
+    off = replace(cfg, heading_min_speed=None)
+    assert drive(off, 10.0, 0) == pytest.approx(np.pi - 0.2, abs=1e-5)
+    # its first frame: the velocity is the head's alone, not sure enough to turn the box
+    assert drive(cfg, 10.0, 0, frames=1) == pytest.approx(np.pi - 0.2, abs=1e-5)

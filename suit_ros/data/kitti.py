@@ -30,15 +30,16 @@ Conventions (what the :class:`~suit_ros.structures.Frame` s hold):
 """
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 import os
 from pathlib import Path
-from typing import Any, overload
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.data.lazy import LazySequence
 from suit_ros.data.sim.scene import count_points_in_boxes
 from suit_ros.errors import DatasetError
 from suit_ros.ops.geometry import transform_points, wrap_angle
@@ -333,7 +334,7 @@ def _velocities(boxes: list[NDArray[np.float64]], ids: list[NDArray[np.int64]],
     return out
 
 
-class KittiSequence(Sequence[Frame]):
+class KittiSequence(LazySequence):
     """One sequence of KITTI frames, read from disk when indexed (a KITTI split does not fit in
     memory). Boxes, velocities and poses are computed once; points and ``num_points`` per read.
 
@@ -370,23 +371,6 @@ class KittiSequence(Sequence[Frame]):
 
     def __len__(self) -> int:
         return len(self.scans)
-
-    @overload
-    def __getitem__(self, index: int) -> Frame: ...
-
-    @overload
-    def __getitem__(self, index: slice) -> list[Frame]: ...
-
-    def __getitem__(self, index: int | slice) -> Frame | list[Frame]:
-        if isinstance(index, slice):
-            return [self.frame(k) for k in range(*index.indices(len(self)))]
-        k = index + len(self) if index < 0 else index
-        if not 0 <= k < len(self):
-            raise IndexError(f'frame {index} of a {len(self)}-frame sequence')
-        return self.frame(k)
-
-    def __iter__(self) -> Iterator[Frame]:
-        return (self.frame(k) for k in range(len(self)))
 
     def frame(self, k: int) -> Frame:
         """Read frame ``k``: its scan, with the GT boxes and their point counts."""

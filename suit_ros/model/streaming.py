@@ -45,8 +45,11 @@ class StepResult:
 class StreamingDetector:
     """Run a SUITDetector frame by frame, carrying its temporal memory.
 
-    :param score_thresholds: per-class thresholds (defaults to the config's single threshold);
-        changeable at runtime with :meth:`set_thresholds`.
+    :param score_thresholds: per-class thresholds of what is returned (published), applied to
+        the final scores (after the tracker's smoothing); the model still decodes down to the
+        config's ``head.score_threshold`` so the tracker sees faint detections. None: the
+        config's single threshold (what AP evaluation uses). Changeable at runtime with
+        :meth:`set_thresholds`.
     :param precision: the inference copy's precision (:mod:`suit_ros.model.inference`):
         ``float32`` (default), ``bfloat16``, or ``auto`` (bfloat16 on a CPU with bfloat16
         units); the one chosen is :attr:`precision`.
@@ -69,8 +72,11 @@ class StreamingDetector:
         # oldest (sampled memory_stride frames ago, or the oldest there is after a reset)
         self.memories: deque[Memory] = deque(maxlen=self.cfg.memory_stride)
         self.sweeps = SweepBuffer(self.cfg.sweeps)
-        self.tracks = None if velocity_filter is None else VelocityFilter(velocity_filter)
+        self.tracks = (None if velocity_filter is None
+                       else VelocityFilter(velocity_filter, self.cfg.class_names))
         self.last_reset_reason = 'start'
+        # the checkpoint's published thresholds (set by whoever loaded it; None: not known)
+        self.published_thresholds: list[float] | None = None
         # set keep_terms to inspect the fusion: (W1 F_t, past term or None) of the last step
         self.keep_terms = False
         self.last_terms: tuple[torch.Tensor, torch.Tensor | None] | None = None
@@ -80,7 +86,8 @@ class StreamingDetector:
                        nms_iou_threshold: float | None = None,
                        max_detections: int | None = None, candidates: int | None = None
                        ) -> None:
-        """Change the decoding thresholds (safe between frames).
+        """Change the published score thresholds and the decoding settings (safe between
+        frames).
 
         :param candidates: heatmap peaks kept before the score threshold and NMS (default: the
             config's ``head.top_k``).
@@ -90,7 +97,11 @@ class StreamingDetector:
                else [float(v) for v in score_thresholds])
         if len(thr) != K:
             raise ValueError(f'need {K} score thresholds (one per class), got {len(thr)}')
-        self.score_thresholds = torch.tensor(thr, dtype=torch.float32, device=self.device)
+        self.score_thresholds = np.asarray(thr, np.float32)
+        # decode down to the evaluation threshold (or lower, when a published one is lower)
+        self.decode_thresholds = torch.tensor(
+            np.minimum(thr, self.cfg.head.score_threshold), dtype=torch.float32,
+            device=self.device)
         self.nms_iou_threshold = (self.cfg.head.nms_iou_threshold if nms_iou_threshold is None
                                   else float(nms_iou_threshold))
         self.max_detections = (self.cfg.head.max_detections if max_detections is None
@@ -105,7 +116,7 @@ class StreamingDetector:
         if config is None:
             self.tracks = None
         elif self.tracks is None or self.tracks.config != config:
-            self.tracks = VelocityFilter(config)
+            self.tracks = VelocityFilter(config, self.cfg.class_names)
 
     def reset(self, reason: str = 'reset', sweeps: bool = True) -> None:
         """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps and
@@ -172,7 +183,7 @@ class StreamingDetector:
         preds = m.head(fused)
         h = self.cfg.head
         radius = torch.tensor(h.circle_nms_radius, device=self.device)
-        out = m.head.decode(preds, self.candidates, self.score_thresholds, h.nms,
+        out = m.head.decode(preds, self.candidates, self.decode_thresholds, h.nms,
                             self.nms_iou_threshold, radius, self.max_detections)[0]
         t4 = self._sync()
         if T_odom_base is not None:
@@ -191,6 +202,9 @@ class StreamingDetector:
                 swept = sweep_velocities(model_points, det.boxes,
                                          fc.sweep_targets(det, self.cfg.class_names))
             det, ids = self.tracks.update(det, stamp_ns, poses[0], swept)
+        published = det.scores >= self.score_thresholds[det.labels]
+        if not published.all():
+            det, ids = det.select(published), ids[published]
         det = boxes_to_lidar(det, T_bl)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,

@@ -1,0 +1,320 @@
+"""``suit-ros report``: what a user of the node sees on a labelled dataset.
+
+Runs a checkpoint as the node runs it by default (the streaming detector with the tracker,
+boxes published at the checkpoint's published thresholds) over any supported dataset folder
+(Argoverse 2, KITTI, nuScenes-format, a synthetic split) and writes:
+
+- ``report.json`` and ``report.md``: per class recall and precision at the published thresholds
+  and over a sweep of thresholds, false positives per frame, nuScenes-style AP within
+  ``--max-range`` (50 m), car heading error and flip rate (matched cars);
+- ``bev/<sequence>_<frame>.png``: a bird's-eye view per frame, points with GT, true positives,
+  false positives, missed objects and ignored things in different colours.
+
+Matching: same class, greedy by descending score, BEV centre distance below ``--match-dist``
+(2 m), GT with at least one return within ``--max-range``; detections on ignored things (parked
+bicycles and motorcycles on AV2) count as neither true nor false positives
+(:func:`suit_ros.evaluate.drop_ignored`).
+"""
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from suit_ros.errors import ConfigError, DatasetError
+from suit_ros.structures import Detections
+
+SWEEP = tuple(round(0.1 + 0.05 * i, 2) for i in range(18))     # 0.10 .. 0.95
+FLIP_RAD = np.deg2rad(135.0)
+
+
+@dataclass
+class ClassCounts:
+    """Matched detections of one class over a run, at every threshold (matched once)."""
+
+    scores: NDArray[np.float64]          # (n,) every detection of the class
+    tp: NDArray[np.bool_]                # (n,)
+    heading_err: NDArray[np.float64]     # (n,) nan where not a TP
+    npos: int
+    frames: int
+
+    def at(self, threshold: float) -> dict[str, Any]:
+        """Recall, precision, F1, counts and false positives per frame at a threshold."""
+        keep = self.scores >= threshold
+        tp = int((self.tp & keep).sum())
+        fp = int(keep.sum()) - tp
+        recall = tp / self.npos if self.npos else float('nan')
+        precision = tp / (tp + fp) if tp + fp else float('nan')
+        f1 = (2 * recall * precision / (recall + precision)
+              if tp and np.isfinite(recall) else 0.0)
+        return {'threshold': threshold, 'tp': tp, 'fp': fp, 'gt': self.npos,
+                'recall': _r(recall), 'precision': _r(precision), 'f1': _r(f1),
+                'fp_per_frame': _r(fp / max(self.frames, 1))}
+
+    def heading(self, threshold: float) -> dict[str, Any]:
+        """Heading error of the true positives at a threshold: mean, median, flips."""
+        err = self.heading_err[self.tp & (self.scores >= threshold)]
+        return {'matched': int(len(err)),
+                'mean_deg': _r(float(np.degrees(err.mean()))) if len(err) else None,
+                'median_deg': _r(float(np.degrees(np.median(err)))) if len(err) else None,
+                'flipped': int((err > FLIP_RAD).sum()),
+                'flip_rate': _r(float((err > FLIP_RAD).mean())) if len(err) else None}
+
+
+def _r(x: float) -> float:
+    return round(float(x), 4) if np.isfinite(x) else float('nan')
+
+
+def count_matches(gt: Sequence[Detections], det: Sequence[Detections], label: int,
+                  match_dist: float) -> ClassCounts:
+    """Match every frame once (greedy by score: a detection's match depends only on the
+    higher-scored ones, so any threshold is a cut of the same matching)."""
+    from suit_ros.evaluate import match_frame
+    scores, tp, err = [], [], []
+    npos = 0
+    for g, d in zip(gt, det):
+        m = match_frame(g, d, label, match_dist)
+        scores.append(m.scores)
+        tp.append(m.tp)
+        err.append(m.errors[:, 2])
+        npos += m.npos
+    return ClassCounts(np.concatenate(scores) if scores else np.zeros(0),
+                       np.concatenate(tp) if tp else np.zeros(0, bool),
+                       np.concatenate(err) if err else np.zeros(0), npos, len(gt))
+
+
+@dataclass
+class Report:
+    """Everything ``suit-ros report`` computes."""
+
+    class_names: tuple[str, ...]
+    thresholds: list[float]
+    counts: dict[str, ClassCounts]
+    ap: dict[str, float]
+    frames: int
+    source: str
+    notes: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-serialisable summary."""
+        out: dict[str, Any] = {'source': self.source, 'frames': self.frames,
+                               'published_thresholds': dict(zip(self.class_names,
+                                                                self.thresholds)),
+                               'notes': self.notes, 'classes': {}}
+        for c, thr in zip(self.class_names, self.thresholds):
+            cc = self.counts[c]
+            out['classes'][c] = {'published': cc.at(thr), 'ap': _r(self.ap[c]),
+                                 'sweep': [cc.at(t) for t in SWEEP]}
+        car = self.counts.get('car')
+        if car is not None:
+            out['car_heading'] = car.heading(self.thresholds[self.class_names.index('car')])
+        return out
+
+    def markdown(self) -> str:
+        """Tables for a human."""
+        j = self.to_json()
+        lines = [f'# Real-data report: {self.source}', '',
+                 f'{self.frames} frames. Published thresholds: '
+                 + ', '.join(f'{c} {t:.2f}' for c, t in zip(self.class_names, self.thresholds)),
+                 '', '| class | GT | recall | precision | FP / frame | AP (nuScenes-style) |',
+                 '|---|---|---|---|---|---|']
+        for c in self.class_names:
+            p = j['classes'][c]['published']
+            lines.append(f'| {c} | {p["gt"]} | {p["recall"]:.3f} | {p["precision"]:.3f} | '
+                         f'{p["fp_per_frame"]:.2f} | {j["classes"][c]["ap"]:.3f} |')
+        if 'car_heading' in j:
+            h = j['car_heading']
+            lines += ['', f'Car heading (matched cars at the published threshold): '
+                      f'{h["matched"]} matched, mean error {h["mean_deg"]} deg, median '
+                      f'{h["median_deg"]} deg, flipped (> 135 deg) {h["flipped"]} '
+                      f'({h["flip_rate"]})']
+        lines += ['', '## Over thresholds (recall / precision / FP per frame)', '',
+                  '| threshold | ' + ' | '.join(self.class_names) + ' |',
+                  '|---|' + '---|' * len(self.class_names)]
+        for i, t in enumerate(SWEEP):
+            cells = []
+            for c in self.class_names:
+                s = j['classes'][c]['sweep'][i]
+                cells.append(f'{s["recall"]:.2f} / {s["precision"]:.2f} / '
+                             f'{s["fp_per_frame"]:.1f}')
+            lines.append(f'| {t:.2f} | ' + ' | '.join(cells) + ' |')
+        lines += [''] + [f'- {n}' for n in self.notes]
+        return '\n'.join(lines) + '\n'
+
+
+def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[float],
+                 source: str, max_range: float = 50.0, match_dist: float = 2.0) -> Report:
+    """The report of a :class:`~suit_ros.evaluate.ModelRun` (detections at the decoding
+    threshold; the published thresholds are cuts of them)."""
+    from suit_ros.evaluate import evaluate, filter_frames
+    names = tuple(class_names)
+    ranges = dict.fromkeys(names, max_range)
+    gts, dets, _ = filter_frames(run.gt, run.scored_detections(), names, ranges,
+                                 run.num_points)
+    counts = {c: count_matches(gts, dets, k, match_dist) for k, c in enumerate(names)}
+    ap = evaluate(run.gt, run.scored_detections(), names, ranges, run.num_points).class_ap
+    return Report(names, [float(t) for t in thresholds], counts, ap, len(run.gt), source)
+
+
+def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det: Detections,
+             class_names: Sequence[str], thresholds: Sequence[float],
+             ignore: NDArray[np.floating[Any]] | None, max_range: float = 50.0,
+             match_dist: float = 2.0, title: str = '') -> None:
+    """A bird's-eye PNG: points (grey), GT (blue outline; orange when missed), published
+    detections (green: true positive, red: false positive), ignored things (dashed grey)."""
+    import matplotlib
+    matplotlib.use('Agg')
+    import matplotlib.pyplot as plt
+
+    from suit_ros.evaluate import match_frame
+    thr = np.asarray(thresholds, np.float64)
+    pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
+    fig, ax = plt.subplots(figsize=(10, 10))
+    p = np.asarray(points)
+    near = (np.abs(p[:, 0]) < max_range + 5) & (np.abs(p[:, 1]) < max_range + 5)
+    p = p[near]
+    ax.scatter(p[:, 0], p[:, 1], s=0.15, c=np.clip(p[:, 2], -1, 3), cmap='Greys', vmin=-2,
+               vmax=3, linewidths=0)
+    missed = np.zeros(len(gt), bool)
+    tp_det = np.zeros(len(pub), bool)
+    for k in range(len(class_names)):
+        m = match_frame(gt, pub, k, match_dist)
+        tp_det[pub.labels == k] = m.tp
+        gi = np.flatnonzero(gt.labels == k)
+        dk = pub.boxes[pub.labels == k][m.tp]
+        for j in gi:
+            d = np.hypot(*(dk[:, :2] - gt.boxes[j, :2]).T) if len(dk) else np.zeros(0)
+            missed[j] = not (d < match_dist).any()
+    for j, b in enumerate(gt.boxes):
+        _box(ax, b, 'orange' if missed[j] else 'royalblue', 1.6 if missed[j] else 1.0)
+    if ignore is not None:
+        for b in np.asarray(ignore).reshape(-1, 7):
+            _box(ax, b, 'grey', 0.8, '--')
+    for j, b in enumerate(pub.boxes):
+        colour = 'limegreen' if tp_det[j] else 'red'
+        _box(ax, b, colour, 1.2, heading=True)
+        ax.text(b[0], b[1] + 0.8, f'{class_names[pub.labels[j]][:3]} {pub.scores[j]:.2f}',
+                fontsize=5, color=colour)
+    ax.set_xlim(-max_range, max_range)
+    ax.set_ylim(-max_range, max_range)
+    ax.set_aspect('equal')
+    ax.set_title(f'{title}\nblue: GT found, orange: GT missed, green: TP, red: FP, '
+                 'dashed: ignored', fontsize=9)
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def _box(ax: Any, b: NDArray[np.floating[Any]], colour: str, width: float, style: str = '-',
+         heading: bool = False) -> None:
+    x, y, _, length, w, _, yaw = (float(v) for v in b)
+    c, s = np.cos(yaw), np.sin(yaw)
+    corners = np.array([[length, w], [length, -w], [-length, -w], [-length, w],
+                        [length, w]]) / 2
+    xy = corners @ np.array([[c, s], [-s, c]]) + (x, y)
+    ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=width, ls=style)
+    if heading:
+        ax.plot([x, x + c * length / 2], [y, y + s * length / 2], color=colour, lw=width)
+
+
+# ------------------------------------------------------------------ command line
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Add ``report`` options."""
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument('--av2', metavar='ROOT', help='Argoverse 2 sensor-dataset folder or log')
+    src.add_argument('--kitti', metavar='ROOT',
+                     help='KITTI-format folder (scored in the camera field of view only)')
+    src.add_argument('--nuscenes', metavar='ROOT', help='nuScenes-format folder')
+    src.add_argument('--synthetic', choices=['val', 'tune', 'demo'], help='a synthetic split')
+    parser.add_argument('--out', required=True, help='folder for report.json/.md and bev/')
+    parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
+    parser.add_argument('--score-thresholds', type=float, nargs='+', metavar='T',
+                        help="published thresholds: one, or one per class (default: the "
+                        "checkpoint's, as the node)")
+    parser.add_argument('--no-tracking', action='store_true',
+                        help="the model's own output (the node tracks by default)")
+    parser.add_argument('--max-range', type=float, default=50.0, help='scored range (m)')
+    parser.add_argument('--match-dist', type=float, default=2.0, help='BEV centre distance (m)')
+    parser.add_argument('--pictures', type=int, default=50,
+                        help="bird's-eye PNGs for the first N frames (0: none)")
+    parser.add_argument('--version', default='v1.0-mini', help='nuScenes table version')
+    parser.add_argument('--kitti-intensity-scale', type=float, default=1.0)
+    parser.add_argument('--cache-dir', default='data_cache')
+
+
+def _sequences(args: argparse.Namespace, class_names: Sequence[str]) -> tuple[list[Any], str]:
+    if args.av2:
+        from suit_ros.data.av2 import av2_sequences
+        return list(av2_sequences(args.av2, class_names)), f'Argoverse 2 ({args.av2})'
+    if args.kitti:
+        from suit_ros.data.sequences import kitti_sequences
+        return list(kitti_sequences(args.kitti, args.kitti_intensity_scale)), \
+            f'KITTI ({args.kitti}, camera field of view)'
+    if args.nuscenes:
+        from suit_ros.data.sequences import nuscenes_sequences
+        return nuscenes_sequences(args.nuscenes, args.version), f'nuScenes ({args.nuscenes})'
+    from suit_ros.data.sequences import SPLIT_SEEDS, synthetic_sequence, synthetic_split
+    if args.synthetic == 'demo':
+        return [synthetic_sequence('demo-real', SPLIT_SEEDS['demo'], 100, args.cache_dir)], \
+            'synthetic demo drive'
+    return synthetic_split(args.synthetic, 16, 40, args.cache_dir), \
+        f'synthetic {args.synthetic} split (16 drives)'
+
+
+def report_thresholds(meta: dict[str, Any], class_names: Sequence[str],
+                      override: Sequence[float] | None = None) -> list[float]:
+    """``override`` (one, or one per class), else the checkpoint's published thresholds."""
+    from suit_ros.checkpoint import published_thresholds
+    k = len(class_names)
+    if override:
+        if len(override) not in (1, k) or not all(0.0 <= v <= 1.0 for v in override):
+            raise ConfigError(f'--score-thresholds needs 1 or {k} values within 0..1')
+        return [float(v) for v in override] * (k if len(override) == 1 else 1)
+    return published_thresholds(meta, list(class_names))
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the model, write the report and pictures."""
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.evaluate import run_model
+    from suit_ros.tracking import FilterConfig
+    model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
+    names = tuple(cfg.class_names)
+    thresholds = report_thresholds(meta, names, args.score_thresholds)
+    seqs, source = _sequences(args, names)
+    if not seqs or not any(len(s) for s in seqs):
+        raise DatasetError('the dataset holds no frame')
+    filt = None if args.no_tracking else FilterConfig()
+    result = run_model(model, seqs, velocity_filter=filt)
+    notes = ['as the node by default: 3 sweeps, tracker on (velocity filter and score '
+             'smoothing)' if filt else "the model's own output (tracker off)"]
+    if args.kitti:
+        from suit_ros.data.kitti import camera_fov_run
+        result = camera_fov_run(result, seqs)
+        notes.append('KITTI labels only the front camera view: only it is scored')
+    report = build_report(result, names, thresholds, source, args.max_range, args.match_dist)
+    report.notes += notes
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'report.json').write_text(json.dumps(report.to_json(), indent=2), encoding='utf-8')
+    (out / 'report.md').write_text(report.markdown(), encoding='utf-8')
+    frames = [(k, f) for s in seqs for k, f in enumerate(s[:args.pictures])]
+    scored = result.scored_detections()
+    starts = np.cumsum([0] + [len(s) for s in seqs])
+    for i, (k, f) in enumerate(frames):
+        n = int(starts[sum(1 for _ in frames[:i + 1] if _[0] == 0) - 1]) + k
+        draw_bev(out / 'bev' / f'{f.sequence_id or "seq"}_{k:04d}.png',
+                 f.points, result.gt[n], scored[n], names, thresholds,
+                 f.ignore_boxes, args.max_range, args.match_dist,
+                 f'{source}: frame {k} of {f.sequence_id}')
+    print(report.markdown())
+    print(f'wrote {out / "report.json"}, {out / "report.md"} and '
+          f'{len(frames)} picture(s) in {out / "bev"}')
+    return 0

@@ -1,0 +1,169 @@
+"""The Argoverse 2 reader on small AV2-layout logs the tests write themselves."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.feather as feather
+import pytest
+
+from suit_ros.data.av2 import EGO_HEIGHT_M, Av2Sequence, av2_sequences, find_logs
+from suit_ros.errors import DatasetError
+from suit_ros.evaluate import drop_ignored, run_model
+from suit_ros.structures import Detections
+
+T0 = 315966265259836000
+DT = 100_000_000                       # 10 Hz
+
+
+def _quat_z(yaw: float) -> tuple[float, float, float, float]:
+    return np.cos(yaw / 2), 0.0, 0.0, np.sin(yaw / 2)
+
+
+def _write(path: Path, columns: dict[str, object]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    feather.write_feather(pa.table(columns), str(path))
+
+
+def write_log(root: Path, sweeps: int = 3, ego_speed: float = 5.0,
+              car_speed: float = 10.0, points: int = 2000) -> Path:
+    """A log under ``root/sensor/val/<id>``: the ego drives along x at ``ego_speed``, a car
+    ahead drives along +x at ``car_speed`` (city frame), a pedestrian stands, a parked bicycle
+    (ignored), a bollard (background). Annotations at every sweep stamp and two more."""
+    log = root / 'sensor' / 'val' / '0000-test-log'
+    rng = np.random.default_rng(0)
+    ann: dict[str, list[object]] = {k: [] for k in (
+        'timestamp_ns', 'track_uuid', 'category', 'length_m', 'width_m', 'height_m', 'qw',
+        'qx', 'qy', 'qz', 'tx_m', 'ty_m', 'tz_m', 'num_interior_pts')}
+    poses: dict[str, list[object]] = {k: [] for k in (
+        'timestamp_ns', 'qw', 'qx', 'qy', 'qz', 'tx_m', 'ty_m', 'tz_m')}
+    for k in range(-1, sweeps + 1):
+        stamp = T0 + k * DT
+        ego_x = 100.0 + ego_speed * k * 0.1
+        for name, v in zip(('qw', 'qx', 'qy', 'qz'), _quat_z(0.0)):
+            poses[name].append(v)
+        poses['timestamp_ns'].append(stamp)
+        poses['tx_m'].append(ego_x)
+        poses['ty_m'].append(50.0)
+        poses['tz_m'].append(10.0)
+        car_x = 120.0 + car_speed * k * 0.1 - ego_x           # egovehicle frame
+        for uuid, cat, size, xyz, yaw in (
+                ('car-1', 'REGULAR_VEHICLE', (4.5, 1.9, 1.6), (car_x, 0.0, 0.45), 0.0),
+                ('ped-1', 'PEDESTRIAN', (0.6, 0.6, 1.75), (108.0 - ego_x, 5.0, 0.5), np.pi / 2),
+                ('bike-1', 'BICYCLE', (1.7, 0.6, 1.0), (-6.0, -6.0, 0.15), 0.3),
+                ('bollard-1', 'BOLLARD', (0.3, 0.3, 0.9), (5.0, -5.0, 0.1), 0.0)):
+            ann['timestamp_ns'].append(stamp)
+            ann['track_uuid'].append(uuid)
+            ann['category'].append(cat)
+            for name, v in zip(('length_m', 'width_m', 'height_m'), size):
+                ann[name].append(v)
+            for name, v in zip(('qw', 'qx', 'qy', 'qz'), _quat_z(yaw)):
+                ann[name].append(v)
+            for name, v in zip(('tx_m', 'ty_m', 'tz_m'), xyz):
+                ann[name].append(v)
+            ann['num_interior_pts'].append(0)
+        if 0 <= k < sweeps:
+            xyz = np.concatenate([rng.uniform([-40, -40, -0.4], [40, 40, -0.3], (points, 3)),
+                                  rng.uniform([car_x - 2, -0.8, 0.0], [car_x + 2, 0.8, 1.0],
+                                              (50, 3))]).astype(np.float16)
+            n = len(xyz)
+            _write(log / 'sensors' / 'lidar' / f'{stamp}.feather', {
+                'x': xyz[:, 0], 'y': xyz[:, 1], 'z': xyz[:, 2],
+                'intensity': rng.integers(0, 256, n).astype(np.uint8),
+                'laser_number': rng.integers(0, 64, n).astype(np.uint8),
+                'offset_ns': np.zeros(n, np.int32)})
+    _write(log / 'annotations.feather', ann)
+    _write(log / 'city_SE3_egovehicle.feather', poses)
+    _write(log / 'calibration' / 'egovehicle_SE3_sensor.feather', {
+        'sensor_name': ['up_lidar'], 'qw': [1.0], 'qx': [0.0], 'qy': [0.0], 'qz': [0.0],
+        'tx_m': [1.35], 'ty_m': [0.0], 'tz_m': [1.64]})
+    return log
+
+
+def test_reads_points_gt_classes_poses_and_velocities(tmp_path: Path) -> None:
+    log = write_log(tmp_path)
+    (seq,) = av2_sequences(tmp_path)
+    assert len(seq) == 3 and seq.sequence_id == log.name
+    f = seq[1]
+    assert f.points.shape[1] == 5 and f.points.dtype == np.float32
+    assert 0.0 <= f.points[:, 3].min() and f.points[:, 3].max() <= 1.0      # 0..255 -> 0..1
+    assert (f.points[:, 4] == 0).all()
+    assert f.stamp_ns == T0 + DT
+    # the egovehicle frame is lifted to base_link by the rear-axle height
+    np.testing.assert_allclose(f.T_base_lidar[2, 3], EGO_HEIGHT_M)
+    np.testing.assert_allclose(f.pose[:3, 3], [100.5, 50.0, 10.0])
+    # car and pedestrian are objects; the bicycle is ignored; the bollard is background
+    assert f.gt is not None and sorted(f.gt.labels.tolist()) == [0, 2]
+    assert f.ignore_boxes is not None and len(f.ignore_boxes) == 1
+    np.testing.assert_allclose(f.ignore_boxes[0, :2], [-6.0, -6.0], atol=1e-5)
+    car = f.gt.labels == 0
+    np.testing.assert_allclose(f.gt.velocities[car][0], [10.0, 0.0], atol=1e-6)  # absolute
+    np.testing.assert_allclose(f.gt.velocities[~car][0], [-0.0, 0.0], atol=1e-6)
+    ped = f.gt.boxes[~car][0]
+    np.testing.assert_allclose(ped[6], np.pi / 2, atol=1e-6)                # yaw from quat
+    assert f.num_points is not None and f.num_points[car][0] >= 50
+
+
+def test_velocity_in_the_egovehicle_frame_when_the_ego_turns(tmp_path: Path) -> None:
+    write_log(tmp_path)
+    path = tmp_path / 'sensor/val/0000-test-log/city_SE3_egovehicle.feather'
+    t = feather.read_table(str(path)).to_pydict()
+    qw, _, _, qz = _quat_z(np.pi / 2)          # the ego faces city +y: city +x is ego -y
+    t['qw'] = [qw] * len(t['qw'])
+    t['qz'] = [qz] * len(t['qz'])
+    feather.write_feather(pa.table(t), str(path))
+    (seq,) = av2_sequences(tmp_path)
+    gt, _ = seq.labelled(T0 + DT)
+    # the car moves +5 m/s along ego x relative to the ego, which moves along city +x (ego -y)
+    # at 5 m/s: (5, 5) in the city, (5, -5) in the egovehicle frame
+    np.testing.assert_allclose(gt.velocities[gt.labels == 0][0], [5.0, -5.0], atol=1e-6)
+
+
+def test_find_logs_accepts_dataset_split_and_log_folders(tmp_path: Path) -> None:
+    log = write_log(tmp_path)
+    for root in (tmp_path, tmp_path / 'sensor', tmp_path / 'sensor' / 'val', log):
+        assert find_logs(root) == [log]
+
+
+def test_clear_errors_for_wrong_folders_and_corrupt_files(tmp_path: Path) -> None:
+    with pytest.raises(DatasetError, match='not a folder'):
+        find_logs(tmp_path / 'nope')
+    (tmp_path / 'empty').mkdir()
+    with pytest.raises(DatasetError, match='no Argoverse 2 log'):
+        find_logs(tmp_path / 'empty')
+    log = write_log(tmp_path / 'a')
+    (log / 'annotations.feather').write_bytes(b'not arrow at all')
+    with pytest.raises(DatasetError, match='not a readable feather'):
+        Av2Sequence(log)
+    log = write_log(tmp_path / 'b')
+    (log / 'city_SE3_egovehicle.feather').unlink()
+    with pytest.raises(DatasetError, match='missing .*city_SE3_egovehicle'):
+        Av2Sequence(log)
+    log = write_log(tmp_path / 'c')
+    _write(log / 'annotations.feather', {'timestamp_ns': [T0]})
+    with pytest.raises(DatasetError, match='lacks the column'):
+        Av2Sequence(log)
+
+
+def test_drop_ignored_keeps_detections_near_real_objects() -> None:
+    gt = Detections(np.array([[10.0, 0, 0, 0.6, 0.6, 1.7, 0]]), np.zeros((1, 2)), np.ones(1),
+                    np.array([2]))
+    ignore = np.array([[0.0, 0, 0, 1.7, 0.6, 1.0, 0], [10.5, 0, 0, 1.7, 0.6, 1.0, 0]])
+    det = Detections(np.array([[0.5, 0, 0, 0.6, 0.6, 1.7, 0],     # on the parked bicycle
+                               [10.2, 0, 0, 0.6, 0.6, 1.7, 0],    # the pedestrian beside one
+                               [20.0, 0, 0, 0.6, 0.6, 1.7, 0]]),  # a false positive
+                     np.zeros((3, 2)), np.array([0.9, 0.8, 0.7]), np.array([2, 2, 2]))
+    kept = drop_ignored(det, gt, ignore)
+    np.testing.assert_allclose(kept.boxes[:, 0], [10.2, 20.0])
+
+
+def test_model_runs_over_an_av2_log(tmp_path: Path) -> None:
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    write_log(tmp_path)
+    model, cfg, _ = load_checkpoint(default_checkpoint_path())
+    seqs = av2_sequences(tmp_path, cfg.class_names)
+    run = run_model(model, seqs)
+    assert len(run.det) == 3 and len(run.ignore) == 3
+    result = run.evaluate(cfg.class_names)
+    assert result.num_gt['car'] == 3 and result.num_frames == 3

@@ -1,0 +1,123 @@
+"""``suit-ros report`` and the published thresholds: counts, cuts, pictures, the command."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_av2 import write_log
+
+from suit_ros.checkpoint import (
+    default_checkpoint_path,
+    load_checkpoint,
+    published_thresholds,
+    read_metadata,
+    update_metadata,
+)
+from suit_ros.cli import main
+from suit_ros.evaluate import ModelRun
+from suit_ros.report import SWEEP, build_report, count_matches, draw_bev
+from suit_ros.structures import Detections
+from suit_ros.thresholds_cli import best_f1
+
+
+def dets(xs, scores, labels=None, yaw=0.0):
+    n = len(xs)
+    boxes = np.zeros((n, 7))
+    boxes[:, 0] = xs
+    boxes[:, 3:6] = (4.5, 1.9, 1.6)
+    boxes[:, 6] = yaw
+    return Detections(boxes, np.zeros((n, 2)), np.asarray(scores, float),
+                      np.zeros(n, np.int64) if labels is None else np.asarray(labels))
+
+
+def test_counts_at_any_threshold_are_cuts_of_one_matching():
+    gt = [dets([10.0, 20.0, 30.0], [1, 1, 1])]
+    # a sure hit, a faint hit, a sure false positive, a faint duplicate of the first
+    det = [dets([10.3, 20.5, 40.0, 10.1], [0.9, 0.3, 0.8, 0.2])]
+    c = count_matches(gt, det, 0, 2.0)
+    low, high = c.at(0.1), c.at(0.5)
+    assert (low['tp'], low['fp'], low['gt']) == (2, 2, 3)
+    assert low['recall'] == pytest.approx(2 / 3) and low['precision'] == pytest.approx(0.5)
+    assert (high['tp'], high['fp']) == (1, 1)
+    assert high['fp_per_frame'] == pytest.approx(1.0)
+    # the same as matching only the detections above the cut
+    cut = count_matches(gt, [det[0].select(det[0].scores >= 0.5)], 0, 2.0).at(0.0)
+    assert (cut['tp'], cut['fp']) == (high['tp'], high['fp'])
+
+
+def test_heading_flips_are_counted_on_true_positives():
+    gt = [dets([10.0, 20.0, 30.0], [1, 1, 1])]
+    det = [Detections(np.array([[10, 0, 0, 4.5, 1.9, 1.6, np.pi],       # flipped
+                                [20, 0, 0, 4.5, 1.9, 1.6, 0.1],         # fine
+                                [30, 0, 0, 4.5, 1.9, 1.6, 2.0]]),       # 115 deg: not flipped
+                      np.zeros((3, 2)), np.array([0.9, 0.9, 0.9]), np.zeros(3, np.int64))]
+    h = count_matches(gt, det, 0, 2.0).heading(0.5)
+    assert (h['matched'], h['flipped']) == (3, 1)
+    assert h['flip_rate'] == pytest.approx(1 / 3)
+
+
+def test_best_f1_picks_the_best_cut_and_a_class_without_gt_the_highest():
+    gt = [dets([10.0, 20.0], [1, 1])]
+    det = [dets([10.0, 20.0, 40.0, 50.0], [0.9, 0.7, 0.3, 0.2])]
+    assert best_f1(count_matches(gt, det, 0, 2.0))['threshold'] == pytest.approx(0.35)
+    none = count_matches([dets([], [])], [dets([5.0], [0.5])], 0, 2.0)
+    assert best_f1(none)['threshold'] == SWEEP[-1]
+
+
+def test_report_drops_ignored_and_out_of_range_and_draws(tmp_path):
+    gt = [dets([10.0, 60.0], [1, 1])]
+    det = [dets([10.2, 3.0, 60.0, 25.0], [0.9, 0.8, 0.8, 0.6])]
+    ignore = np.array([[3.0, 0, 0, 1.7, 0.6, 1.0, 0]], np.float32)     # a parked bicycle
+    run = ModelRun(gt, det, [np.array([20, 20], np.uint32)], [0.0], [0], {}, [0], [ignore])
+    rep = build_report(run, ('car',), [0.5], 'test')
+    p = rep.to_json()['classes']['car']['published']
+    assert (p['gt'], p['tp'], p['fp']) == (1, 1, 1)        # 60 m: out; 3 m: ignored
+    assert rep.to_json()['car_heading']['matched'] == 1
+    assert '| car | 1 | 1.000 | 0.500 |' in rep.markdown()
+    png = tmp_path / 'bev.png'
+    draw_bev(png, np.random.default_rng(0).uniform(-40, 40, (500, 5)), gt[0], det[0], ('car',),
+             [0.5], ignore)
+    assert png.read_bytes()[:8] == b'\x89PNG\r\n\x1a\n'
+
+
+def test_published_thresholds_come_from_the_checkpoint(tmp_path):
+    meta = {'config': {'head': {'score_threshold': 0.1}}}
+    assert published_thresholds(meta, ['car', 'truck']) == [0.1, 0.1]
+    meta['publish_thresholds'] = {'car': 0.4}
+    assert published_thresholds(meta, ['car', 'truck']) == [0.4, 0.1]
+    path = tmp_path / 'c.safetensors'
+    path.write_bytes(default_checkpoint_path().read_bytes())
+    before = load_checkpoint(path)[0].state_dict()
+    update_metadata(path, publish_thresholds={'car': 0.45, 'pedestrian': 0.5})
+    model, cfg, meta = load_checkpoint(path)
+    assert published_thresholds(meta, cfg.class_names)[0] == pytest.approx(0.45)
+    assert read_metadata(path)['class_names'] == list(cfg.class_names)     # the rest kept
+    for k, v in model.state_dict().items():
+        assert np.array_equal(v.numpy(), before[k].numpy()), k
+
+
+def test_shipped_checkpoints_carry_published_thresholds_above_the_decoding_one():
+    for name in ('suit_default.safetensors', 'centerpoint_single.safetensors'):
+        meta = read_metadata(default_checkpoint_path().parent / name)
+        thr = published_thresholds(meta, meta['class_names'])
+        assert set(meta['publish_thresholds']) == set(meta['class_names'])
+        assert all(t > meta['config']['head']['score_threshold'] for t in thr), (name, thr)
+
+
+def test_report_command_on_an_av2_log(tmp_path, capsys):
+    write_log(tmp_path / 'data')
+    out = tmp_path / 'rep'
+    assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(out),
+                 '--score-thresholds', '0.3', '--pictures', '2']) == 0
+    j = (out / 'report.json').read_text()
+    assert '"published_thresholds"' in j and '"car_heading"' in j
+    assert len(list((out / 'bev').glob('*.png'))) == 2
+    assert 'Real-data report' in capsys.readouterr().out
+
+
+def test_report_command_fails_clearly(tmp_path, capsys):
+    assert main(['report', '--av2', str(tmp_path / 'missing'), '--out', str(tmp_path)]) == 1
+    assert 'not a folder' in capsys.readouterr().err
+    write_log(tmp_path / 'data')
+    assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'r'),
+                 '--score-thresholds', '0.1', '0.2']) == 1
+    assert 'needs 1 or 4 values' in capsys.readouterr().err
