@@ -60,6 +60,43 @@ def claims(res: dict[str, Any]) -> list[tuple[str, str, str]]:
     return out
 
 
+REAL_DEV = {'suit': 'docs/real_dev/suit.json', 'single': 'docs/real_dev/single.json'}
+
+
+def real_dev_lines(meta: dict[str, dict[str, Any]]) -> list[str]:
+    """The published thresholds and the real dev-set section (``suit-ros report`` JSONs)."""
+    names = meta['suit'].get('class_names', [])
+    thr = {k: m.get('publish_thresholds', {}) for k, m in meta.items()}
+    lines = ['', '**Published thresholds** (what the node publishes at by default; '
+             f'{meta["suit"].get("publish_thresholds_source", "not chosen")}): SUIT '
+             + ', '.join(f'{c} {thr["suit"].get(c, float("nan")):.2f}' for c in names)
+             + '; single frame '
+             + ', '.join(f'{c} {thr["single"].get(c, float("nan")):.2f}' for c in names) + '.']
+    reports = {k: json.loads(Path(p).read_text()) for k, p in REAL_DEV.items()
+               if Path(p).is_file()}
+    if not reports:
+        return lines
+    lines += ['', '**One small real dev set** (two consecutive Argoverse 2 sweeps, '
+              '`../shared/data/real-dev/`, measured only, never trained or tuned on; '
+              '`suit-ros report --av2`, node defaults at the published thresholds, BEV centre '
+              'within 2 m, within 50 m; recall / precision, false positives per sweep):', '',
+              '| | ' + ' | '.join(names) + ' | car heading flipped |',
+              '|---|' + '---|' * (len(names) + 1)]
+
+    def cell(x: Any) -> str:
+        return 'n/a' if x is None or x != x else f'{x:.2f}'
+    for k, rep in reports.items():
+        cells = []
+        for c in names:
+            p = rep['classes'][c]['published']
+            cells.append(f'{cell(p["recall"])} / {cell(p["precision"])} / '
+                         f'{p["fp_per_frame"]:.1f}')
+        h = rep.get('car_heading', {})
+        lines.append(f'| {k} | ' + ' | '.join(cells)
+                     + f' | {h.get("flipped", 0)} of {h.get("matched", 0)} |')
+    return lines
+
+
 def main() -> int:
     from suit_ros.checkpoint import read_metadata
     res = json.loads(Path('docs/results.json').read_text())
@@ -147,6 +184,7 @@ def main() -> int:
                   f'{fmt(f, "moving car vel err")}; boxes are unchanged.'
                   + (f' Single frame with tracking: mAP {fmt(g, "mAP")}, NDS {fmt(g, "NDS")}, '
                      f'mAVE {fmt(g, "mAVE")}.' if g else '')]
+    lines += real_dev_lines(meta)
     lines += ['', 'Limitations: trained only on the synthetic world (see docs/results.md for the '
               'held-out sensor and clutter figures, and the README for what to expect on real '
               'sensors); speed is read only partly: on moving cars the predicted along-track '

@@ -67,6 +67,11 @@ class ClassCounts:
                 'flip_rate': _r(float((err > FLIP_RAD).mean())) if len(err) else None}
 
 
+def _f(x: float | None, digits: int = 3) -> str:
+    """A table cell: n/a for an undefined ratio (no GT, or nothing published)."""
+    return 'n/a' if x is None or not np.isfinite(x) else f'{x:.{digits}f}'
+
+
 def _r(x: float) -> float:
     return round(float(x), 4) if np.isfinite(x) else float('nan')
 
@@ -109,7 +114,8 @@ class Report:
                                'notes': self.notes, 'classes': {}}
         for c, thr in zip(self.class_names, self.thresholds):
             cc = self.counts[c]
-            out['classes'][c] = {'published': cc.at(thr), 'ap': _r(self.ap[c]),
+            out['classes'][c] = {'published': cc.at(thr),
+                                 'ap': _r(self.ap[c]) if cc.npos else None,
                                  'sweep': [cc.at(t) for t in SWEEP]}
         car = self.counts.get('car')
         if car is not None:
@@ -126,8 +132,9 @@ class Report:
                  '|---|---|---|---|---|---|']
         for c in self.class_names:
             p = j['classes'][c]['published']
-            lines.append(f'| {c} | {p["gt"]} | {p["recall"]:.3f} | {p["precision"]:.3f} | '
-                         f'{p["fp_per_frame"]:.2f} | {j["classes"][c]["ap"]:.3f} |')
+            ap = j['classes'][c]['ap']
+            lines.append(f'| {c} | {p["gt"]} | {_f(p["recall"])} | {_f(p["precision"])} | '
+                         f'{p["fp_per_frame"]:.2f} | {_f(ap)} |')
         if 'car_heading' in j:
             h = j['car_heading']
             lines += ['', f'Car heading (matched cars at the published threshold): '
@@ -141,7 +148,7 @@ class Report:
             cells = []
             for c in self.class_names:
                 s = j['classes'][c]['sweep'][i]
-                cells.append(f'{s["recall"]:.2f} / {s["precision"]:.2f} / '
+                cells.append(f'{_f(s["recall"], 2)} / {_f(s["precision"], 2)} / '
                              f'{s["fp_per_frame"]:.1f}')
             lines.append(f'| {t:.2f} | ' + ' | '.join(cells) + ' |')
         lines += [''] + [f'- {n}' for n in self.notes]

@@ -158,6 +158,7 @@ def test_drop_ignored_keeps_detections_near_real_objects() -> None:
     np.testing.assert_allclose(kept.boxes[:, 0], [10.2, 20.0])
 
 
+@pytest.mark.slow
 def test_model_runs_over_an_av2_log(tmp_path: Path) -> None:
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     write_log(tmp_path)

@@ -26,4 +26,5 @@ def test_demo_runs_and_reports(tmp_path):
     out = proc.stdout + proc.stderr
     assert proc.returncode == 0, out
     assert 'frames in 15' in out and 'latency' in out and 'mAP' in out and 'NDS' in out
+    assert 'published boxes per frame' in out and 'precision' in out
     assert (tmp_path / 'demo' / 'bev.png').stat().st_size > 10_000
