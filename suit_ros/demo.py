@@ -195,13 +195,13 @@ def _print_published(gt: list[Any], det: list[Any], num_points: list[Any]) -> No
     from suit_ros.evaluate import filter_frames
     from suit_ros.report import count_matches
     n = max(len(gt), 1)
-    print('published boxes per frame (objects present per frame), recall / precision:')
+    print('published boxes per frame within 50 m (objects with returns there), recall / '
+          'precision:')
     g50, d50, _ = filter_frames(gt, det, CLASS_NAMES, dict.fromkeys(CLASS_NAMES, 50.0),
                                 num_points)
     for k, c in enumerate(CLASS_NAMES):
-        boxes = sum(int((d.labels == k).sum()) for d in det) / n
-        present = sum(int(((g.labels == k) & (p > 0 if p is not None else True)).sum())
-                      for g, p in zip(gt, num_points)) / n
+        boxes = sum(int((d.labels == k).sum()) for d in d50) / n
+        present = sum(int((g.labels == k).sum()) for g in g50) / n
         at = count_matches(g50, d50, k, 2.0).at(0.0)
         print(f'  {c:<11} {boxes:6.1f} ({present:5.1f})   recall {at["recall"]:.3f}  '
               f'precision {at["precision"]:.3f}')

@@ -36,7 +36,8 @@ def test_counts_at_any_threshold_are_cuts_of_one_matching():
     c = count_matches(gt, det, 0, 2.0)
     low, high = c.at(0.1), c.at(0.5)
     assert (low['tp'], low['fp'], low['gt']) == (2, 2, 3)
-    assert low['recall'] == pytest.approx(2 / 3, abs=1e-4) and low['precision'] == pytest.approx(0.5)
+    assert low['recall'] == pytest.approx(2 / 3, abs=1e-4)
+    assert low['precision'] == pytest.approx(0.5)
     assert (high['tp'], high['fp']) == (1, 1)
     assert high['fp_per_frame'] == pytest.approx(1.0)
     # the same as matching only the detections above the cut
