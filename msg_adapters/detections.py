@@ -2,8 +2,10 @@
 
 The PointCloud2 has one point per box with fields (FLOAT32) ``x y z length width height yaw vx
 vy score`` and ``label`` (UINT8, index into the class names); GT adds ``num_points`` and
-``instance_id`` (UINT32); detections from the velocity filter add ``track_id`` (UINT32, the same
-object keeps its id across frames; 0: not tracked).
+``instance_id`` (UINT32); the node's detections add ``num_points`` (UINT32: the current
+cloud's returns inside the box; 0 for a box the memory carries through missing returns) and,
+from the velocity filter, ``track_id`` (UINT32, the same object keeps its id across frames; 0:
+not tracked).
 """
 from __future__ import annotations
 
@@ -28,9 +30,10 @@ ARROW, CUBE, LINE_LIST, TEXT_VIEW_FACING = 0, 1, 5, 9
 ADD, DELETEALL = 0, 3
 
 
-def detection_dtype(with_gt: bool, with_track: bool = False) -> np.dtype[Any]:
-    """Structured dtype of the detections cloud (4-byte aligned): GT fields, then
-    ``track_id``, after the common ones."""
+def detection_dtype(with_gt: bool, with_track: bool = False, with_points: bool = False
+                    ) -> np.dtype[Any]:
+    """Structured dtype of the detections cloud (4-byte aligned): GT fields (or
+    ``num_points`` alone), then ``track_id``, after the common ones."""
     names = list(FLOAT_FIELDS) + ['label']
     formats: list[str] = ['<f4'] * len(FLOAT_FIELDS) + ['u1']
     offsets = [4 * i for i in range(len(FLOAT_FIELDS))] + [40]
@@ -40,6 +43,11 @@ def detection_dtype(with_gt: bool, with_track: bool = False) -> np.dtype[Any]:
         formats += ['<u4', '<u4']
         offsets += [size, size + 4]
         size += 8
+    elif with_points:
+        names.append(GT_FIELDS[0])
+        formats.append('<u4')
+        offsets.append(size)
+        size += 4
     if with_track:
         names.append(TRACK_FIELD)
         formats.append('<u4')
@@ -65,18 +73,23 @@ def _box_inputs(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[A
 
 def detections_to_array(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[Any],
                         labels: NDArray[Any], extra_fields: dict[str, NDArray[Any]] | None = None,
-                        track_ids: NDArray[Any] | None = None) -> NDArray[Any]:
+                        track_ids: NDArray[Any] | None = None,
+                        num_points: NDArray[Any] | None = None) -> NDArray[Any]:
     """The structured array behind the detections cloud (see :func:`detection_dtype`)."""
     b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
     n = len(b)
-    arr = np.zeros(n, detection_dtype(bool(extra_fields), track_ids is not None))
-    if track_ids is not None:
-        ids = np.asarray(track_ids).reshape(-1)
+    arr = np.zeros(n, detection_dtype(bool(extra_fields), track_ids is not None,
+                                      num_points is not None))
+    for name, what, values in ((TRACK_FIELD, 'track ids', track_ids),
+                               (GT_FIELDS[0], 'point counts', num_points)):
+        if values is None or (extra_fields and name != TRACK_FIELD):
+            continue                      # GT fields carry their own num_points
+        ids = np.asarray(values).reshape(-1)
         if len(ids) != n:
-            raise MessageError(f'{len(ids)} track ids for {n} boxes')
+            raise MessageError(f'{len(ids)} {what} for {n} boxes')
         if n and (ids.min() < 0 or ids.max() > np.iinfo(np.uint32).max):
-            raise PointCloudError('track ids must fit the UINT32 track_id field')
-        arr[TRACK_FIELD] = ids.astype(np.uint32)
+            raise PointCloudError(f'{what} must fit the UINT32 {name} field')
+        arr[name] = ids.astype(np.uint32)
     for i, name in enumerate(FLOAT_FIELDS[:7]):
         arr[name] = b[:, i]
     arr['vx'], arr['vy'], arr['score'] = v[:, 0], v[:, 1], s
@@ -99,10 +112,12 @@ def detections_to_pointcloud2(boxes: NDArray[Any], velocities: NDArray[Any],
                               scores: NDArray[Any], labels: NDArray[Any], header: Any,
                               classes: MessageClasses,
                               extra_fields: dict[str, NDArray[Any]] | None = None,
-                              track_ids: NDArray[Any] | None = None) -> Any:
+                              track_ids: NDArray[Any] | None = None,
+                              num_points: NDArray[Any] | None = None) -> Any:
     """Build the detections (or GT, with ``extra_fields``) PointCloud2; ``track_ids`` adds the
-    ``track_id`` field."""
-    arr = detections_to_array(boxes, velocities, scores, labels, extra_fields, track_ids)
+    ``track_id`` field, ``num_points`` the ``num_points`` field."""
+    arr = detections_to_array(boxes, velocities, scores, labels, extra_fields, track_ids,
+                              num_points)
     return array_to_pointcloud2(arr, header, classes, is_dense=True)
 
 

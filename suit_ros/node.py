@@ -54,6 +54,9 @@ QOS_CHECK_PERIOD_S = 1.0
 # the worker thread runs this much nicer than the executor threads, so that on a loaded
 # machine the OS runs the odometry and cloud callbacks before more inference
 WORKER_NICENESS = 5
+# an input-contract warning keeps the diagnostics at WARN this long after its last frame, so
+# that /diagnostics (once a second) shows a one-frame event
+WARNING_HOLD_S = 5.0
 # a replaced points subscription lives on this long, so no cloud is lost while the new one
 # matches the publishers (duplicates are recognised by stamp and frame_id)
 QOS_OVERLAP_S = 3.0
@@ -134,6 +137,7 @@ class DetectorNode(Node):
         self._odom_delays: collections.deque[float] = collections.deque(maxlen=500)
         self._stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
         self._last: Any = None
+        self._recent_warnings: dict[str, tuple[str, float]] = {}   # reason -> (text, when)
 
         self._points_topic = self.resolve_topic_name(self.params.points_topic)
         self._points_sub: Subscription | None = None
@@ -304,11 +308,15 @@ class DetectorNode(Node):
 
     def _on_odom(self, msg: Odometry) -> None:
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-        delay = (self.get_clock().now().nanoseconds - stamp) * 1e-9
+        now = self.get_clock().now().nanoseconds
+        delay = (now - stamp) * 1e-9
         with self._cv:
             self._odom_delays.append(delay)
             self._odom.append(msg)
-            self._odom_latest_ns = max(self._odom_latest_ns, stamp)
+            # a stamp from the future (refused when drained) must not end the wait of later
+            # clouds
+            if not now or -delay <= self.params.max_stamp_skew_s:
+                self._odom_latest_ns = max(self._odom_latest_ns, stamp)
             self._cv.notify_all()
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
@@ -348,6 +356,8 @@ class DetectorNode(Node):
                 self._drain_odometry()
                 self._process(received)
             except Exception as exc:  # keep the node alive; say what happened
+                if self._stop:            # shutting down: the frame is abandoned, not failed
+                    return
                 self.get_logger().error(f'frame failed: {type(exc).__name__}: {exc}')
 
     def _wait_for_odometry(self, msg: PointCloud2) -> None:
@@ -373,8 +383,9 @@ class DetectorNode(Node):
         with self._cv:
             batch = list(self._odom)
             self._odom.clear()
+        now = self.get_clock().now().nanoseconds
         for odom in batch:
-            if not self.pipeline.add_odometry(odom):
+            if not self.pipeline.add_odometry(odom, now):
                 self._warn_reason('odometry_rejected',
                                   f'odometry rejected: {self.pipeline.last_odom_error}')
 
@@ -406,6 +417,8 @@ class DetectorNode(Node):
             self._last = out
             # counted with the frame, so a diagnostic never shows a frame without its reasons
             counts = [self._count_reason(key) for key in out.warnings]
+            for key, text in out.warnings.items():
+                self._recent_warnings[key] = (text, received.monotonic)
         if out.reset_reason:
             self.get_logger().info(f'memory reset: {out.reset_reason}')
         for (key, text), count in zip(out.warnings.items(), counts):
@@ -443,6 +456,8 @@ class DetectorNode(Node):
             losses = [t for t in self._losses if t >= now - RATE_WINDOW_S]
             last = self._last
             single_reasons = sorted(self.single_reasons.items())
+            held = [text for text, when in self._recent_warnings.values()
+                    if now - when <= WARNING_HOLD_S]
             reason_counts = sorted(self.reason_counts.items())
         levels: list[tuple[bytes, str]] = []
         values: dict[str, str] = {}
@@ -510,7 +525,8 @@ class DetectorNode(Node):
                 'pose_age_s': f'{last.pose_age_s:.3f}',
                 'input_warnings': ','.join(last.warnings) or 'none',
                 'last_warning': last.warning or 'none'})
-            for text in last.warnings.values():
+            # the input-contract warnings of the last WARNING_HOLD_S, not only the last frame's
+            for text in held:
                 levels.append((DiagnosticStatus.WARN, text))
             if not last.pose_source.startswith('odometry'):
                 levels.append((DiagnosticStatus.WARN, f'single-frame: {last.pose_source}'))
@@ -556,8 +572,14 @@ class DetectorNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``ros2 run suit_ros detector`` (sets no discovery variable)."""
-    rclpy.init(args=args)
+    """Entry point of ``ros2 run suit_ros detector`` (sets no discovery variable).
+
+    rclpy's own SIGINT handler shuts the context down at once, while the worker may be
+    publishing a frame; here Ctrl-C raises KeyboardInterrupt in the executor instead, and the
+    worker is stopped (:meth:`DetectorNode.destroy_node`) before the context goes.
+    """
+    from rclpy.signals import SignalHandlerOptions
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = DetectorNode()
     except SuitRosError as exc:

@@ -15,6 +15,7 @@ from typing import Any, Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.coverage import SectorCoverage
 from suit_ros.model.streaming import StreamingDetector
 from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.detections import detections_to_markerarray, detections_to_pointcloud2
@@ -31,7 +32,7 @@ PipelineParams = DetectorParams
 
 # input-contract reasons a frame can be flagged with (diagnostics and detect-bag count them)
 InputWarning = Literal['unusable_cloud', 'empty_cloud', 'no_intensity', 'intensity_range',
-                       'too_few_points', 'frame_changed']
+                       'too_few_points', 'frame_changed', 'sector_gap']
 
 
 def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[str, Any]]:
@@ -68,6 +69,8 @@ class PipelineOutput:
     pose_source: str = 'none'
     pose_age_s: float = float('nan')
     track_ids: NDArray[np.int64] | None = None          # None: the velocity filter is off
+    num_points: NDArray[np.uint32] = field(                # current returns in each box
+        default_factory=lambda: np.zeros(0, np.uint32))
     tracks: int = 0                                      # the velocity filter's live tracks
     used_memory: bool = False
     memory_samples: int = 0
@@ -102,6 +105,7 @@ class DetectionPipeline:
         self.resets = 0
         self.odom_rejected = 0
         self.last_odom_error = ''
+        self.coverage = SectorCoverage()
         self.configure(params or DetectorParams())
 
     def configure(self, params: DetectorParams) -> None:
@@ -131,13 +135,25 @@ class DetectionPipeline:
             self.reset('extrinsic changed')
 
     # ------------------------------------------------------------------ inputs
-    def add_odometry(self, msg: Any) -> bool:
-        """Buffer an Odometry message; False (and a counted reason) when it is unusable."""
+    def add_odometry(self, msg: Any, now_ns: int | None = None) -> bool:
+        """Buffer an Odometry message; False (and a counted reason) when it is unusable.
+
+        :param now_ns: the receiver's clock: odometry stamped more than ``max_stamp_skew_s``
+            ahead of it is refused (one pose from the future would otherwise hide a later
+            odometry outage: lookups interpolate toward it and the buffer's age limit drops
+            the real poses). None or 0 (a simulated clock not started yet): not checked.
+        """
         try:
             T, stamp = odometry_to_pose(msg)
         except MessageError as exc:
             self.odom_rejected += 1
             self.last_odom_error = str(exc)
+            return False
+        ahead = (stamp - now_ns) * 1e-9 if now_ns else 0.0
+        if ahead > self.params.max_stamp_skew_s:
+            self.odom_rejected += 1
+            self.last_odom_error = (f'odometry stamped {ahead:.2f} s ahead of the clock (more '
+                                    f'than max_stamp_skew_s {self.params.max_stamp_skew_s:g})')
             return False
         self.poses.add(stamp, T)
         return True
@@ -169,6 +185,8 @@ class DetectionPipeline:
         t1 = time.perf_counter()
         reason = self._reset_reason(stamp_ns, frame_id)
         if self.last_frame_id is not None and frame_id != self.last_frame_id:
+            self.coverage.reset()                    # another sensor: another norm
+            out.warnings.pop('sector_gap', None)
             out.warnings['frame_changed'] = (f'frame_id changed from {self.last_frame_id!r} '
                                              f'to {frame_id!r} (memory reset)')
         pose, out.pose_source, out.pose_age_s = self._pose(stamp_ns)
@@ -189,6 +207,7 @@ class DetectionPipeline:
             out.used_memory = result.used_memory
             out.memory_samples = result.memory_samples
             out.memory_bytes = result.memory_bytes
+            out.num_points = result.num_points
             model_timings = result.timings
         else:   # nothing to detect in: publish an empty result, keep the memory as it is
             out.memory_bytes = self.detector.memory_bytes
@@ -200,7 +219,7 @@ class DetectionPipeline:
             d = out.detections
             out.detections_msg = detections_to_pointcloud2(
                 d.boxes, d.velocities, d.scores, d.labels, header, self.classes,
-                track_ids=out.track_ids)
+                track_ids=out.track_ids, num_points=out.num_points)
             if markers:
                 out.markers_msg = detections_to_markerarray(
                     d.boxes, d.velocities, d.scores, d.labels, header, self.class_names,
@@ -237,6 +256,11 @@ class DetectionPipeline:
             if p.intensity_scale != 1.0:
                 points[:, 3] *= 1.0 / p.intensity_scale      # a fresh array after the mask
         out.points_used = len(points)
+        gap = self.coverage.update(points[:, :3]) if len(points) else None
+        if gap is not None:
+            out.warnings['sector_gap'] = (f'sector_gap: no returns from azimuth {gap[0]:.0f} to '
+                                          f'{gap[1]:.0f} deg, normally covered (a blocked '
+                                          'sensor, something alongside, or lost packets)')
         if 'unusable_cloud' not in out.warnings and len(points) == 0:
             out.warnings['empty_cloud'] = 'empty cloud (no finite points in range)'
         elif len(points) < p.min_points:

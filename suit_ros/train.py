@@ -53,6 +53,10 @@ class TrainConfig:
     temporal_lr_scale: float = 1.0   # lr multiplier of the temporal modules (fusion, GeoNet)
     flip_probability: float = 0.0    # 0: keep the front/back cue of box-shaped actors
     intensity_dropout: float = 0.2   # clips trained without intensity
+    tilt_deg: float = 0.0            # ground tilt: roll and pitch std (deg) per clip
+    lift_m: float = 0.0              # ground height offset, uniform +-lift_m per clip
+    point_dropout: float = 0.0       # half the clips lose up to this fraction of points
+    preset: str = ''                 # synthetic world of the training drives ('': train-real)
     eval_at_end: bool = True
     checkpoint_every: int = 200
 
@@ -158,6 +162,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     out.mkdir(parents=True, exist_ok=True)
     if tc.dataset == 'synthetic':
         data = synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir,
+                               preset_name=tc.preset or None,
                                points_dtype=np.float16,     # half the RAM; inputs are float32
                                first=tc.train_first_sequence)
     elif tc.dataset == 'bags':
@@ -225,7 +230,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         if tc.augment:
             clips = [augment.apply_clip(c, augment.draw(
                 aug_rng, flip_probability=tc.flip_probability,
-                intensity_dropout=tc.intensity_dropout)) for c in clips]
+                intensity_dropout=tc.intensity_dropout, tilt_deg=tc.tilt_deg,
+                lift_m=tc.lift_m, point_dropout=tc.point_dropout)) for c in clips]
         losses = model(clips)
         opt.zero_grad(set_to_none=True)
         losses['loss'].backward()

@@ -87,6 +87,30 @@ def test_track_ids_field_and_marker_text(C):
                                   track_ids=-ids)
 
 
+@pytest.mark.parametrize('C', BOTH, **KIND)
+def test_num_points_field_between_label_and_track_id(C):
+    boxes, vel, scores, labels = random_boxes(4)
+    ids, counts = np.array([3, 0, 7, 1]), np.array([120, 0, 5, 4_000_000_000])
+    msg = detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                    track_ids=ids, num_points=counts)
+    layout = [(f.name, f.offset, f.datatype) for f in msg.fields]
+    assert layout[-3:] == [('label', 40, UINT8), ('num_points', 44, UINT32),
+                           ('track_id', 48, UINT32)]
+    assert msg.point_step == 52
+    back = pointcloud2_to_detections(msg)
+    np.testing.assert_array_equal(back['num_points'], counts)
+    np.testing.assert_array_equal(back['track_id'], ids)
+    alone = detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                      num_points=counts)
+    assert [f.name for f in alone.fields][-1] == 'num_points' and alone.point_step == 48
+    with pytest.raises(MessageError, match='point counts'):
+        detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                  num_points=counts[:2])
+    with pytest.raises(PointCloudError, match='UINT32'):
+        detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                  num_points=-counts - 1)
+
+
 def test_cloud_through_cdr_both_ways():
     boxes, vel, scores, labels = random_boxes(12, 5)
     m = detections_to_pointcloud2(boxes, vel, scores, labels, RCLPY.header(1, 'lidar'), RCLPY)

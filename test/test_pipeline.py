@@ -80,7 +80,7 @@ RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections'
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
-                       'odom_tolerance_s', 'max_gap_s', 'max_pose_jump_m'}
+                       'odom_tolerance_s', 'max_gap_s', 'max_pose_jump_m', 'max_stamp_skew_s'}
 RUNTIME_TESTED_IN_NODE = {'odom_wait_s', 'max_stamp_skew_s', 'stale_periods',
                           'input_timeout_s'}
 
@@ -122,6 +122,41 @@ def test_default_thresholds_are_the_checkpoints_published_ones(model, classes, s
     assert pipe.detector.decode_thresholds.tolist() == pytest.approx([0.05] * 4)
     more = pipe.process(cloud(classes, T0 + 3 * S // 10, scene))
     assert len(more.detections) > len(outs[-1].detections)
+
+
+def test_each_detection_carries_the_returns_inside_its_box(model, classes, scene):
+    """``num_points``: the current cloud's points inside each published box (what tells a box
+    seen now from one the memory carries), in the message too."""
+    from suit_ros.msg_adapters.detections import pointcloud2_to_detections
+    from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
+    from suit_ros.ops.geometry import points_in_boxes
+    pipe = make_pipeline(model, classes, score_thresholds=(0.3,))
+    msg = cloud(classes, T0, scene)
+    out = pipe.process(msg)
+    d = out.detections
+    assert len(d) >= 3 and len(out.num_points) == len(d)
+    xyz = pointcloud2_to_xyzi(msg).points[:, :3]
+    np.testing.assert_array_equal(out.num_points, points_in_boxes(xyz, d.boxes).sum(0))
+    assert (out.num_points > 0).mean() > 0.8
+    np.testing.assert_array_equal(pointcloud2_to_detections(out.detections_msg)['num_points'],
+                                  out.num_points)
+
+
+def test_a_lost_sector_is_an_input_warning(model, classes):
+    pipe = make_pipeline(model, classes)
+    rng = np.random.default_rng(3)
+    n = 6000
+    az = rng.uniform(-np.pi, np.pi, n)
+    r = rng.uniform(3, 40, n)
+    array = np.zeros(n, [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity', '<f4')])
+    array['x'], array['y'] = r * np.cos(az), r * np.sin(az)
+    array['z'], array['intensity'] = -1.5, 50.0
+    for k in range(8):
+        assert 'sector_gap' not in pipe.process(cloud(classes, T0 + k * S // 10,
+                                                      array)).warnings
+    lost = array[(az < 0.0) | (az > np.deg2rad(120))]
+    out = pipe.process(cloud(classes, T0 + 8 * S // 10, lost))
+    assert 'sector_gap' in out.warnings and 'azimuth 0 to 120 deg' in out.warnings['sector_gap']
 
 
 def test_candidates_bound_the_detections_before_the_threshold(model, classes, scene):
@@ -265,6 +300,25 @@ def test_odometry_tolerance_and_buffer(model, classes):
     feed_odometry(pipe, T0 + S + S // 50, T0 + 2 * S)
     assert pipe.poses.span()[0] >= T0 + 3 * S // 2 - 1
     assert pipe.process(cloud(classes, T0 + S + 2 * S // 10)).pose_source.startswith('none')
+
+
+def test_odometry_from_the_future_is_refused_and_counted(model, classes):
+    """One pose stamped 10 s ahead of the receiver's clock must not hide a later odometry
+    outage (the lookup would interpolate toward it, the buffer drop the real poses)."""
+    pipe = make_pipeline(model, classes)
+    now = T0 + S
+    feed_odometry(pipe, T0, now)
+    assert not pipe.add_odometry(odom(now + 10 * S, 100.0), now_ns=now)
+    assert pipe.odom_rejected == 1 and 'ahead of the clock' in pipe.last_odom_error
+    assert pipe.poses.span() == (T0, now)
+    # the odometry stops: a cloud 0.5 s later runs single-frame, as it should
+    assert pipe.process(cloud(classes, now + S // 2)).pose_source.startswith('none')
+    # within max_stamp_skew_s, or with no clock yet (simulated time before /clock): taken
+    assert pipe.add_odometry(odom(now + S // 2, 5.0), now_ns=now)
+    assert pipe.add_odometry(odom(now + 20 * S, 5.0), now_ns=0)
+    pipe.configure(replace(pipe.params, max_stamp_skew_s=30.0))
+    assert pipe.add_odometry(odom(now + 25 * S, 5.0), now_ns=now)
+    assert pipe.odom_rejected == 1
 
 
 def test_max_gap_s_is_the_one_staleness_threshold(model, classes):

@@ -213,3 +213,23 @@ def test_realism_is_validated():
         preset('test', realism=Realism(hedge_porosity=(0.7, 0.2)))
     assert preset('train-real').realism == Realism()
     assert preset('train').realism is None
+
+
+def test_street_objects_only_in_the_street_presets():
+    """train-street adds the street objects of real sidewalks; the validation drives and their
+    cache keys stay what they were (no street objects, the same key)."""
+    from suit_ros.data.sequences import _cache_key
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.clutter import CLUTTER_TYPES
+    from suit_ros.data.sim.scene import Simulation
+    street = {'trash_can', 'hydrant', 'parking_meter', 'utility_box', 'planter', 'street_tree',
+              'lamp_post', 'column', 'shelter'}
+    assert _cache_key('val-real', 'sim32', 9000, 40) == 'f9bbb3e9d4323884'
+    plain = Simulation(preset('val-real', frames=2), 3).scene
+    names = {CLUTTER_TYPES[t] for t in plain.types}
+    assert not names & street
+    busy = Simulation(preset('train-street', frames=2), 3).scene
+    counts = {n: int(sum(CLUTTER_TYPES[t] == n for t in busy.types)) for n in street}
+    assert all(c > 0 for c in counts.values()), counts
+    frame = Simulation(preset('train-street', frames=2), 3).render(1)
+    assert frame.clutter_boxes is not None and len(frame.cloud) > 1000

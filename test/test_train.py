@@ -31,7 +31,8 @@ def two_frames():
 
 
 @pytest.mark.parametrize('aug', [Augmentation(False, 0.3, 1.0), Augmentation(True, -0.5, 1.04),
-                                 Augmentation(True, 0.0, 0.95)])
+                                 Augmentation(True, 0.0, 0.95),
+                                 Augmentation(False, 0.2, 1.0, tilt=(0.03, -0.04), lift=0.25)])
 def test_augmentation_keeps_static_objects_consistent(aug):
     f0, f1 = apply_clip(two_frames(), aug)
     moved, _ = transform_boxes(ego_transform(f1.pose, f0.pose), f0.gt.boxes)
@@ -42,6 +43,28 @@ def test_augmentation_keeps_static_objects_consistent(aug):
     raw = two_frames()[0]
     R = aug.matrix[:2, :2] * aug.scale
     np.testing.assert_allclose(f0.gt.velocities, raw.gt.velocities @ R.T, atol=1e-5)
+
+
+def test_tilt_lift_and_dropout_draws():
+    from suit_ros.data.augment import apply, draw
+    rng = np.random.default_rng(0)
+    plain = [draw(np.random.default_rng(1)) for _ in range(3)]
+    assert all(a.tilt == (0.0, 0.0) and a.lift == 0.0 and a.point_dropout == 0.0 for a in plain)
+    augs = [draw(rng, tilt_deg=1.5, lift_m=0.3, point_dropout=0.3) for _ in range(400)]
+    tilts = np.array([a.tilt for a in augs])
+    assert 0.015 < np.std(tilts) < 0.035 and np.abs(tilts).max() <= np.deg2rad(3.75) + 1e-9
+    assert max(abs(a.lift) for a in augs) <= 0.3
+    assert 0.35 < np.mean([a.point_dropout > 0 for a in augs]) < 0.65
+    # the ground plane (z = 0) is tilted and lifted: its height at 40 m ahead follows the pitch
+    ground = Frame(np.array([[40.0, 0, 0, 0.5, 0], [0, 0, 0, 0.5, 0]], np.float32), np.eye(4),
+                   0)
+    out = apply(ground, Augmentation(False, 0.0, 1.0, tilt=(0.0, 0.02), lift=0.1))
+    assert out.points[0, 2] == pytest.approx(-40 * np.sin(0.02) + 0.1, abs=1e-4)
+    assert out.points[1, 2] == pytest.approx(0.1, abs=1e-6)
+    many = Frame(np.random.default_rng(2).uniform(-30, 30, (10000, 5)).astype(np.float32),
+                 np.eye(4), 0)
+    kept = len(apply(many, Augmentation(False, 0.0, 1.0, point_dropout=0.3)).points)
+    assert 6500 < kept < 7500
 
 
 def test_train_config_strict(tmp_path):

@@ -6,6 +6,12 @@ rotation (and changes sign under the flip); sizes and velocities scale with ``s`
 becomes ``T' = (R R_aug^T, s t)`` so that the ego transform between any two frames of the clip is
 ``A T_rel A^-1``: static objects still map onto each other through the augmented poses.
 
+A ground tilt (``tilt``: roll and pitch of the clip about the vehicle origin) and a lift
+(``lift``: a height offset) put the road where a hilly city puts it: on a real sweep the road
+40 m away lies up to a metre above or below the vehicle's ground plane (the Argoverse 2 dev
+sweeps), while the synthetic road is flat. Boxes stay upright (their centres move with the
+points). Point dropout thins the whole clip (missing returns, sparser sensors).
+
 The flip is off by default: with box-shaped actors the side of the road a car drives on is the
 only front/back cue, and a mirror erases it. Intensity dropout (the whole clip without
 intensity, as from a driver that publishes none) teaches the model to work from geometry alone.
@@ -28,6 +34,9 @@ class Augmentation:
     angle: float
     scale: float
     drop_intensity: bool = False
+    tilt: tuple[float, float] = (0.0, 0.0)      # roll, pitch (rad)
+    lift: float = 0.0                           # m, added to every z
+    point_dropout: float = 0.0                  # fraction of points removed
 
     @property
     def matrix(self) -> NDArray[np.float64]:
@@ -36,16 +45,32 @@ class Augmentation:
         R = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
         if self.flip:
             R = R @ np.diag([1.0, -1.0, 1.0])
+        if self.tilt != (0.0, 0.0):
+            from suit_ros.ops.geometry import pose_from_xyz_rpy
+            R = pose_from_xyz_rpy((0.0, 0.0, 0.0), (*self.tilt, 0.0))[:3, :3] @ R
         return R
 
 
 def draw(rng: np.random.Generator, max_angle: float = np.pi / 4,
          scale_range: tuple[float, float] = (0.95, 1.05), flip_probability: float = 0.0,
-         intensity_dropout: float = 0.0) -> Augmentation:
-    """A random augmentation."""
-    return Augmentation(bool(rng.random() < flip_probability),
-                        float(rng.uniform(-max_angle, max_angle)),
-                        float(rng.uniform(*scale_range)), bool(rng.random() < intensity_dropout))
+         intensity_dropout: float = 0.0, tilt_deg: float = 0.0, lift_m: float = 0.0,
+         point_dropout: float = 0.0) -> Augmentation:
+    """A random augmentation. ``tilt_deg``: roll and pitch drawn from a normal of this
+    standard deviation (clipped at 2.5 of them); ``lift_m``: uniform within +-this;
+    ``point_dropout``: half the clips lose a uniform 0..this fraction of their points. At 0
+    (the defaults) they draw nothing, so older recipes replay the same augmentations."""
+    aug = Augmentation(bool(rng.random() < flip_probability),
+                       float(rng.uniform(-max_angle, max_angle)),
+                       float(rng.uniform(*scale_range)), bool(rng.random() < intensity_dropout))
+    if tilt_deg > 0:
+        t = np.clip(rng.normal(0.0, np.deg2rad(tilt_deg), 2), -2.5 * np.deg2rad(tilt_deg),
+                    2.5 * np.deg2rad(tilt_deg))
+        aug = replace(aug, tilt=(float(t[0]), float(t[1])))
+    if lift_m > 0:
+        aug = replace(aug, lift=float(rng.uniform(-lift_m, lift_m)))
+    if point_dropout > 0 and rng.random() < 0.5:
+        aug = replace(aug, point_dropout=float(rng.uniform(0.0, point_dropout)))
+    return aug
 
 
 def apply(frame: Frame, aug: Augmentation) -> Frame:
@@ -53,22 +78,35 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
     R = aug.matrix
     s = aug.scale
     pts = frame.points.copy()
+    if aug.point_dropout > 0:
+        keep = _hash_unit(pts) >= aug.point_dropout
+        pts = pts[keep]
     pts[:, :3] = (pts[:, :3].astype(np.float64) @ R.T * s).astype(np.float32)
+    pts[:, 2] += np.float32(aug.lift)
     if aug.drop_intensity:
         pts[:, 3] = 0.0
     pose = frame.pose.copy()
     pose[:3, :3] = frame.pose[:3, :3] @ R.T
-    pose[:3, 3] = frame.pose[:3, 3] * s
+    pose[:3, 3] = frame.pose[:3, 3] * s - pose[:3, :3] @ np.array([0.0, 0.0, aug.lift])
     gt = frame.gt
     if gt is not None:
         boxes = gt.boxes.astype(np.float64).copy()
         boxes[:, :3] = boxes[:, :3] @ R.T * s
+        boxes[:, 2] += aug.lift
         boxes[:, 3:6] *= s
         yaw = -gt.boxes[:, 6] if aug.flip else gt.boxes[:, 6].astype(np.float64)
         boxes[:, 6] = np.arctan2(np.sin(yaw + aug.angle), np.cos(yaw + aug.angle))
         vel = gt.velocities.astype(np.float64) @ R[:2, :2].T * s
         gt = Detections(boxes, vel, gt.scores, gt.labels)
     return replace(frame, points=pts, pose=pose, gt=gt)
+
+
+def _hash_unit(points: NDArray[np.float32]) -> NDArray[np.float64]:
+    """A value in [0, 1) per point from its bytes (deterministic, independent of order)."""
+    raw = np.ascontiguousarray(points[:, :3]).view(np.uint32).astype(np.uint64)
+    h = (raw[:, 0] * np.uint64(73856093)) ^ (raw[:, 1] * np.uint64(19349663)) \
+        ^ (raw[:, 2] * np.uint64(83492791))
+    return np.asarray((h % np.uint64(1_000_003)).astype(np.float64) / 1_000_003.0)
 
 
 def apply_clip(frames: list[Frame], aug: Augmentation) -> list[Frame]:

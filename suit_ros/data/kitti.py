@@ -40,9 +40,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.data.lazy import LazySequence
-from suit_ros.data.sim.scene import count_points_in_boxes
 from suit_ros.errors import DatasetError
-from suit_ros.ops.geometry import transform_points, wrap_angle
+from suit_ros.ops.geometry import count_points_in_boxes, transform_points, wrap_angle
 from suit_ros.structures import Detections, Frame
 
 CLASS_MAP = {'Car': 'car', 'Van': 'car', 'Truck': 'truck', 'Pedestrian': 'pedestrian',

@@ -18,6 +18,7 @@ from suit_ros.model.detector import Memory, SUITDetector
 from suit_ros.model.fusion import PastTerm
 from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
+from suit_ros.ops.geometry import count_points_in_boxes
 from suit_ros.structures import Detections
 from suit_ros.tracking import FilterConfig, VelocityFilter, sweep_velocities
 
@@ -29,8 +30,11 @@ class StepResult:
     :param model_points: points in the model input (all accumulated sweeps).
     :param timings: seconds per stage: ``sweeps`` (accumulation), ``encode`` (pillars +
         backbone), ``fusion`` (GeoNet + fusion), ``head_decode``, ``sampling``, ``tracking``
-        (detections to numpy, the velocity filter, boxes into the LiDAR frame), ``total``.
+        (detections to numpy, the velocity filter, the published cut, the returns in each box,
+        boxes into the LiDAR frame), ``total``.
     :param track_ids: per detection, its velocity-filter track (0: no filter, or no pose).
+    :param num_points: per detection, the current sweep's returns inside its box (0: a box
+        held by the memory or the tracker where the sweep shows nothing).
     """
 
     detections: Detections
@@ -40,6 +44,7 @@ class StepResult:
     model_points: int = 0
     timings: dict[str, float] = field(default_factory=dict)
     track_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
+    num_points: NDArray[np.uint32] = field(default_factory=lambda: np.zeros(0, np.uint32))
 
 
 class StreamingDetector:
@@ -205,6 +210,9 @@ class StreamingDetector:
         published = det.scores >= self.score_thresholds[det.labels]
         if not published.all():
             det, ids = det.select(published), ids[published]
+        this_sweep = (model_points[model_points[:, 4] == 0] if model_points.shape[1] > 4
+                      else model_points)
+        num_points = count_points_in_boxes(this_sweep[:, :3], det.boxes)   # both in base_link
         det = boxes_to_lidar(det, T_bl)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
@@ -212,4 +220,4 @@ class StreamingDetector:
                    'total': t6 - t0}
         samples = self.memories[-1].num_samples if self.memories else 0
         return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings,
-                          ids)
+                          ids, num_points)

@@ -1,6 +1,8 @@
 """SE(3) helpers in float64 (numpy): poses, ego transforms, boxes and velocities between frames."""
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -25,14 +27,15 @@ def yaw_of(T: NDArray[np.float64]) -> float:
     return float(np.arctan2(T[1, 0], T[0, 0]))
 
 
-def transform_points(T: NDArray[np.float64], xyz: NDArray[np.floating]) -> NDArray[np.float64]:
+def transform_points(T: NDArray[np.float64], xyz: NDArray[np.floating[Any]]
+                     ) -> NDArray[np.float64]:
     """Apply ``(4, 4)`` T to ``(N, 3)`` points, in float64."""
-    xyz = np.asarray(xyz, np.float64)
-    return xyz @ T[:3, :3].T + T[:3, 3]
+    out: NDArray[np.float64] = np.asarray(xyz, np.float64) @ T[:3, :3].T + T[:3, 3]
+    return out
 
 
-def transform_boxes(T: NDArray[np.float64], boxes: NDArray[np.floating],
-                    velocities: NDArray[np.floating] | None = None
+def transform_boxes(T: NDArray[np.float64], boxes: NDArray[np.floating[Any]],
+                    velocities: NDArray[np.floating[Any]] | None = None
                     ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
     """Move ``(N, 7)`` boxes (and ``(N, 2)`` velocities) into another frame by T.
 
@@ -51,13 +54,13 @@ def transform_boxes(T: NDArray[np.float64], boxes: NDArray[np.floating],
     return out.astype(np.float32), vel_out
 
 
-def wrap_angle(a: NDArray[np.floating] | float) -> NDArray[np.float64]:
+def wrap_angle(a: NDArray[np.floating[Any]] | float) -> NDArray[np.float64]:
     """Wrap angles to ``[-pi, pi)``."""
     return (np.asarray(a, np.float64) + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def pose_from_xyz_rpy(xyz: tuple[float, float, float] | NDArray[np.floating],
-                      rpy: tuple[float, float, float] | NDArray[np.floating]
+def pose_from_xyz_rpy(xyz: tuple[float, float, float] | NDArray[np.floating[Any]],
+                      rpy: tuple[float, float, float] | NDArray[np.floating[Any]]
                       ) -> NDArray[np.float64]:
     """Build ``(4, 4)`` from a translation and roll, pitch, yaw (ZYX, as URDF/tf)."""
     r, p, y = (float(v) for v in rpy)
@@ -68,3 +71,71 @@ def pose_from_xyz_rpy(xyz: tuple[float, float, float] | NDArray[np.floating],
                  [-sp, cp * sr, cp * cr]]
     T[:3, 3] = np.asarray(xyz, np.float64)
     return T
+
+
+def points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]]
+                    ) -> NDArray[np.bool_]:
+    """``(N, M)`` membership of points in ``(M, 7)`` yaw-rotated boxes (closed intervals)."""
+    if len(boxes) == 0:
+        return np.zeros((len(xyz), 0), bool)
+    b = np.asarray(boxes, np.float64)
+    d = np.asarray(xyz, np.float64)[:, None, :] - b[None, :, :3]
+    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
+    along = d[..., 0] * c + d[..., 1] * s
+    across = -d[..., 0] * s + d[..., 1] * c
+    inside: NDArray[np.bool_] = ((np.abs(along) <= b[:, 3] / 2)
+                                 & (np.abs(across) <= b[:, 4] / 2)
+                                 & (np.abs(d[..., 2]) <= b[:, 5] / 2))
+    return inside
+
+
+def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],
+                          cell: float = 2.0) -> NDArray[np.uint32]:
+    """Number of points inside each ``(M, 7)`` box (the rule of :func:`points_in_boxes`).
+
+    Linear in the points: a coarse BEV grid (``cell`` m) marks the cells each box's bounding
+    square touches; only the points in marked cells are tested, against the boxes whose
+    squares touch their cell.
+    """
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    out = np.zeros(len(b), np.uint32)
+    p = np.asarray(xyz)
+    if len(p) == 0 or len(b) == 0:
+        return out
+    r = 0.5 * np.hypot(b[:, 3], b[:, 4])
+    lo = np.floor((b[:, :2] - r[:, None]) / cell).astype(np.int64)
+    hi = np.floor((b[:, :2] + r[:, None]) / cell).astype(np.int64)
+    origin = lo.min(0)
+    shape = hi.max(0) - origin + 1
+    ix = (p[:, 0] * (1.0 / cell)).astype(np.float64)
+    iy = (p[:, 1] * (1.0 / cell)).astype(np.float64)
+    # within the boxes' cells (columns compared one by one: reductions along a short axis
+    # are slow in numpy)
+    idx = np.flatnonzero((ix >= origin[0]) & (ix < origin[0] + shape[0])
+                         & (iy >= origin[1]) & (iy < origin[1] + shape[1]))
+    if len(idx) == 0:
+        return out
+    ij = np.stack([np.floor(ix[idx]), np.floor(iy[idx])], 1).astype(np.int64) - origin
+    idx_cells = ij
+    cells: list[NDArray[np.int64]] = []
+    for k in range(len(b)):
+        rows = np.arange(lo[k, 0], hi[k, 0] + 1) - origin[0]
+        cols = np.arange(lo[k, 1], hi[k, 1] + 1) - origin[1]
+        cells.append((rows[:, None] * shape[1] + cols[None, :]).ravel())
+    marked = np.zeros(int(shape[0]) * int(shape[1]), bool)
+    marked[np.concatenate(cells)] = True
+    flat = idx_cells[:, 0] * shape[1] + idx_cells[:, 1]
+    keep = marked[flat]
+    cand, flat = idx[keep], flat[keep]
+    if len(cand) == 0:
+        return out
+    order = np.argsort(flat, kind='stable')
+    keys = flat[order]
+    q = np.asarray(p[cand[order], :3], np.float64)
+    for k in range(len(b)):
+        starts = np.searchsorted(keys, cells[k], 'left')
+        ends = np.searchsorted(keys, cells[k], 'right')
+        sel = np.concatenate([np.arange(a, e) for a, e in zip(starts, ends) if e > a]
+                             or [np.zeros(0, np.int64)])
+        out[k] = int(points_in_boxes(q[sel], b[k:k + 1]).sum())
+    return out

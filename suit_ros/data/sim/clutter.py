@@ -25,7 +25,8 @@ from suit_ros.structures import Detections
 
 CLUTTER_TYPES = ('building', 'wall', 'pole', 'tree', 'hedge', 'fence', 'guardrail',
                  'parked_bicycle', 'bench', 'bollard', 'sign', 'cone', 'barrier', 'curb',
-                 'verge', 'ego_body')
+                 'verge', 'ego_body', 'trash_can', 'hydrant', 'parking_meter', 'utility_box',
+                 'planter', 'street_tree', 'lamp_post', 'column', 'shelter')
 CLUTTER_ID = {name: i for i, name in enumerate(CLUTTER_TYPES)}
 OPAQUE = 0.95                                # return probability of ordinary surfaces
 
@@ -197,6 +198,8 @@ def _furnish_segment(b: _Builder, seg: _Segment, world: World, cfg: SimConfig,
         _wall_with_gaps(b, np.array([x, y, wall / 2, length, 0.25, wall, yaw]), 0.45, rng)
     elif edge < 0.75 * d:
         _furniture(b, seg, kerb, rng)
+    if realism.street_objects > 0:
+        _street_objects(b, seg, kerb, road, realism.street_objects, rng)
 
 
 def _guardrail(b: _Builder, seg: _Segment, across: float, rng: np.random.Generator) -> None:
@@ -289,6 +292,90 @@ def _furniture(b: _Builder, seg: _Segment, kerb: float, rng: np.random.Generator
             b.part([x, y, h / 2, 0.08, 0.08, h, yaw], 0.5)
             b.part([x, y, h, 0.7, 0.04, 0.7, yaw + np.pi / 2], 0.95)
         pos += rng.uniform(3, 12)
+
+
+def _street_objects(b: _Builder, seg: _Segment, kerb: float, road: float, density: float,
+                    rng: np.random.Generator) -> None:
+    """Pedestrian-sized things along a sidewalk (about one per 8 m at density 1), at the
+    kerb or against the building line: what real sweeps hold and a detector trained on a
+    cleaner world takes for pedestrians."""
+    pos = seg.a + rng.uniform(0, 8 / density)
+    while pos < seg.b - 2:
+        kind = rng.random()
+        near_kerb = road + rng.uniform(0.4, 0.9)
+        at_wall = kerb + rng.uniform(0.6, 1.0)
+        if kind < 0.16:                                   # trash can, sometimes a pair
+            for k in range(1 + int(rng.random() < 0.3)):
+                w = rng.uniform(0.45, 0.7)
+                x, y, yaw = _place(seg, pos + 0.75 * k, near_kerb if rng.random() < 0.6
+                                   else at_wall)
+                hgt = rng.uniform(0.8, 1.2)
+                b.single('trash_can', [x, y, hgt / 2, w, w, hgt, yaw + rng.uniform(0, 1.6)],
+                         rng.uniform(0.15, 0.6))
+        elif kind < 0.26:                                 # hydrant: body and nozzles
+            x, y, yaw = _place(seg, pos, near_kerb)
+            b.open('hydrant', [x, y, 0.4, 0.45, 0.45, 0.8, yaw])
+            b.part([x, y, 0.35, 0.26, 0.26, 0.7, yaw], 0.55)
+            b.part([x, y, 0.5, 0.45, 0.12, 0.12, yaw], 0.55)
+            b.part([x, y, 0.75, 0.18, 0.18, 0.1, yaw], 0.55)
+        elif kind < 0.38:                                 # parking meter(s): post and head
+            for k in range(int(rng.integers(1, 4))):
+                x, y, yaw = _place(seg, pos + 6.0 * k, road + 0.45)
+                b.open('parking_meter', [x, y, 0.75, 0.3, 0.25, 1.5, yaw])
+                b.part([x, y, 0.6, 0.09, 0.09, 1.2, yaw], 0.5)
+                b.part([x, y, 1.35, 0.28, 0.22, 0.4, yaw], 0.7)
+            pos += 12.0
+        elif kind < 0.48:                                 # utility / electrical box
+            x, y, yaw = _place(seg, pos, at_wall if rng.random() < 0.5 else near_kerb)
+            ln, wd, hgt = rng.uniform(0.5, 1.3), rng.uniform(0.35, 0.7), rng.uniform(0.9, 1.6)
+            b.single('utility_box', [x, y, hgt / 2, ln, wd, hgt, yaw], rng.uniform(0.3, 0.7))
+        elif kind < 0.56:                                 # planter with a porous bush
+            x, y, yaw = _place(seg, pos, near_kerb if rng.random() < 0.5 else at_wall)
+            w, hgt = rng.uniform(0.7, 1.4), rng.uniform(0.4, 0.8)
+            bush = rng.uniform(0.5, 1.2)
+            b.open('planter', [x, y, (hgt + bush) / 2, w, w, hgt + bush, yaw])
+            b.part([x, y, hgt / 2, w, w, hgt, yaw], 0.35)
+            b.part([x, y, hgt + bush / 2, 0.9 * w, 0.9 * w, bush, yaw], 0.4, 0.9,
+                   float(rng.uniform(0.3, 0.6)))
+        elif kind < 0.70:                                 # street tree: slim trunk, high crown
+            x, y, yaw = _place(seg, pos, near_kerb)
+            d, crown_z = rng.uniform(0.12, 0.6), rng.uniform(2.2, 3.5)
+            crown = rng.uniform(2.0, 5.0)
+            b.open('street_tree', [x, y, (crown_z + crown) / 2, crown, crown, crown_z + crown,
+                                   yaw])
+            b.part([x, y, crown_z / 2 + 0.2, d, d, crown_z + 0.4, yaw], 0.3)
+            if rng.random() < 0.4:                        # a tree guard round the trunk
+                b.part([x, y, 0.6, d + 0.5, d + 0.5, 1.2, yaw], 0.5, 0.9, 0.7)
+            b.part([x, y, crown_z + crown / 2, crown, crown, crown, yaw], 0.4, 0.9,
+                   float(rng.uniform(0.25, 0.6)))
+        elif kind < 0.80:                                 # lamp or signal post with an arm
+            x, y, yaw = _place(seg, pos, near_kerb)
+            d, hgt = rng.uniform(0.15, 0.4), rng.uniform(4.0, 8.0)
+            b.open('lamp_post', [x, y, hgt / 2, d, d, hgt, yaw])
+            b.part([x, y, hgt / 2, d, d, hgt, yaw], 0.5)
+            if rng.random() < 0.5:                        # a control box on the post
+                b.part([x, y, 1.3, d + 0.25, d + 0.25, 0.6, yaw], 0.55)
+            ax, ay, _ = _place(seg, pos, near_kerb - 1.5)
+            b.part([ax, ay, hgt - 0.2, 0.12, 3.0, 0.12, yaw], 0.5)
+        elif kind < 0.93:                                 # facade columns / pilasters
+            for k in range(int(rng.integers(2, 6))):
+                x, y, yaw = _place(seg, pos + 3.5 * k, kerb + 0.9)
+                w = rng.uniform(0.35, 0.8)
+                hgt = rng.uniform(2.5, 6.0)
+                b.single('column', [x, y, hgt / 2, w, rng.uniform(0.3, 0.6), hgt, yaw],
+                         rng.uniform(0.2, 0.6))
+            pos += 14.0
+        else:                                             # bus shelter: posts, roof, glass
+            x, y, yaw = _place(seg, pos + 2.0, kerb - 0.8)
+            b.open('shelter', [x, y, 1.25, 4.0, 1.5, 2.5, yaw])
+            for end in (-1.9, 1.9):
+                px, py, _ = _place(seg, pos + 2.0 + end, kerb - 0.8)
+                b.part([px, py, 1.15, 0.1, 0.1, 2.3, yaw], 0.5)
+            b.part([x, y, 2.4, 4.0, 1.5, 0.1, yaw], 0.5)
+            gx, gy, _ = _place(seg, pos + 2.0, kerb - 0.1)
+            b.part([gx, gy, 1.2, 3.8, 0.05, 1.8, yaw], 0.3, 0.4, 0.6)
+            pos += 4.0
+        pos += rng.uniform(2.0, 14.0) / density
 
 
 # ------------------------------------------------------------------ false positives on clutter

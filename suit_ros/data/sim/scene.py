@@ -19,7 +19,13 @@ from suit_ros.data.sim.clutter import CLUTTER_ID, StaticScene, furnish
 from suit_ros.data.sim.config import Realism, SimConfig
 from suit_ros.data.sim.lidar import GROUND, Porosity, RangeImage, cast, ray_directions
 from suit_ros.data.sim.world import REFLECTIVITY, build_world
-from suit_ros.ops.geometry import pose_from_xyz_rpy, se3_inverse, transform_boxes
+from suit_ros.ops.geometry import (  # noqa: F401 - points_in_boxes: re-exported
+    count_points_in_boxes,
+    points_in_boxes,
+    pose_from_xyz_rpy,
+    se3_inverse,
+    transform_boxes,
+)
 from suit_ros.structures import Detections, Frame
 
 START_NS = 1_700_000_000 * 10**9          # a fixed epoch: same seed, same stamps
@@ -348,37 +354,6 @@ def _place_boxes(local: NDArray[np.float64], lx: NDArray[np.float64], x: NDArray
     out[:, 0] = x + c * lx - s * local[:, 1]
     out[:, 1] = y + s * lx + c * local[:, 1]
     out[:, 6] = yaw + local[:, 6]
-    return out
-
-
-def points_in_boxes(xyz: NDArray[np.floating], boxes: NDArray[np.floating]) -> NDArray[np.bool_]:
-    """``(N, M)`` membership of points in ``(M, 7)`` yaw-rotated boxes (closed intervals)."""
-    if len(boxes) == 0:
-        return np.zeros((len(xyz), 0), bool)
-    d = np.asarray(xyz, np.float64)[:, None, :] - np.asarray(boxes, np.float64)[None, :, :3]
-    c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
-    along = d[..., 0] * c + d[..., 1] * s
-    across = -d[..., 0] * s + d[..., 1] * c
-    return ((np.abs(along) <= boxes[:, 3] / 2) & (np.abs(across) <= boxes[:, 4] / 2)
-            & (np.abs(d[..., 2]) <= boxes[:, 5] / 2))
-
-
-def count_points_in_boxes(xyz: NDArray[np.floating], boxes: NDArray[np.floating]
-                          ) -> NDArray[np.uint32]:
-    """Number of points inside each ``(M, 7)`` box (same rule as :func:`points_in_boxes`),
-    testing only the points within each box's bounding square."""
-    xyz = np.asarray(xyz, np.float64)
-    out = np.zeros(len(boxes), np.uint32)
-    if len(xyz) == 0:
-        return out
-    order = np.argsort(xyz[:, 0], kind='stable')
-    xs = xyz[order, 0]
-    for i, box in enumerate(np.asarray(boxes, np.float64)):
-        r = 0.5 * np.hypot(box[3], box[4])
-        lo, hi = np.searchsorted(xs, [box[0] - r, box[0] + r])
-        cand = xyz[order[lo:hi]]
-        cand = cand[np.abs(cand[:, 1] - box[1]) <= r]
-        out[i] = points_in_boxes(cand, box[None]).sum()
     return out
 
 
