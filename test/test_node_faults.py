@@ -86,13 +86,14 @@ def test_odometry_from_the_future_is_refused_and_counted(node_and_watcher):
     w.odometry(now + 10 * S)                             # one from 10 s ahead
     w.p.spin_for(0.3)
     w.frame(cloud(now))                                  # covered by the real odometry
-    w.p.spin_until(lambda: w.diags[-1][2].get('odometry_rejected') == '1', 5.0)
+    w.p.spin_until(lambda: w.diags[-1][2].get('odometry_rejected') == '1'
+                   and w.diags[-1][2].get('frames_out') == '1', 5.0)
     assert w.diags[-1][2]['odometry_rejected'] == '1'
     assert w.diags[-1][2]['pose_source'] == 'odometry'
     # the odometry stops; a cloud 1 s later must run single-frame and say so, not
     # interpolate toward the pose from the future
     w.frame(cloud(now + S))
-    w.p.spin_until(lambda: 'single-frame' in w.diags[-1][1], 5.0)
+    w.p.spin_until(lambda: w.diags[-1][2].get('frames_out') == '2', 5.0)
     level, message, values, _ = w.diags[-1]
     assert values['pose_source'].startswith('none') and 'single-frame' in message
     assert not values['pose_age_s'].startswith('-')
@@ -107,7 +108,9 @@ def test_a_frame_id_change_stays_visible_in_diagnostics(node_and_watcher):
     changed.header.frame_id = 'other_lidar'
     w.frame(changed)
     seen = time.monotonic()
-    w.frame(cloud(base + 2 * S // 10))                   # back to normal, still in the hold
+    steady = cloud(base + 2 * S // 10)                   # the new frame from now on
+    steady.header.frame_id = 'other_lidar'
+    w.frame(steady)
     w.p.spin_for(1.5)
     later = [d for d in w.diags if d[3] > seen + 1.0]
     assert later, 'no diagnostics 1 s after the change'
