@@ -57,6 +57,10 @@ WORKER_NICENESS = 5
 # an input-contract warning keeps the diagnostics at WARN this long after its last frame, so
 # that /diagnostics (once a second) shows a one-frame event
 WARNING_HOLD_S = 5.0
+# clouds the points reader holds until the executor takes them: a burst faster than the
+# executor must not be replaced in the reader (it would read as lost before the callback); the
+# one-slot mailbox then keeps the newest for the model and counts the others as dropped
+POINTS_READER_DEPTH = 10
 # a replaced points subscription lives on this long, so no cloud is lost while the new one
 # matches the publishers (duplicates are recognised by stamp and frame_id)
 QOS_OVERLAP_S = 3.0
@@ -182,7 +186,8 @@ class DetectorNode(Node):
 
     # ------------------------------------------------------------------ points QoS
     def _points_qos(self, reliability: ReliabilityPolicy) -> QoSProfile:
-        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1, reliability=reliability)
+        return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=POINTS_READER_DEPTH,
+                          reliability=reliability)
 
     def _create_points_subscription_first(self) -> bool:
         """Create the points subscription; True when the user fixed its reliability.

@@ -139,3 +139,22 @@ def test_ctrl_c_while_clouds_flow_stops_cleanly(checkpoint):
     assert rc == 0, out[-3000:]
     assert 'frame failed' not in out and 'RCLError' not in out, out[-3000:]
     assert 'Traceback' not in out, out[-3000:]
+
+
+def test_a_burst_is_counted_as_replaced_not_lost(node_and_watcher):
+    """Clouds faster than the model: the newest is taken, the others are replaced in the
+    node's mailbox and counted as dropped; none is reported as lost before the callback (the
+    reader keeps a few, so the executor takes every one)."""
+    proc, w = node_and_watcher
+    base = w.now_ns()
+    w.frame(cloud(base, n=20000))
+    for k in range(1, 9):                                 # a burst, back to back
+        w.pub.publish(cloud(base + k * S // 100, n=20000))
+    w.p.spin_until(lambda: w.diags[-1][2].get('frames_in') == '9', 20.0)
+    w.p.spin_for(1.0)
+    values = w.diags[-1][2]
+    assert values['frames_in'] == '9', values
+    assert values['lost_before_callback'] == '0', values
+    assert int(values['dropped_frames']) > 0, values
+    assert int(values['dropped_frames']) + int(values['frames_out']) == 9, values
+    assert 'never received' not in w.diags[-1][1]
