@@ -24,6 +24,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
                'precision, AP, headings, pictures'),
     'choose-thresholds': ('suit_ros.thresholds_cli', 'choose the per-class thresholds the node '
                           'publishes at (synthetic tune split) and store them'),
+    'outage': ('suit_ros.outage', 'recall through sensor outages: what the memory carries'),
     'detect-bag': ('suit_ros.playback', 'run the detector over a bag and write a bag'),
     'play': ('suit_ros.player', 'publish a bag into the live ROS graph'),
     'bench': ('suit_ros.bench', 'benchmark latency, memory and scaling'),

@@ -6,7 +6,8 @@ order. Training samples clips of 1-4 consecutive frames from them.
 
 The synthetic splits use disjoint seed ranges: ``train`` seeds 1000+, ``val`` seeds 9000+,
 ``heldout`` (a sensor no training drive uses) 9500+, ``tune`` 8000+ (for choosing
-post-processing settings such as the velocity filter's; never trained or validated on). Drive
+post-processing settings such as the velocity filter's; never trained or validated on),
+``outage`` 8500+ (the sensor-outage benchmark, :mod:`suit_ros.outage`). Drive
 ``i`` of a split uses the sensor ``SPLIT_SENSORS[split][i % len]``. The fixed validation set of
 docs/results.md is ``val`` seeds 9000..9015 (16 drives of 40 frames at 10 Hz, four sensor
 models). Splits use the detailed world (presets ``train-real`` and ``val-real``: vehicles with a
@@ -33,11 +34,13 @@ from suit_ros.structures import Detections, Frame
 if TYPE_CHECKING:
     from suit_ros.data.kitti import KittiSequence
 
-SPLIT_SEEDS = {'train': 1000, 'tune': 8000, 'val': 9000, 'heldout': 9500, 'demo': 7}
+SPLIT_SEEDS = {'train': 1000, 'tune': 8000, 'outage': 8500, 'val': 9000, 'heldout': 9500,
+               'demo': 7}
 SPLIT_SENSORS: dict[str, tuple[str, ...]] = {
     'train': ('sim32', 'hdl32e', 'sim32', 'vlp16', 'sim32', 'hdl64e', 'sim32', 'os1-64'),
     'val': ('sim32', 'hdl32e', 'vlp16', 'hdl64e'),
     'tune': ('sim32', 'hdl32e', 'vlp16', 'hdl64e'),
+    'outage': ('sim32', 'hdl32e', 'vlp16', 'hdl64e'),
     'heldout': ('os1-128',),
 }
 VAL_SEQUENCES = 16

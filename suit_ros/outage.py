@@ -1,0 +1,225 @@
+"""``suit-ros outage``: what the node sees of objects whose returns vanish (the memory's job).
+
+A fixed set of synthetic drives (the ``outage`` split of :mod:`suit_ros.data.sequences`,
+seeds 8500+, never trained, tuned or validated on) is played with a sector of every sweep
+lost for a run of frames, as when a truck passes between the car and its surroundings, a
+sensor is blocked, or a driver drops packets: the returns of that azimuth sector (about the sensor) are removed from the sensor sweeps
+before the multi-sweep accumulation, so the earlier sweeps still hold what they saw, and the
+GT objects stay (they are still there). Each model runs as the node does (published
+thresholds; with or without the tracker), and per outage frame 1..N the report gives:
+
+- **recall** of the GT objects in the lost sector that had returns before the outage (same
+  class, BEV centre within 2 m), with a per-drive bootstrap interval;
+- **sector precision**: the share of published boxes in the lost sector that match an object
+  (boxes kept for objects that left or were never there are ghosts).
+
+Frames 1-2 are carried by the previous sweeps in the input (3 sweeps); from frame 3 on only a
+memory can hold an object.
+"""
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from suit_ros.structures import Detections, Frame
+
+MATCH_DIST = 2.0
+
+
+@dataclass(frozen=True)
+class Outage:
+    """A sector of ``width_deg`` centred at ``centre_deg`` (sensor azimuth) lost for frames
+    ``first .. first + frames - 1`` of a drive."""
+
+    centre_deg: float
+    width_deg: float
+    first: int
+    frames: int
+
+    def active(self, k: int) -> int:
+        """1-based frame of the outage at drive frame ``k`` (0: not in the outage)."""
+        return k - self.first + 1 if self.first <= k < self.first + self.frames else 0
+
+    def contains(self, xy: NDArray[np.floating[Any]]) -> NDArray[np.bool_]:
+        """Whether sensor-frame points lie in the sector."""
+        az = np.degrees(np.arctan2(xy[:, 1], xy[:, 0]))
+        off = (az - self.centre_deg + 180.0) % 360.0 - 180.0
+        return np.asarray(np.abs(off) <= self.width_deg / 2)
+
+
+def outages_for(drive: int, frames: int, width_deg: float = 120.0, length: int = 6,
+                period: int = 14, seed: int = 0) -> list[Outage]:
+    """Outages of one drive: every ``period`` frames from frame 6, a random sector each."""
+    rng = np.random.default_rng([seed, drive])
+    return [Outage(float(rng.uniform(-180, 180)), width_deg, first, length)
+            for first in range(6, frames - length + 1, period)]
+
+
+def with_outages(seq: Sequence[Frame], outages: Sequence[Outage]) -> list[Frame]:
+    """The drive with the outages' sectors removed from its sweeps (GT kept)."""
+    from suit_ros.ops.geometry import count_points_in_boxes
+    out = []
+    for k, f in enumerate(seq):
+        lost = [o for o in outages if o.active(k)]
+        if not lost:
+            out.append(f)
+            continue
+        keep = np.ones(len(f.points), bool)
+        for o in lost:
+            keep &= ~o.contains(f.points[:, :2])
+        pts = f.points[keep]
+        num = (count_points_in_boxes(pts[:, :3], f.gt.boxes) if f.gt is not None
+               else f.num_points)
+        out.append(replace(f, points=pts, num_points=num))
+    return out
+
+
+@dataclass
+class OutageCounts:
+    """Per drive and outage frame: objects to find, found; published boxes in the sector,
+    matched."""
+
+    objects: NDArray[np.int64]      # (drives, length)
+    found: NDArray[np.int64]
+    boxes: NDArray[np.int64]
+    true: NDArray[np.int64]
+
+    def recall(self, pick: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """Recall per outage frame over the picked drives (all by default)."""
+        p = np.arange(len(self.objects)) if pick is None else pick
+        return np.asarray(self.found[p].sum(0) / np.maximum(self.objects[p].sum(0), 1))
+
+    def precision(self, pick: NDArray[np.int64] | None = None) -> NDArray[np.float64]:
+        """Sector precision per outage frame over the picked drives."""
+        p = np.arange(len(self.boxes)) if pick is None else pick
+        b = self.boxes[p].sum(0)
+        return np.asarray(np.where(b > 0, self.true[p].sum(0) / np.maximum(b, 1), np.nan))
+
+
+def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence[Detections]],
+                 outages: Sequence[Sequence[Outage]], thresholds: Sequence[float],
+                 length: int) -> OutageCounts:
+    """Count recall and sector precision per drive and outage frame.
+
+    :param gt_seqs: the drives as played (outage sweeps, GT kept); ``det_seqs`` their
+        detections (sensor frame) at the decoding threshold; ``thresholds`` the published ones.
+    """
+    from suit_ros.evaluate import match_frame
+    n = len(gt_seqs)
+    objects, found = np.zeros((n, length), np.int64), np.zeros((n, length), np.int64)
+    boxes, true = np.zeros((n, length), np.int64), np.zeros((n, length), np.int64)
+    thr = np.asarray(thresholds, np.float64)
+    for d, (frames, dets, outs) in enumerate(zip(gt_seqs, det_seqs, outages)):
+        for o in outs:
+            seen_before: set[int] = set()
+            f0 = frames[o.first - 1]
+            if f0.gt is not None and f0.num_points is not None and f0.instance_ids is not None:
+                seen_before = {int(i) for i, c in zip(f0.instance_ids, f0.num_points) if c > 0}
+            for j in range(o.frames):
+                f, det = frames[o.first + j], dets[o.first + j]
+                if f.gt is None or f.instance_ids is None:
+                    continue
+                in_sector = o.contains(f.gt.boxes[:, :2]) & np.isin(
+                    f.instance_ids, list(seen_before))
+                in_sector &= np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
+                gt = f.gt.select(in_sector)
+                pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
+                pub_in = pub.select(o.contains(pub.boxes[:, :2])) if len(pub) else pub
+                objects[d, j] += len(gt)
+                boxes[d, j] += len(pub_in)
+                all_gt = f.gt
+                for k in range(len(thresholds)):
+                    m = match_frame(gt, pub, k, MATCH_DIST)
+                    found[d, j] += int(m.tp.sum())
+                    true[d, j] += int(match_frame(all_gt, pub_in, k, MATCH_DIST).tp.sum())
+    return OutageCounts(objects, found, boxes, true)
+
+
+def intervals(counts: OutageCounts, resamples: int = 200, seed: int = 0
+              ) -> dict[str, list[list[float]]]:
+    """Per outage frame ``[value, low, high]`` of recall and sector precision (per-drive
+    bootstrap), and of recall over frames 3.. (the memory's part)."""
+    rng = np.random.default_rng(seed)
+    n = len(counts.objects)
+    rec, prec, late = [], [], []
+    for _ in range(resamples):
+        pick = rng.integers(0, n, n)
+        rec.append(counts.recall(pick))
+        prec.append(counts.precision(pick))
+        late.append(counts.found[pick, 2:].sum() / max(counts.objects[pick, 2:].sum(), 1))
+
+    def band(samples: list[NDArray[np.float64]], value: NDArray[np.float64]
+             ) -> list[list[float]]:
+        s = np.asarray(samples)
+        out = []
+        for i, v in enumerate(value):
+            col = s[:, i][np.isfinite(s[:, i])]
+            lo, hi = ((float(np.percentile(col, 2.5)), float(np.percentile(col, 97.5)))
+                      if len(col) else (float('nan'), float('nan')))
+            out.append([round(float(v), 3), round(lo, 3), round(hi, 3)])
+        return out
+    late_value = counts.found[:, 2:].sum() / max(counts.objects[:, 2:].sum(), 1)
+    return {'recall': band(rec, counts.recall()), 'sector_precision': band(prec,
+                                                                            counts.precision()),
+            'recall_from_frame_3': [round(float(late_value), 3),
+                                    round(float(np.percentile(late, 2.5)), 3),
+                                    round(float(np.percentile(late, 97.5)), 3)],
+            'objects': counts.objects.sum(0).tolist(), 'boxes': counts.boxes.sum(0).tolist()}
+
+
+# ------------------------------------------------------------------ command line
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Add ``outage`` options."""
+    parser.add_argument('--checkpoint', action='append', metavar='NAME=PATH',
+                        help='a model to measure (repeatable; default: the two shipped ones)')
+    parser.add_argument('--drives', type=int, default=16)
+    parser.add_argument('--frames', type=int, default=40)
+    parser.add_argument('--width', type=float, default=120.0, help='sector (degrees)')
+    parser.add_argument('--length', type=int, default=6, help='outage frames')
+    parser.add_argument('--cache-dir', default='data_cache')
+    parser.add_argument('--json-out', help='write the figures as JSON here')
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run every model with and without the tracker; print and write the table."""
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, published_thresholds
+    from suit_ros.data.sequences import synthetic_split
+    from suit_ros.evaluate import run_model
+    from suit_ros.tracking import FilterConfig
+    shipped = default_checkpoint_path().parent
+    models = dict(a.split('=', 1) for a in args.checkpoint) if args.checkpoint else {
+        'SUIT': str(shipped / 'suit_default.safetensors'),
+        'single frame': str(shipped / 'centerpoint_single.safetensors')}
+    seqs, outs = [], []
+    for i, seq in enumerate(synthetic_split('outage', args.drives, args.frames, args.cache_dir)):
+        o = outages_for(i, args.frames, args.width, args.length)
+        seqs.append(with_outages(seq, o))
+        outs.append(o)
+    result: dict[str, Any] = {'drives': args.drives, 'frames': args.frames,
+                              'width_deg': args.width, 'length': args.length, 'runs': {}}
+    for name, path in models.items():
+        model, cfg, meta = load_checkpoint(path)
+        thr = published_thresholds(meta, cfg.class_names)
+        for tracked in (False, True):
+            r = run_model(model, seqs, velocity_filter=FilterConfig() if tracked else None)
+            starts = np.cumsum([0] + [len(s) for s in seqs])
+            dets = [r.det[starts[i]:starts[i + 1]] for i in range(len(seqs))]
+            counts = count_outage(seqs, dets, outs, thr, args.length)
+            key = f'{name}, tracker' if tracked else name
+            result['runs'][key] = intervals(counts)
+            rec = result['runs'][key]['recall']
+            late = result['runs'][key]['recall_from_frame_3']
+            print(f'{key:<24} recall by outage frame ' + ' '.join(f'{v[0]:.2f}' for v in rec)
+                  + f' | frames 3+: {late[0]:.2f} [{late[1]:.2f}, {late[2]:.2f}] | sector '
+                  'precision ' + ' '.join(f'{v[0]:.2f}' for v in
+                                         result['runs'][key]['sector_precision']), flush=True)
+    if args.json_out:
+        Path(args.json_out).write_text(json.dumps(result, indent=2), encoding='utf-8')
+    return 0

@@ -1,0 +1,70 @@
+"""The outage benchmark (suit_ros.outage): sectors removed, objects counted where they vanish."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suit_ros.outage import Outage, count_outage, intervals, outages_for, with_outages
+from suit_ros.structures import Detections, Frame
+
+
+def box(x, y, label=0):
+    return [x, y, 0.8, 4.5, 1.9, 1.6, 0.0]
+
+
+def drive(frames=12):
+    """A car ahead (azimuth 0) and one behind (azimuth 180), points on both, ids 1 and 2."""
+    out = []
+    rng = np.random.default_rng(0)
+    for k in range(frames):
+        pts = np.concatenate([np.c_[rng.uniform(8, 12, (50, 1)), rng.uniform(-0.9, 0.9, (50, 1))],
+                              np.c_[rng.uniform(-12, -8, (50, 1)),
+                                    rng.uniform(-0.9, 0.9, (50, 1))]])
+        pts = np.c_[pts, np.full((100, 1), 0.8), np.zeros((100, 2))].astype(np.float32)
+        gt = Detections(np.array([box(10, 0), box(-10, 0)]), np.zeros((2, 2)), np.ones(2),
+                        np.array([0, 0]))
+        out.append(Frame(pts, np.eye(4), k * 10**8, 'lidar', gt, np.array([50, 50], np.uint32),
+                         np.array([1, 2], np.uint32)))
+    return out
+
+
+def test_the_sector_is_removed_only_while_the_outage_lasts():
+    o = Outage(0.0, 120.0, 4, 3)
+    assert [o.active(k) for k in range(2, 9)] == [0, 0, 1, 2, 3, 0, 0]
+    assert o.contains(np.array([[10.0, 0.0], [-10.0, 0.0], [1.0, 1.5]])).tolist() == [
+        True, False, True]
+    played = with_outages(drive(), [o])
+    assert len(played[3].points) == 100 and len(played[4].points) == 50
+    assert played[4].num_points.tolist() == [0, 50] and played[7].num_points.tolist() == [50, 50]
+    assert (played[5].points[:, 0] < 0).all()
+    assert len(outages_for(0, 40)) == 3 and outages_for(3, 40) == outages_for(3, 40)
+
+
+def test_recall_and_sector_precision_count_what_the_memory_must_hold():
+    o = Outage(0.0, 120.0, 4, 3)
+    played = with_outages(drive(), [o])
+    car = Detections(np.array([box(10.3, 0)]), np.zeros((1, 2)), np.array([0.9]), [0])
+    ghost = Detections(np.array([box(20, 2)]), np.zeros((1, 2)), np.array([0.9]), [0])
+    faint = Detections(np.array([box(10.3, 0)]), np.zeros((1, 2)), np.array([0.2]), [0])
+    empty = Detections.empty()
+    dets = [empty] * 4 + [car, Detections(np.r_[car.boxes, ghost.boxes], np.zeros((2, 2)),
+                                          [0.9, 0.9], [0, 0]), faint] + [empty] * 5
+    c = count_outage([played], [dets], [[o]], [0.5, 0.5, 0.5, 0.5], 3)
+    # the car ahead vanished (the one behind is outside the sector)
+    assert c.objects.tolist() == [[1, 1, 1]]
+    assert c.found.tolist() == [[1, 1, 0]]                   # frame 3: below the threshold
+    np.testing.assert_allclose(c.recall(), [1, 1, 0])
+    np.testing.assert_allclose(c.precision(), [1.0, 0.5, np.nan])
+    j = intervals(c, resamples=20)
+    assert j['recall'][0][0] == 1.0 and j['recall_from_frame_3'][0] == 0.0
+    assert j['objects'] == [1, 1, 1]
+
+
+@pytest.mark.slow
+def test_outage_command_runs(tmp_path, capsys):
+    from suit_ros.cli import main
+    out = tmp_path / 'o.json'
+    assert main(['outage', '--drives', '1', '--frames', '14', '--cache-dir',
+                 str(tmp_path / 'cache'), '--json-out', str(out)]) == 0
+    text = capsys.readouterr().out
+    assert 'SUIT, tracker' in text and 'single frame' in text and out.is_file()
