@@ -3,10 +3,11 @@
 A fixed set of synthetic drives (the ``outage`` split of :mod:`suit_ros.data.sequences`,
 seeds 8500+, never trained, tuned or validated on) is played with a sector of every sweep
 lost for a run of frames, as when a truck passes between the car and its surroundings, a
-sensor is blocked, or a driver drops packets: the returns of that azimuth sector (about the sensor) are removed from the sensor sweeps
-before the multi-sweep accumulation, so the earlier sweeps still hold what they saw, and the
-GT objects stay (they are still there). Each model runs as the node does (published
-thresholds; with or without the tracker), and per outage frame 1..N the report gives:
+sensor is blocked, or a driver drops packets: the returns of that azimuth sector (about the
+sensor) are removed from the sensor sweeps before the multi-sweep accumulation, so the
+earlier sweeps still hold what they saw, and the GT objects stay (they are still there).
+Each model runs as the node does (published thresholds; with or without the tracker), and
+per outage frame 1..N the report gives:
 
 - **recall** of the GT objects in the lost sector that had returns before the outage (same
   class, BEV centre within 2 m), with a per-drive bootstrap interval;
