@@ -169,11 +169,25 @@ def test_candidates_bound_the_detections_before_the_threshold(model, classes, sc
 
 
 def test_nms_iou_threshold_reaches_the_decoder(model, classes, scene):
-    pipe = make_pipeline(model, classes, score_thresholds=(0.05,))
-    pipe.configure(replace(pipe.params, nms_iou_threshold=0.7))
-    assert pipe.detector.nms_iou_threshold == pytest.approx(0.7)
-    pipe.configure(replace(pipe.params, nms_iou_threshold=0.05))
-    assert pipe.detector.nms_iou_threshold == pytest.approx(0.05)
+    """What the decoder keeps changes with the threshold: a loose one lets overlapping boxes
+    through, a strict one leaves no pair overlapping above it."""
+    import torch
+
+    from suit_ros.ops.iou import bev_iou
+    pipe = make_pipeline(model, classes, score_thresholds=(0.02,), velocity_filter=False)
+
+    def overlaps(threshold, k):
+        pipe.configure(replace(pipe.params, nms_iou_threshold=threshold))
+        d = pipe.process(cloud(classes, T0 + k * S // 10, scene)).detections
+        b = torch.as_tensor(d.boxes, dtype=torch.float64)
+        iou = bev_iou(b, b).numpy() if len(d) else np.zeros((0, 0))
+        same = d.labels[:, None] == d.labels[None, :]
+        np.fill_diagonal(iou, 0.0)
+        return len(d), float((iou * same).max()) if len(d) > 1 else 0.0
+    n_loose, worst_loose = overlaps(0.9, 0)
+    n_strict, worst_strict = overlaps(0.05, 1)
+    assert worst_strict <= 0.05 + 1e-6
+    assert n_loose > n_strict and worst_loose > 0.05
 
 
 def test_velocity_filter_tracks_and_can_be_turned_off(model, classes, scene):
