@@ -127,6 +127,7 @@ class DetectionPipeline:
         self.detector.set_velocity_filter(
             FilterConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix)
             if params.velocity_filter else None)
+        self.detector.sweeps.max_age_s = params.max_gap_s     # one staleness threshold
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,

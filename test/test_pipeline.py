@@ -341,6 +341,13 @@ def test_max_gap_s_is_the_one_staleness_threshold(model, classes):
     assert 'max_gap_s' in pipe.process(cloud(classes, T0 + 8 * S // 10)).reset_reason
     pipe.configure(replace(pipe.params, max_gap_s=1.0))
     assert pipe.process(cloud(classes, T0 + 16 * S // 10)).reset_reason == ''
+    # the sweep buffer and the tracker follow it too (no second staleness setting)
+    assert pipe.detector.sweeps.max_age_s == 1.0
+    assert pipe.detector.tracks is not None and pipe.detector.tracks.config.max_gap_s == 1.0
+    feed_odometry(pipe, T0 + 16 * S // 10, T0 + 26 * S // 10, speed=0.0)
+    pipe.process(cloud(classes, T0 + 17 * S // 10))
+    pipe.process(cloud(classes, T0 + 25 * S // 10))     # 0.8 s later: the sweep is kept
+    assert len(pipe.detector.sweeps) == 2
 
 
 def test_max_pose_jump_m(model, classes):
