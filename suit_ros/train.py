@@ -29,7 +29,7 @@ class TrainConfig:
     """A training run (``params/train_*.yaml``)."""
 
     model_config: str = 'params/model_cpu.yaml'
-    dataset: str = 'synthetic'       # synthetic | bags | nuscenes | kitti
+    dataset: str = 'synthetic'       # synthetic | bags | nuscenes | kitti | av2
     dataset_paths: tuple[str, ...] = ()   # bags, or the nuScenes / KITTI root (first entry)
     nuscenes_version: str = 'v1.0-mini'
     temporal: Literal['', 'none', 'dense', 'sparse', 'sparse_velocity', 'suit'] = ''
@@ -180,8 +180,14 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         # read lazily (a KITTI split does not fit in memory); ClipSampler takes any Sequence
         data = kitti_sequences(  # type: ignore[assignment]
             tc.dataset_paths[0], fov_points_only=True)
+    elif tc.dataset == 'av2':
+        from suit_ros.data.av2 import av2_sequences
+        if not tc.dataset_paths:
+            raise ConfigError('dataset av2 needs dataset_paths: [ROOT]')
+        data = av2_sequences(  # type: ignore[assignment]   # lazy; ClipSampler takes any Sequence
+            tc.dataset_paths[0], mcfg.class_names)
     else:
-        raise ConfigError('dataset must be synthetic, bags, nuscenes or kitti, not '
+        raise ConfigError('dataset must be synthetic, bags, nuscenes, kitti or av2, not '
                           f'{tc.dataset!r}')
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)

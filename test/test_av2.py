@@ -168,3 +168,18 @@ def test_model_runs_over_an_av2_log(tmp_path: Path) -> None:
     assert len(run.det) == 3 and len(run.ignore) == 3
     result = run.evaluate(cfg.class_names)
     assert result.num_gt['car'] == 3 and result.num_frames == 3
+
+
+@pytest.mark.slow
+def test_a_training_config_can_train_on_av2_logs(tmp_path: Path) -> None:
+    from suit_ros.checkpoint import load_checkpoint
+    from suit_ros.train import TrainConfig, train
+    write_log(tmp_path / 'data', sweeps=3)
+    repo = Path(__file__).resolve().parents[1]
+    tc = TrainConfig(model_config=str(repo / 'params/model_cpu.yaml'), dataset='av2',
+                     dataset_paths=(str(tmp_path / 'data'),), temporal='suit', steps=2,
+                     batch_size=1, clip_lengths=(2,), checkpoint_every=1, eval_at_end=False)
+    metrics = train(tc, tmp_path / 'run')
+    assert metrics['steps'] == 2
+    _, cfg, _ = load_checkpoint(tmp_path / 'run' / 'model.safetensors')
+    assert cfg.temporal == 'suit'

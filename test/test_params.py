@@ -7,13 +7,28 @@ import pytest
 from rosgraph import REPO
 
 from suit_ros.errors import ConfigError
-from suit_ros.params import DetectorParams, render_yaml, runtime_parameters
+from suit_ros.params import DetectorParams, render_markdown, render_yaml, runtime_parameters
 
 
 def test_params_yaml_is_generated_from_the_dataclass():
     # regenerate with: python -m suit_ros.params > params/detector.yaml
     assert (REPO / 'params' / 'detector.yaml').read_text() == render_yaml()
     assert DetectorParams.from_yaml(str(REPO / 'params' / 'detector.yaml')) == DetectorParams()
+
+
+def test_readme_parameter_table_is_generated_from_the_dataclass():
+    # regenerate with: python -m suit_ros.params --markdown (between the markers)
+    readme = (REPO / 'README.md').read_text()
+    assert render_markdown() in readme
+    for name in DetectorParams().ros_values():
+        assert f'| `{name}` |' in render_markdown()
+
+
+def test_readme_links_point_at_files():
+    import re
+    readme = (REPO / 'README.md').read_text()
+    links = re.findall(r'\]\(([^)#]+)\)', readme)
+    assert links and all((REPO / link).exists() for link in links), links
 
 
 def test_yaml_values_override_defaults_and_unknown_keys_fail(tmp_path):
