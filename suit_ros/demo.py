@@ -79,6 +79,7 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, QoSReliabilityPolicy
+    from rclpy.utilities import try_shutdown
     from sensor_msgs.msg import PointCloud2
 
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
@@ -89,17 +90,19 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
     clouds: dict[int, float] = {}
     dets: dict[int, tuple[float, dict[str, Any]]] = {}
     diags: list[dict[str, str]] = []
-    probe.create_subscription(
-        PointCloud2, '/points', lambda m: clouds.setdefault(stamp_to_ns(m.header.stamp),
-                                                            time.monotonic()),
-        QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE))
-    probe.create_subscription(
-        PointCloud2, '/detector/detections',
-        lambda m: dets.setdefault(stamp_to_ns(m.header.stamp),
-                                  (time.monotonic(), pointcloud2_to_detections(m))), 50)
-    probe.create_subscription(
-        DiagnosticArray, '/diagnostics',
-        lambda m: diags.append({kv.key: kv.value for kv in m.status[0].values}), 10)
+    def on_cloud(m: Any) -> None:
+        clouds.setdefault(stamp_to_ns(m.header.stamp), time.monotonic())
+
+    def on_detections(m: Any) -> None:
+        dets.setdefault(stamp_to_ns(m.header.stamp),
+                        (time.monotonic(), pointcloud2_to_detections(m)))
+
+    def on_diagnostics(m: Any) -> None:
+        diags.append({kv.key: kv.value for kv in m.status[0].values})
+    probe.create_subscription(PointCloud2, '/points', on_cloud,
+                              QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE))
+    probe.create_subscription(PointCloud2, '/detector/detections', on_detections, 50)
+    probe.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(probe)
     deadline = time.monotonic() + args.timeout
@@ -108,7 +111,8 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
         while not diags:
             ex.spin_once(timeout_sec=0.1)
             if node.poll() is not None:
-                raise SuitRosError(f'the detector node exited:\n{node.stdout.read()}')
+                text = node.stdout.read() if node.stdout else ''
+                raise SuitRosError(f'the detector node exited:\n{text}')
             if time.monotonic() > deadline:
                 raise SuitRosError('the detector node did not come up in time')
         print(f'[demo] playing {bag} at rate {args.rate} ...', flush=True)
@@ -130,7 +134,7 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
     finally:
         ex.shutdown()
         probe.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+        try_shutdown(context=ctx)
     return _report(bag, clouds, dets, diags, play_s, out)
 
 

@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from suit_ros.errors import BagError
 from suit_ros.structures import Detections, Frame
@@ -144,7 +145,7 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
                         str(path), extr.copy())
 
 
-def transform_to_matrix(tr: Any) -> np.ndarray:
+def transform_to_matrix(tr: Any) -> NDArray[np.float64]:
     """A geometry_msgs/Transform as a ``(4, 4)`` matrix."""
     from suit_ros.msg_adapters.odometry import quaternion_to_matrix
     T = np.eye(4)

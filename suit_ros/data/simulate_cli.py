@@ -22,7 +22,7 @@ def write_bag(path: str | os.PathLike[str], config: Any, seed: int, storage: str
     Clouds are recorded at their stamp + one sweep period (when a driver would publish the
     finished sweep), odometry and GT at their stamps. :return: a summary.
     """
-    from tqdm import tqdm
+    from tqdm import tqdm  # type: ignore[import-untyped]
 
     from suit_ros.data.bag import open_writer
     from suit_ros.data.sim.scene import Simulation
@@ -33,7 +33,7 @@ def write_bag(path: str | os.PathLike[str], config: Any, seed: int, storage: str
     sim = Simulation(config, seed)
     period_ns = int(round(1e9 / config.lidar.rate_hz))
     points_per_frame = []
-    objects = collections.Counter()
+    objects: collections.Counter[str] = collections.Counter()
     with open_writer(path, storage) as bag:
         C = MessageClasses.from_rosbags(bag.store)
         t = bag.store.types

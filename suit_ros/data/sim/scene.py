@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -139,7 +140,9 @@ class Simulation:
             np.concatenate([b.parts for b in bodies]) if bodies else empty, owner,
             np.concatenate([b.swing for b in bodies]) if bodies else np.zeros(0),
             np.repeat([b.stride for b in bodies], counts),
-            *(np.concatenate([look[i] for look in looks]) for i in range(3)),
+            np.concatenate([look[0] for look in looks]),
+            np.concatenate([look[1] for look in looks]),
+            np.concatenate([look[2] for look in looks]),
             np.concatenate([np.zeros(n_fixed, np.uint32),
                             np.array([a.instance_id for a in self.actors], np.uint32)[owner]]))
 
@@ -280,7 +283,8 @@ class Simulation:
         mat = np.where(surface == GROUND, 0,
                        np.where(surface < S, self.static_materials[np.clip(surface, 0, S - 1)],
                                 actor_mat[np.clip(surface - S, 0, len(actor_mat) - 1)]))
-        return REFLECTIVITY[mat]
+        out: NDArray[np.float64] = REFLECTIVITY[mat]
+        return out
 
     def _ground_truth(self, T_ol: NDArray[np.float64], actor_boxes: NDArray[np.float64],
                       actor_vel: NDArray[np.float64], xyz: NDArray[np.float64]
@@ -306,7 +310,7 @@ class Simulation:
         return gt, num, ids
 
     def _clutter(self, T_ol: NDArray[np.float64]
-                 ) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+                 ) -> tuple[NDArray[np.floating[Any]], NDArray[np.int64]]:
         """Clutter objects within range, LiDAR frame, with their types; the ego's body last."""
         assert self.scene is not None and self.cfg.realism is not None
         objects, types = self.scene.objects, self.scene.types
@@ -319,7 +323,7 @@ class Simulation:
             ego_l, _ = transform_boxes(se3_inverse(self.T_base_lidar), ego_box)
             boxes = np.concatenate([boxes, ego_l])
             types = np.append(types, CLUTTER_ID['ego_body'])
-        return boxes, types
+        return boxes, np.asarray(types, np.int64)
 
     def _odometry(self, k: int) -> list[tuple[int, NDArray[np.float64], NDArray[np.float64]]]:
         """Odometry messages from the previous sweep's stamp (exclusive) to this one's end."""

@@ -6,6 +6,7 @@ over the road grid (right-hand traffic), with rounded corners at turns.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,7 +110,7 @@ def build_world(cfg: SimConfig, rng: np.random.Generator) -> World:
                  road_half, cfg.lane_width, cfg.lanes_per_direction, cfg.sidewalk_width)
 
 
-def _tree(add, x: float, y: float, rng: np.random.Generator) -> None:
+def _tree(add: Callable[..., None], x: float, y: float, rng: np.random.Generator) -> None:
     trunk_h = rng.uniform(1.5, 3.0)
     add(x, y, trunk_h / 2, 0.4, 0.4, trunk_h, 0, 'vegetation')
     s = rng.uniform(2.0, 4.5)
