@@ -1,11 +1,10 @@
-# Sourced by every project script: keep DDS on this machine, pick a per-run domain, use .venv.
+# Sourced by every project script: keep DDS on this machine and pick a per-run domain, from
+# the one helper the tests and the demo use too (suit_ros/rosenv.py).
+# SUIT_ROS_KEEP_DOMAIN=1 keeps a ROS_DOMAIN_ID already set.
 # shellcheck shell=bash
-export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST
-# not ROS_LOCALHOST_ONLY: deprecated, and it overrides the discovery range
-unset ROS_LOCALHOST_ONLY
-if [ -z "${SUIT_ROS_KEEP_DOMAIN:-}" ]; then
-  # a per-run domain id (1..100; ROS domains above 101 collide with ephemeral ports)
-  ROS_DOMAIN_ID=$(( ( $$ + $(date +%s) ) % 100 + 1 ))
-  export ROS_DOMAIN_ID
-fi
-export PYTHONUNBUFFERED=1
+_suit_root=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
+_suit_py="$_suit_root/.venv/bin/python"
+[ -x "$_suit_py" ] || _suit_py=python3
+eval "$(PYTHONPATH="$_suit_root${PYTHONPATH:+:$PYTHONPATH}" "$_suit_py" -m suit_ros.rosenv \
+  ${SUIT_ROS_KEEP_DOMAIN:+--keep-domain})"
+unset _suit_root _suit_py

@@ -33,7 +33,7 @@ def main() -> int:
     from suit_ros.checkpoint import default_checkpoint_path
     from suit_ros.data.sim import preset
     from suit_ros.data.simulate_cli import write_bag
-    from suit_ros.demo import local_ros_env
+    from suit_ros.rosenv import local_ros_env
     env = local_ros_env()
     os.environ.update(env)
     bag = 'out/demo/demo-seed7-100f'

@@ -30,7 +30,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     from suit_ros.checkpoint import default_checkpoint_path
     from suit_ros.data.sim import preset
     from suit_ros.data.simulate_cli import write_bag
-    from suit_ros.demo import local_ros_env
+    from suit_ros.rosenv import local_ros_env
     env = local_ros_env()
     os.environ.update(env)
     bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f')

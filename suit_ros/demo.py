@@ -30,22 +30,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--timeout', type=float, default=120.0, help='give up after (s)')
 
 
-def local_ros_env() -> dict[str, str]:
-    """The environment of the demo's (and the benchmark's) own private graph.
-
-    The demo starts its own node, player and recorder; unless the user chose otherwise, their
-    discovery stays on this machine in a per-run domain. The detector node and the other
-    commands set no discovery variable.
-    """
-    env = dict(os.environ)
-    env.setdefault('ROS_AUTOMATIC_DISCOVERY_RANGE', 'LOCALHOST')
-    env.pop('ROS_LOCALHOST_ONLY', None)   # deprecated; it overrides the range
-    env.setdefault('ROS_DOMAIN_ID', str(os.getpid() % 100 + 1))
-    return env
-
-
 def run(args: argparse.Namespace) -> int:
     """Run the demo."""
+    from suit_ros.rosenv import local_ros_env
+    # the demo's own node, player and recorder: a private graph on this machine
     os.environ.update(local_ros_env())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

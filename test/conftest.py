@@ -4,7 +4,7 @@ from __future__ import annotations
 import os
 
 # Set before any test imports rclpy (and inherited by every process a test starts).
-os.environ['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-os.environ.pop('ROS_LOCALHOST_ONLY', None)   # deprecated; it would override the range
-if 'ROS_DOMAIN_ID' not in os.environ:
-    os.environ['ROS_DOMAIN_ID'] = str((os.getpid() % 100) + 1)
+from suit_ros.rosenv import local_ros_env  # noqa: E402
+
+os.environ.pop('ROS_LOCALHOST_ONLY', None)
+os.environ.update(local_ros_env())     # keeps a ROS_DOMAIN_ID set by scripts/test

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-import os
 from pathlib import Path
 import subprocess
 import sys
@@ -14,11 +13,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 def ros_env() -> dict[str, str]:
     """Environment for child processes: DDS on localhost, this run's domain."""
-    env = dict(os.environ)
-    env['ROS_AUTOMATIC_DISCOVERY_RANGE'] = 'LOCALHOST'
-    env.pop('ROS_LOCALHOST_ONLY', None)
-    env['PYTHONUNBUFFERED'] = '1'
-    return env
+    from suit_ros.rosenv import local_ros_env
+    return local_ros_env()
 
 
 def start_node(checkpoint: str, *params: str, cmd: list[str] | None = None

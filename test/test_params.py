@@ -98,3 +98,15 @@ def test_large_data_profile_only_when_the_user_set_none():
     shm = [t for t in root.iterfind('.//d:transport_descriptor', ns)
            if t.findtext('d:type', namespaces=ns) == 'SHM']
     assert int(shm[0].findtext('d:segment_size', namespaces=ns)) >= 32 * 2**20
+
+
+def test_one_ros_environment_helper_keeps_dds_local():
+    from suit_ros.rosenv import local_ros_env, shell_exports
+    env = local_ros_env({'ROS_LOCALHOST_ONLY': '1', 'ROS_DOMAIN_ID': '7',
+                         'ROS_AUTOMATIC_DISCOVERY_RANGE': 'SUBNET'})
+    assert env['ROS_AUTOMATIC_DISCOVERY_RANGE'] == 'LOCALHOST' and 'ROS_LOCALHOST_ONLY' not in env
+    assert env['ROS_DOMAIN_ID'] == '7'
+    fresh = local_ros_env({'ROS_DOMAIN_ID': '7'}, keep_domain=False)
+    assert 1 <= int(fresh['ROS_DOMAIN_ID']) <= 100
+    assert 'unset ROS_LOCALHOST_ONLY' in shell_exports()
+    assert 'export ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST' in shell_exports()
