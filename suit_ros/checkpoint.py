@@ -192,10 +192,7 @@ def load_weights_into(model: torch.nn.Module, path: str | os.PathLike[str]) -> l
 
     Tensors present in both with equal shapes are copied; the model's own extra modules (the
     temporal path) keep their initialisation. Pillar weights learned at another
-    ``pillars.time_scale`` are rescaled so the copied encoder computes the same features. When
-    the model's pseudo-image has more channels than the source's (``pillars.time_channels``
-    added), the backbone's first convolution is copied into the leading input channels and the
-    new ones start at zero weight: the model starts as the source's function.
+    ``pillars.time_scale`` are rescaled so the copied encoder computes the same features.
     :return: the names that were not initialised.
     """
     from safetensors.torch import load_file
@@ -204,14 +201,6 @@ def load_weights_into(model: torch.nn.Module, path: str | os.PathLike[str]) -> l
     meta = read_metadata(path)
     state = load_file(str(path), device='cpu')
     own = model.state_dict()
-    first_conv = 'backbone.blocks.0.0.weight'
-    if first_conv in state and first_conv in own:
-        src, dst = state[first_conv], own[first_conv]
-        if (src.dim() == 4 and src.shape[0] == dst.shape[0] and src.shape[2:] == dst.shape[2:]
-                and src.shape[1] < dst.shape[1]):
-            widened = torch.zeros_like(dst)
-            widened[:, :src.shape[1]] = src
-            state[first_conv] = widened
     shared = {k: v for k, v in state.items() if k in own and own[k].shape == v.shape}
     if not shared:
         raise CheckpointError(f'{path} shares no tensors with this model')

@@ -34,9 +34,6 @@ class PillarConfig:
     # 0.2 s weighs 1/40 of a metre-scale coordinate and its weight learns slowly (Adam moves
     # every weight at the same rate); 10 = the lag in 100 ms units
     time_scale: float = 1.0
-    # 3 per-pillar channels appended to the pseudo-image: log point counts of the current and
-    # of earlier sweeps, mean time lag (suit_ros.model.pillars.PillarEncoder)
-    time_channels: bool = False
 
 
 @dataclass(frozen=True)
@@ -109,9 +106,6 @@ class ModelConfig:
     geonet: GeoNetConfig = field(default_factory=GeoNetConfig)
     geo_loss_weight: float = 1.0
     sweeps: int = 1               # LiDAR sweeps per input (current + previous), model frame
-    # frames between a memory's sampling and its use: the memory fused at frame t was sampled
-    # at frame t - memory_stride (0.1 s x stride at 10 Hz); the node keeps that many memories
-    memory_stride: int = 1
 
     def __post_init__(self) -> None:
         validate(self)
@@ -145,9 +139,6 @@ def validate(cfg: ModelConfig) -> None:
         raise bad('pillars.pillar_size must be > 0')
     if not cfg.pillars.time_scale > 0:
         raise bad(f'pillars.time_scale must be > 0, got {cfg.pillars.time_scale}')
-    if cfg.pillars.time_channels and cfg.pillars.in_channels < 5:
-        raise bad('pillars.time_channels needs the time-lag input channel '
-                  f'(in_channels >= 5), got {cfg.pillars.in_channels}')
     for extent in (r[3] - r[0], r[4] - r[1]):
         cells = extent / cfg.pillars.pillar_size
         if abs(cells - round(cells)) > 1e-6:
@@ -189,8 +180,6 @@ def validate(cfg: ModelConfig) -> None:
         raise bad('geonet.velocity_step must be > 0')
     if not 1 <= cfg.sweeps <= 20:
         raise bad('sweeps must be within 1..20')
-    if not 1 <= cfg.memory_stride <= 10:
-        raise bad('memory_stride must be within 1..10')
     if cfg.head.top_k < 1:
         raise bad('head.top_k must be >= 1')
     if cfg.head.yaw_velocity_min_speed < 0:
@@ -272,8 +261,31 @@ def dataclass_from_dict(cls: type, data: Any, source: str) -> Any:
     return _coerce(cls, data, '', source)
 
 
+# experiment settings that were tried and not shipped (docs/experiments, reproducible from
+# commit 44202bd): a config (or a checkpoint's embedded one) may still name them at the value
+# that meant "off"; any other value is refused
+RETIRED = {('pillars', 'time_channels'): False, ('memory_stride',): 1}
+
+
 def model_config_from_dict(data: dict[str, Any], source: str = '<dict>') -> ModelConfig:
     """Build a ModelConfig from a (possibly partial) mapping; missing keys take defaults."""
+    data = dict(data)
+    for path, off in RETIRED.items():
+        holder: Any = data
+        for key in path[:-1]:
+            holder = holder.get(key) if isinstance(holder, dict) else None
+        if not isinstance(holder, dict) or path[-1] not in holder:
+            continue
+        if holder[path[-1]] != off:
+            raise ConfigError(f'{source}: {".".join(path)} was an experiment that is no longer '
+                              f'supported (only {off!r}); see docs/experiments at commit '
+                              '44202bd to reproduce it')
+        holder = dict(holder)
+        del holder[path[-1]]
+        if len(path) == 1:
+            data = holder
+        else:
+            data[path[0]] = holder
     return typing.cast(ModelConfig, _coerce(ModelConfig, data, '', source))
 
 

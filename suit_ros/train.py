@@ -191,8 +191,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
                           f'{tc.dataset!r}')
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
-    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps,
-                          mcfg.memory_stride)
+    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps)
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
     temporal = [p for n, p in module.named_parameters() if n.startswith(('fusion.', 'geonet.'))]
     ids = {id(p) for p in temporal}

@@ -125,28 +125,6 @@ def test_initialisation_at_another_time_scale_keeps_the_function(tmp_path):
     assert torch.equal(w_new[:, :4], w_old[:, :4])
 
 
-def test_initialisation_with_time_channels_added_keeps_the_function(tmp_path):
-    """A model with ``pillars.time_channels`` initialised from one without: the first conv's
-    new input channels start at zero, so the backbone output is the source's."""
-    from dataclasses import replace
-
-    from suit_ros.config import PillarConfig
-    torch.manual_seed(0)
-    old = SUITDetector(ModelConfig(temporal='none')).eval()
-    path = save_checkpoint(tmp_path / 's.safetensors', old, ModelConfig(temporal='none'))
-    cfg = replace(ModelConfig(temporal='none'), pillars=PillarConfig(time_channels=True))
-    new = SUITDetector(cfg).eval()
-    assert load_weights_into(new, path) == []
-    w = new.backbone.blocks[0][0].weight
-    assert w.shape[1] == old.backbone.blocks[0][0].weight.shape[1] + 3
-    assert torch.count_nonzero(w[:, -3:]) == 0
-    g = torch.Generator().manual_seed(1)
-    pts = torch.rand(4000, 5, generator=g) * torch.tensor([80, 80, 4, 1, 0.3]) \
-        - torch.tensor([40, 40, 2, 0, 0])
-    with torch.no_grad():
-        assert torch.allclose(new.encode([pts]), old.encode([pts]), atol=1e-5)
-
-
 @pytest.mark.parametrize('name, temporal', [('suit_default', 'suit'),
                                             ('centerpoint_single', 'none')])
 def test_shipped_checkpoints_load_and_detect(name, temporal):

@@ -316,26 +316,6 @@ def test_velocity_filter_in_the_stream_follows_the_reset_rules():
     assert runner.tracks is None and not r4.track_ids.any()
 
 
-def test_memory_stride_fuses_the_memory_of_stride_frames_ago():
-    """With ``memory_stride`` k the frame at t fuses the memory sampled at t - k (the oldest
-    there is in the first frames after a reset); the node holds k memories."""
-    torch.manual_seed(0)
-    model = SUITDetector(replace(small_config('suit'), memory_stride=3))
-    runner = StreamingDetector(model)
-    f = frame(0)
-    stamps = [int(1e9 + t * 1e8) for t in range(6)]
-    fused_from = []
-    for s in stamps:
-        fused_from.append(None if runner.memory is None else runner.memory.stamps_ns[0])
-        r = runner.step(f.points, s, f.pose)
-    assert fused_from == [None, stamps[0], stamps[0], stamps[0], stamps[1], stamps[2]]
-    assert len(runner.memories) == 3
-    assert r.memory_bytes == sum(m.nbytes for m in runner.memories) > runner.memories[-1].nbytes
-    runner.reset('test')
-    assert runner.memory is None and runner.memory_bytes == 0
-    assert not runner.step(f.points, stamps[-1] + int(1e8), f.pose).used_memory
-
-
 @pytest.mark.slow
 def test_optimisation_reduces_every_loss():
     torch.manual_seed(0)
@@ -360,12 +340,20 @@ def test_config_validation():
         ModelConfig(temporal='lstm')
     with pytest.raises(ConfigError, match='alpha'):
         replace(ModelConfig(), sampling=SamplingConfig(alpha=1.5))
-    with pytest.raises(ConfigError, match='memory_stride'):
-        ModelConfig(memory_stride=0)
     with pytest.raises(ConfigError, match='time_scale'):
         replace(ModelConfig(), pillars=PillarConfig(time_scale=0.0))
-    with pytest.raises(ConfigError, match='time_channels'):
-        replace(ModelConfig(), pillars=PillarConfig(time_channels=True, in_channels=4))
+    # retired experiment settings: accepted at their 'off' value (older checkpoints carry
+    # them), refused otherwise with where to find the experiment
+    from suit_ros.config import model_config_from_dict
+    old = ModelConfig().to_dict()
+    old['memory_stride'] = 1
+    old['pillars']['time_channels'] = False
+    assert model_config_from_dict(old) == ModelConfig()
+    old['pillars']['time_channels'] = True
+    with pytest.raises(ConfigError, match='time_channels.*44202bd'):
+        model_config_from_dict(old)
+    with pytest.raises(ConfigError, match='memory_stride'):
+        model_config_from_dict({'memory_stride': 3})
 
 
 def test_decode_turns_moving_boxes_to_face_their_velocity():
@@ -471,34 +459,6 @@ def test_time_scale_multiplies_the_lag_in_training_and_in_the_folded_copy():
         fold_batchnorm(plain)
         fold_batchnorm(scaled)
         assert torch.allclose(scaled(rows, 1), want, atol=1e-4)
-
-
-def test_time_channels_count_current_and_earlier_sweeps_per_pillar():
-    """``time_channels``: three channels after the learned ones, log(1 + current points),
-    log(1 + earlier points), mean lag x time_scale; the same in the folded inference copy."""
-    from suit_ros.model.inference import fold_batchnorm
-    grid = BEVGrid((-25.6, -25.6, -3.0, 25.6, 25.6, 3.0), 0.4, 2)
-    torch.manual_seed(0)
-    enc = PillarEncoder(grid, 5, 16, time_scale=10.0, time_channels=True).eval()
-    assert enc.out_channels == 19
-    # one pillar (centre 0.2, 0.2): 2 current points and 3 of the sweep 0.2 s back; another
-    # (centre 4.2, 0.2) with only one point of the sweep 0.1 s back
-    pts = torch.tensor([[0.1, 0.1, 0.0, 0.5, 0.0], [0.3, 0.3, 0.5, 0.5, 0.0],
-                        [0.1, 0.3, 0.0, 0.5, 0.2], [0.2, 0.1, 0.2, 0.5, 0.2],
-                        [0.3, 0.1, 0.1, 0.5, 0.2], [4.1, 0.1, 0.0, 0.5, 0.1]])
-    rows = torch.cat([torch.zeros(len(pts), 1), pts], 1)
-    ix0, iy0 = int(25.6 / 0.4), int(25.6 / 0.4)
-    with torch.no_grad():
-        out = enc(rows, 1)
-        a = out[0, 16:, iy0, ix0]
-        b = out[0, 16:, iy0, ix0 + 10]
-        torch.testing.assert_close(a, torch.tensor([math.log(3), math.log(4), 0.6 * 10 / 5]))
-        torch.testing.assert_close(b, torch.tensor([0.0, math.log(2), 1.0]))
-        assert out[0, 16:].abs().sum() == pytest.approx(float(a.sum() + b.sum()), rel=1e-5)
-        fold_batchnorm(enc)
-        torch.testing.assert_close(enc(rows, 1), out, atol=1e-5, rtol=1e-5)
-    with pytest.raises(ValueError, match='time-lag'):
-        PillarEncoder(grid, 4, 16, time_channels=True)
 
 
 def test_inference_copy_folds_batch_norms_exactly():

@@ -150,15 +150,15 @@ def test_training_drives_kept_in_float16_give_float32_inputs_equal_to_the_cache(
     assert all(f.points.dtype == np.float32 and f.points.shape[1] == 5 for f in clip)
 
 
-def test_clip_sampler_spaces_clip_frames_by_the_memory_stride(tmp_path):
-    """Clips for ``memory_stride`` k: consecutive clip frames k sensor frames apart, each with
-    its own consecutive sweeps; a drive too short for a whole clip is left out, none: error."""
+def test_clip_sampler_takes_consecutive_frames(tmp_path):
+    """Clips of consecutive sensor frames, each with its own consecutive sweeps; a drive too
+    short for a whole clip is left out, none: an error."""
     from suit_ros.data.sequences import ClipSampler, synthetic_sequence
     seq = synthetic_sequence('test', 3, 8, tmp_path)
     period = seq[1].stamp_ns - seq[0].stamp_ns
-    for clip in ClipSampler([seq], [3], 0, sweeps=2, stride=3).batch(4):
-        assert np.diff([f.stamp_ns for f in clip]).tolist() == [3 * period] * 2
+    for clip in ClipSampler([seq], [3], 0, sweeps=2).batch(4):
+        assert np.diff([f.stamp_ns for f in clip]).tolist() == [period] * 2
         lags = np.unique(np.round(clip[-1].points[:, 4], 3))
         np.testing.assert_allclose(lags, [0.0, period * 1e-9], atol=1e-3)
     with pytest.raises(ValueError, match='7 frames'):
-        ClipSampler([seq[:6]], [3], 0, stride=3)
+        ClipSampler([seq[:6]], [7], 0)

@@ -159,41 +159,32 @@ def training_view(frame: Frame, min_points: int = 1) -> Frame:
 
 
 class ClipSampler:
-    """Random clips of model frames (length drawn from ``lengths``), ``stride`` sensor frames
-    apart.
+    """Random clips of consecutive model frames (length drawn from ``lengths``).
 
     :param sweeps: sweeps per model frame (the model config's ``sweeps``); a clip's first frame
         still gets its previous sweeps when the sequence has them.
-    :param stride: sensor frames between a clip's consecutive frames (the model config's
-        ``memory_stride``: the memory crosses that many frames); each frame's input still
-        holds its own ``sweeps`` consecutive sweeps.
     """
 
     def __init__(self, sequences: Sequence[Sequence[Frame]], lengths: Sequence[int],
-                 seed: int, sweeps: int = 1, stride: int = 1) -> None:
-        if stride < 1:
-            raise ValueError(f'stride must be >= 1, got {stride}')
-        span = (max(lengths) - 1) * stride + 1
+                 seed: int, sweeps: int = 1) -> None:
+        span = max(lengths)
         self.sequences = [s for s in sequences if len(s) >= span]
         if not self.sequences:
-            raise ValueError(f'no sequence has {span} frames (clips of {max(lengths)} frames '
-                             f'{stride} apart)')
+            raise ValueError(f'no sequence has {span} frames (clips of {span} frames)')
         self.lengths = list(lengths)
         self.sweeps = sweeps
-        self.stride = stride
         self.rng = np.random.default_rng(seed)
 
     def batch(self, batch_size: int) -> list[list[Frame]]:
         """``batch_size`` clips of one common length."""
         from suit_ros.model.sweeps import model_frame
         L = int(self.rng.choice(self.lengths))
-        span = (L - 1) * self.stride + 1
         out = []
         for _ in range(batch_size):
             seq = self.sequences[int(self.rng.integers(len(self.sequences)))]
-            start = int(self.rng.integers(len(seq) - span + 1))
+            start = int(self.rng.integers(len(seq) - L + 1))
             out.append([training_view(model_frame(seq, t, self.sweeps))
-                        for t in range(start, start + span, self.stride)])
+                        for t in range(start, start + L)])
         return out
 
 

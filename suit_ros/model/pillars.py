@@ -23,33 +23,17 @@ class PillarEncoder(nn.Module):
     :param time_scale: the time lag (input channel 4) is multiplied by this; applied to the
         linear layer's lag column, so it costs nothing per point. A checkpoint trained at
         another scale is moved to this one by :meth:`rescale_time_weights`.
-    :param time_channels: append :data:`TIME_FEATURES` per-pillar channels to the learned
-        ones: log(1 + points of the current sweep), log(1 + points of earlier sweeps) and the
-        mean time lag (times ``time_scale``). A moving object's leading edge holds only
-        current points and its trailing edge only old ones, so its motion is a contrast
-        between channels of the pseudo-image that the backbone's convolutions can read
-        (early fusion along the channel axis, as Fast and Furious stacks sweeps), not a
-        per-point cue the max-pool must first learn to keep.
     """
 
     TIME_CHANNEL = 4
-    TIME_FEATURES = 3
-    # a point with a lag below this (s) belongs to the current sweep (lags of earlier sweeps
-    # are at least one sweep period, >= 25 ms for a 40 Hz sensor)
-    CURRENT_LAG_S = 1e-3
 
     def __init__(self, grid: BEVGrid, in_channels: int = 5, channels: int = 32,
-                 time_scale: float = 1.0, time_channels: bool = False) -> None:
+                 time_scale: float = 1.0) -> None:
         super().__init__()
-        if time_channels and in_channels <= self.TIME_CHANNEL:
-            raise ValueError(f'time_channels needs the time-lag input channel (in_channels > '
-                             f'{self.TIME_CHANNEL}), got in_channels={in_channels}')
         self.grid = grid
         self.in_channels = in_channels
         self.learned_channels = channels
-        self.time_channels = time_channels
-        # the pseudo-image's channels: the learned pillar features, then the time features
-        self.out_channels = channels + (self.TIME_FEATURES if time_channels else 0)
+        self.out_channels = channels           # the pseudo-image's channels
         self.time_scale = time_scale
         self.linear = nn.Linear(in_channels + 5, channels, bias=False)
         self.norm: nn.Module = nn.BatchNorm1d(channels, eps=1e-3, momentum=0.01)
@@ -125,16 +109,6 @@ class PillarEncoder(nn.Module):
         # the max
         return torch.relu_(pillar.sub_(per_pillar))
 
-    def time_features(self, feats: Tensor, inverse: Tensor, count: Tensor) -> Tensor:
-        """The ``(U, 3)`` per-pillar time features (see the class docstring) of points
-        ``feats`` (``(P, in_channels)``) in pillars ``inverse`` holding ``count`` points."""
-        lag = feats[:, self.TIME_CHANNEL]
-        current = (lag < self.CURRENT_LAG_S).to(feats.dtype)
-        n_current = torch.zeros_like(count).index_add_(0, inverse, current)
-        lag_sum = torch.zeros_like(count).index_add_(0, inverse, lag)
-        return torch.stack([torch.log1p(n_current), torch.log1p(count - n_current),
-                            lag_sum / count.clamp(min=1.0) * self.time_scale], dim=1)
-
     def forward(self, points: Tensor, batch_size: int) -> Tensor:
         """Encode ``(P, 1 + in_channels)`` points into ``(B, C, ny, nx)``."""
         g = self.grid
@@ -164,9 +138,6 @@ class PillarEncoder(nn.Module):
                                             include_self=False)
         else:
             pillar = self._folded_pillars(feats, inverse, mean, centre_x, centre_y)
-        if self.time_channels:
-            pillar = torch.cat([pillar, self.time_features(feats, inverse, count).to(pillar)],
-                               dim=1)
         canvas = torch.zeros(batch_size * g.ny * g.nx, self.out_channels,
                              dtype=self.canvas_dtype or pillar.dtype, device=pillar.device)
         canvas[keys] = pillar.to(canvas.dtype)

@@ -5,7 +5,6 @@ detections for the same frames.
 """
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 import time
 from typing import cast
@@ -73,9 +72,8 @@ class StreamingDetector:
         self.model = cast(SUITDetector, inference_copy(model.to(self.device),
                                                        precision=self.precision))
         self.cfg = model.cfg
-        # the memories of the last ``memory_stride`` frames, oldest first: a frame fuses the
-        # oldest (sampled memory_stride frames ago, or the oldest there is after a reset)
-        self.memories: deque[Memory] = deque(maxlen=self.cfg.memory_stride)
+        # the memory sampled at the last frame: the next frame fuses it
+        self._memory: Memory | None = None
         self.sweeps = SweepBuffer(self.cfg.sweeps)
         self.tracks = (None if velocity_filter is None
                        else VelocityFilter(velocity_filter, self.cfg.class_names))
@@ -126,7 +124,7 @@ class StreamingDetector:
     def reset(self, reason: str = 'reset', sweeps: bool = True) -> None:
         """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps and
         the velocity filter's tracks: the next frame runs single-frame."""
-        self.memories.clear()
+        self._memory = None
         if sweeps:
             self.sweeps.clear()
             if self.tracks is not None:
@@ -136,12 +134,12 @@ class StreamingDetector:
     @property
     def memory(self) -> Memory | None:
         """The memory the next frame fuses (None after a reset)."""
-        return self.memories[0] if self.memories else None
+        return self._memory
 
     @property
     def memory_bytes(self) -> int:
-        """Bytes held by the temporal feature memories now (the sweep buffer not included)."""
-        return sum(mem.nbytes for mem in self.memories)
+        """Bytes held by the temporal feature memory now (the sweep buffer not included)."""
+        return self._memory.nbytes if self._memory is not None else 0
 
     def _sync(self) -> float:
         if self.device.type == 'cuda':
@@ -194,7 +192,7 @@ class StreamingDetector:
         if T_odom_base is not None:
             memory = m.sample_memory(fused, preds, poses, [stamp_ns])
             if memory is not None:
-                self.memories.append(memory)
+                self._memory = memory
         t5 = self._sync()
         det = Detections(out['boxes'].float().cpu().numpy(),
                          out['velocities'].float().cpu().numpy(),
@@ -218,6 +216,6 @@ class StreamingDetector:
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
                    'head_decode': t4 - t3, 'sampling': t5 - t4, 'tracking': t6 - t5,
                    'total': t6 - t0}
-        samples = self.memories[-1].num_samples if self.memories else 0
+        samples = self._memory.num_samples if self._memory is not None else 0
         return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings,
                           ids, num_points)
