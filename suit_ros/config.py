@@ -290,8 +290,17 @@ def model_config_from_dict(data: dict[str, Any], source: str = '<dict>') -> Mode
 
 
 def load_model_config(path: str | os.PathLike[str]) -> ModelConfig:
-    """Load a model config YAML (optionally nested under a top-level ``model:`` key)."""
-    path = os.fspath(path)
+    """Load a model config YAML (optionally nested under a top-level ``model:`` key).
+
+    ``_base_: other.yaml`` (relative to the file) starts from that file's settings; the keys
+    given here override it, nested mappings key by key (as mmdetection3d's configs do).
+    """
+    return model_config_from_dict(_read_config(os.fspath(path), ()), os.fspath(path))
+
+
+def _read_config(path: str, seen: tuple[str, ...]) -> dict[str, Any]:
+    if path in seen:
+        raise ConfigError(f'model config {path}: _base_ cycle ({" -> ".join(seen + (path,))})')
     try:
         with open(path, encoding='utf-8') as f:
             data = yaml.safe_load(f)
@@ -299,6 +308,21 @@ def load_model_config(path: str | os.PathLike[str]) -> ModelConfig:
         raise ConfigError(f'model config {path} does not exist') from exc
     except yaml.YAMLError as exc:
         raise ConfigError(f'model config {path} is not valid YAML: {exc}') from exc
+    data = data or {}
+    if not isinstance(data, dict):
+        raise ConfigError(f'model config {path}: expected a mapping')
+    base = data.pop('_base_', None)
     if isinstance(data, dict) and set(data) == {'model'}:
-        data = data['model']
-    return model_config_from_dict(data or {}, path)
+        data = data['model'] or {}
+    if base is None:
+        return dict(data)
+    parent = _read_config(os.path.join(os.path.dirname(path), str(base)), seen + (path,))
+    return _merged(parent, data)
+
+
+def _merged(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k),
+                                                                        dict) else v
+    return out

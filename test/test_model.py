@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -551,3 +552,17 @@ def test_precision_auto_follows_the_cpu_flags(tmp_path, monkeypatch):
         inference.resolve_precision('half', 'cpu')
     runner = StreamingDetector(SUITDetector(small_config()), precision='bfloat16')
     assert runner.precision == 'bfloat16'
+
+
+def test_model_yaml_base_and_overrides(tmp_path):
+    from suit_ros.config import load_model_config
+    from suit_ros.errors import ConfigError
+    repo = Path(__file__).resolve().parents[1]
+    shipped = load_model_config(repo / 'params/model_cpu_time10.yaml')
+    base = load_model_config(repo / 'params/model_cpu.yaml')
+    assert shipped.pillars.time_scale == 10.0 and base.pillars.time_scale == 1.0
+    assert shipped.diff(base) == ['pillars.time_scale']
+    (tmp_path / 'a.yaml').write_text('_base_: b.yaml\nmodel:\n  sweeps: 2\n')
+    (tmp_path / 'b.yaml').write_text('_base_: a.yaml\n')
+    with pytest.raises(ConfigError, match='cycle'):
+        load_model_config(tmp_path / 'a.yaml')
