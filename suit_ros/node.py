@@ -414,10 +414,9 @@ class DetectorNode(Node):
                  'by_receive': by_receive, 'skew': skew}
         with self._cv:
             self.frames_out += 1
-            if out.pose_source != 'odometry':
+            if out.single_frame is not None:
                 self.frames_single += 1
-                self.single_reasons['no_odometry' if 'no odometry' in out.pose_source
-                                    else 'outside_odometry'] += 1
+                self.single_reasons[out.single_frame] += 1
             self._stats.append(stats)
             self._last = out
             # counted with the frame, so a diagnostic never shows a frame without its reasons
@@ -533,7 +532,7 @@ class DetectorNode(Node):
             # the input-contract warnings of the last WARNING_HOLD_S, not only the last frame's
             for text in held:
                 levels.append((DiagnosticStatus.WARN, text))
-            if not last.pose_source.startswith('odometry'):
+            if last.single_frame is not None:
                 levels.append((DiagnosticStatus.WARN, f'single-frame: {last.pose_source}'))
         for key, count in single_reasons:
             values[f'single_frame.{key}'] = str(count)

@@ -30,6 +30,9 @@ from suit_ros.tracking import FilterConfig
 # the pipeline's settings are the node's: one owner (suit_ros.params)
 PipelineParams = DetectorParams
 
+# why a frame ran on its own sweep (no pose): the pipeline says it, diagnostics count it
+SingleFrameReason = Literal['no_odometry', 'outside_odometry']
+
 # input-contract reasons a frame can be flagged with (diagnostics and detect-bag count them)
 InputWarning = Literal['unusable_cloud', 'empty_cloud', 'no_intensity', 'intensity_range',
                        'too_few_points', 'frame_changed', 'sector_gap']
@@ -67,6 +70,7 @@ class PipelineOutput:
     points_nonfinite: int = 0
     has_intensity: bool = True
     pose_source: str = 'none'
+    single_frame: SingleFrameReason | None = None          # None: the frame had a pose
     pose_age_s: float = float('nan')
     track_ids: NDArray[np.int64] | None = None          # None: the velocity filter is off
     num_points: NDArray[np.uint32] = field(                # current returns in each box
@@ -191,6 +195,8 @@ class DetectionPipeline:
             out.warnings['frame_changed'] = (f'frame_id changed from {self.last_frame_id!r} '
                                              f'to {frame_id!r} (memory reset)')
         pose, out.pose_source, out.pose_age_s = self._pose(stamp_ns)
+        if pose is None:
+            out.single_frame = 'no_odometry' if self.poses.span() is None else 'outside_odometry'
         if reason is None and pose is not None and self.last_pose is not None:
             jump = float(np.linalg.norm(pose[:3, 3] - self.last_pose[:3, 3]))
             if jump > self.params.max_pose_jump_m:

@@ -304,7 +304,11 @@ def test_extrinsic_change_resets_and_moves_the_model_input(model, classes):
 
 def test_odometry_tolerance_and_buffer(model, classes):
     pipe = make_pipeline(model, classes)
+    assert pipe.process(cloud(classes, T0 - S)).single_frame == 'no_odometry'   # typed reason
     feed_odometry(pipe, T0, T0 + S)
+    assert pipe.process(cloud(classes, T0 + S // 2)).single_frame is None
+    assert pipe.process(cloud(classes, T0 + 5 * S)).single_frame == 'outside_odometry'
+    pipe.reset('test')
     late = T0 + S + 3 * S // 10                       # 0.3 s after the newest odometry
     assert pipe.process(cloud(classes, late)).pose_source.startswith('none')
     pipe.configure(replace(pipe.params, odom_tolerance_s=0.5))
