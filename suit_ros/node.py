@@ -23,7 +23,6 @@ from typing import Any, cast
 
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from nav_msgs.msg import Odometry
-import numpy as np
 from rcl_interfaces.msg import (
     FloatingPointRange,
     IntegerRange,
@@ -449,117 +448,39 @@ class DetectorNode(Node):
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_status(self) -> DiagnosticStatus:
-        """The node's health now (what ``/diagnostics`` carries)."""
-        p = self.params
+        """The node's health now (what ``/diagnostics`` carries): :func:`health_report` of a
+        snapshot of the node's counters."""
+        from suit_ros.health import HealthSnapshot, health_report
         now = time.monotonic()
         with self._cv:
-            arrivals = list(self._arrivals)
-            stats = list(self._stats)
-            odom_delays = list(self._odom_delays)
-            reader_delays = list(self._reader_delays)
-            losses = [t for t in self._losses if t >= now - RATE_WINDOW_S]
-            last = self._last
-            single_reasons = sorted(self.single_reasons.items())
-            held = [text for text, when in self._recent_warnings.values()
-                    if now - when <= WARNING_HOLD_S]
-            reason_counts = sorted(self.reason_counts.items())
-        levels: list[tuple[bytes, str]] = []
-        values: dict[str, str] = {}
-        recent = [t for t in arrivals if t >= now - RATE_WINDOW_S]
-        window = max(min(RATE_WINDOW_S, now - self._started), 1e-3)
-        values['input_rate_hz'] = f'{len(recent) / window:.2f}'
-        period = float(np.median(np.diff(arrivals[-20:]))) if len(arrivals) >= 3 else None
-        values['input_period_ms'] = f'{period * 1e3:.1f}' if period else 'nan'
-        since = now - (arrivals[-1] if arrivals else self._started)
-        values['seconds_since_last_cloud'] = f'{since:.2f}' if arrivals else 'nan'
-        if since > p.input_timeout_s:
-            levels.append((DiagnosticStatus.ERROR,
-                           f'no point cloud for {since:.1f} s (input_timeout_s '
-                           f'{p.input_timeout_s:g})'))
-        elif not arrivals:
-            levels.append((DiagnosticStatus.WARN, 'no point cloud received yet'))
-        elif period and since > p.stale_periods * period:
-            levels.append((DiagnosticStatus.WARN,
-                           f'no point cloud for {since:.2f} s (expected every '
-                           f'{period:.2f} s)'))
-        values.update({'frames_in': str(self.frames_in), 'frames_out': str(self.frames_out),
-                       'dropped_frames': str(self.dropped),
-                       'lost_before_callback': str(self.lost_in_reader),
-                       'frames_single_frame': str(self.frames_single),
-                       'odometry_waits': str(self.odom_waits),
-                       'points_reliability': self.points_reliability.name.lower(),
+            snap = HealthSnapshot(
+                now=now, started=self._started, arrivals=list(self._arrivals),
+                stats=list(self._stats), odom_delays=list(self._odom_delays),
+                reader_delays=list(self._reader_delays),
+                losses=[t for t in self._losses if t >= now - RATE_WINDOW_S],
+                last=self._last,
+                held_warnings=[text for text, when in self._recent_warnings.values()
+                               if now - when <= WARNING_HOLD_S],
+                single_reasons=sorted(self.single_reasons.items()),
+                reason_counts=sorted(self.reason_counts.items()),
+                counters={'frames_in': self.frames_in, 'frames_out': self.frames_out,
+                          'dropped_frames': self.dropped,
+                          'lost_before_callback': self.lost_in_reader,
+                          'frames_single_frame': self.frames_single,
+                          'odometry_waits': self.odom_waits},
+                facts={'points_reliability': self.points_reliability.name.lower(),
                        'model_device': self.detector.device.type,
-                       'model_precision': self.detector.precision})
-        if losses:
-            levels.append((DiagnosticStatus.WARN,
-                           f'{self.lost_in_reader} clouds published but never received so far '
-                           f'(gaps in the publisher sequence; last {now - losses[-1]:.1f} s '
-                           'ago): the network or the reader lost them'))
-        # how long clouds waited in the reader before the executor took them
-        values['reader_delay_ms_p50'] = (f'{np.median(reader_delays) * 1e3:.1f}'
-                                         if reader_delays else 'nan')
-        values['reader_delay_ms_max'] = (f'{max(reader_delays) * 1e3:.1f}'
-                                         if reader_delays else 'nan')
-        # odometry receive time minus its stamp (meaningful when both clocks agree)
-        values['odometry_delay_ms_p50'] = (f'{np.median(odom_delays) * 1e3:.1f}'
-                                           if odom_delays else 'nan')
-        values['odometry_delay_ms_max'] = (f'{max(odom_delays) * 1e3:.1f}'
-                                           if odom_delays else 'nan')
-        for key in ('convert', 'model', 'publish'):
-            arr = [s[key] for s in stats]
-            values[f'{key}_ms_p50'] = f'{np.median(arr) * 1e3:.1f}' if arr else 'nan'
-        processing = [s['convert'] + s['model'] + s['publish'] for s in stats]
-        if processing and period and float(np.median(processing)) > period:
-            levels.append((DiagnosticStatus.WARN,
-                           f'processing {np.median(processing) * 1e3:.0f} ms exceeds the input '
-                           f'period {period * 1e3:.0f} ms: clouds are dropped'))
-        self._latency_values(stats, values)
-        if last is not None:
-            values.update({
-                'points_in': str(last.points_in), 'points_used': str(last.points_used),
-                'points_nonfinite': str(last.points_nonfinite),
-                'has_intensity': str(last.has_intensity),
-                'detections': str(len(last.detections)),
-                'memory_samples': str(last.memory_samples),
-                'memory_bytes': str(last.memory_bytes),
-                'used_memory': str(last.used_memory),
-                'velocity_filter_tracks': ('off' if last.track_ids is None
-                                           else str(last.tracks)),
-                'pose_source': last.pose_source,
-                'pose_age_s': f'{last.pose_age_s:.3f}',
-                'input_warnings': ','.join(last.warnings) or 'none',
-                'last_warning': last.warning or 'none'})
-            # the input-contract warnings of the last WARNING_HOLD_S, not only the last frame's
-            for text in held:
-                levels.append((DiagnosticStatus.WARN, text))
-            if last.single_frame is not None:
-                levels.append((DiagnosticStatus.WARN, f'single-frame: {last.pose_source}'))
-        for key, count in single_reasons:
-            values[f'single_frame.{key}'] = str(count)
-        for key, count in reason_counts:
-            values[f'warnings.{key}'] = str(count)
-        values['last_reset_reason'] = self.pipeline.last_reset_reason
-        values['memory_resets'] = str(self.pipeline.resets)
-        values['odometry_rejected'] = str(self.pipeline.odom_rejected)
+                       'model_precision': self.detector.precision},
+                last_reset_reason=self.pipeline.last_reset_reason,
+                memory_resets=self.pipeline.resets, odometry_rejected=self.pipeline.odom_rejected,
+                input_timeout_s=self.params.input_timeout_s,
+                stale_periods=self.params.stale_periods, rate_window_s=RATE_WINDOW_S)
+        level, message, values = health_report(snap)
         status = DiagnosticStatus(name='suit_ros: detector', hardware_id='suit_ros')
-        status.level = max((lvl for lvl, _ in levels), default=DiagnosticStatus.OK)
-        status.message = '; '.join(text for _, text in levels) or 'running'
+        status.level = (DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[level]
+        status.message = message
         status.values = [KeyValue(key=k, value=v) for k, v in values.items()]
         return status
-
-    @staticmethod
-    def _latency_values(stats: list[dict[str, Any]], values: dict[str, str]) -> None:
-        """Latency p50/p95 of the frames measured like the last one, and against what."""
-        if not stats:
-            values.update(latency_ms_p50='nan', latency_ms_p95='nan', latency_reference='none')
-            return
-        ref = stats[-1]['by_receive']
-        lat = [s['latency'] for s in stats if s['by_receive'] == ref]
-        values['latency_ms_p50'] = f'{np.median(lat) * 1e3:.1f}'
-        values['latency_ms_p95'] = f'{np.percentile(lat, 95) * 1e3:.1f}'
-        values['latency_reference'] = (
-            f'receive time (header stamps {stats[-1]["skew"]:.1f} s from the node clock)'
-            if ref else 'header stamp')
 
     def _diagnostics(self) -> None:
         arr = DiagnosticArray(status=[self.diagnostic_status()])

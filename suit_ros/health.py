@@ -1,0 +1,149 @@
+"""The detector node's health report: diagnostics level, message and values from a snapshot of
+its counters. No rclpy here: the node fills a :class:`HealthSnapshot` and turns the report
+into a ``diagnostic_msgs/DiagnosticStatus``.
+
+Levels: ERROR when no cloud arrived for ``input_timeout_s``; WARN when no cloud arrived yet,
+when none arrived for ``stale_periods`` times the measured input period, when clouds were
+lost before the callback in the last window, when processing (p50) takes longer than the
+input period, on an input-contract warning of the last few seconds, and when the last frame
+ran single-frame; OK (``running``) otherwise.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+OK, WARN, ERROR = 0, 1, 2
+
+
+@dataclass
+class HealthSnapshot:
+    """What the node knows at one instant (monotonic seconds, node counters).
+
+    :param stats: per processed frame ``convert``, ``model``, ``publish`` (s), ``latency``
+        (s), ``by_receive`` (latency from the receive time), ``skew`` (stamp skew, s).
+    :param last: the last frame's :class:`~suit_ros.pipeline.PipelineOutput` (None: none yet).
+    :param held_warnings: the input-contract warnings of the last hold period.
+    """
+
+    now: float
+    started: float
+    arrivals: list[float]
+    stats: list[dict[str, Any]]
+    odom_delays: list[float]
+    reader_delays: list[float]
+    losses: list[float]
+    last: Any
+    held_warnings: list[str]
+    single_reasons: list[tuple[str, int]]
+    reason_counts: list[tuple[str, int]]
+    counters: dict[str, int]
+    facts: dict[str, str]
+    last_reset_reason: str
+    memory_resets: int
+    odometry_rejected: int
+    input_timeout_s: float
+    stale_periods: float
+    rate_window_s: float = 5.0
+
+
+def _ms(values: list[float], how: str) -> str:
+    if not values:
+        return 'nan'
+    v = float(np.median(values)) if how == 'p50' else float(max(values))
+    return f'{v * 1e3:.1f}'
+
+
+def _input(s: HealthSnapshot, levels: list[tuple[int, str]], values: dict[str, str]
+           ) -> float | None:
+    """Input rate, period and staleness; returns the measured period (s) or None."""
+    recent = [t for t in s.arrivals if t >= s.now - s.rate_window_s]
+    window = max(min(s.rate_window_s, s.now - s.started), 1e-3)
+    values['input_rate_hz'] = f'{len(recent) / window:.2f}'
+    period = float(np.median(np.diff(s.arrivals[-20:]))) if len(s.arrivals) >= 3 else None
+    values['input_period_ms'] = f'{period * 1e3:.1f}' if period else 'nan'
+    since = s.now - (s.arrivals[-1] if s.arrivals else s.started)
+    values['seconds_since_last_cloud'] = f'{since:.2f}' if s.arrivals else 'nan'
+    if since > s.input_timeout_s:
+        levels.append((ERROR, f'no point cloud for {since:.1f} s (input_timeout_s '
+                              f'{s.input_timeout_s:g})'))
+    elif not s.arrivals:
+        levels.append((WARN, 'no point cloud received yet'))
+    elif period and since > s.stale_periods * period:
+        levels.append((WARN, f'no point cloud for {since:.2f} s (expected every '
+                             f'{period:.2f} s)'))
+    return period
+
+
+def _timing(s: HealthSnapshot, period: float | None, levels: list[tuple[int, str]],
+            values: dict[str, str]) -> None:
+    """Per-stage times, processing against the period, latency and what it is measured from."""
+    for key in ('convert', 'model', 'publish'):
+        values[f'{key}_ms_p50'] = _ms([st[key] for st in s.stats], 'p50')
+    processing = [st['convert'] + st['model'] + st['publish'] for st in s.stats]
+    if processing and period and float(np.median(processing)) > period:
+        levels.append((WARN, f'processing {np.median(processing) * 1e3:.0f} ms exceeds the '
+                              f'input period {period * 1e3:.0f} ms: clouds are dropped'))
+    if not s.stats:
+        values.update(latency_ms_p50='nan', latency_ms_p95='nan', latency_reference='none')
+        return
+    ref = s.stats[-1]['by_receive']
+    lat = [st['latency'] for st in s.stats if st['by_receive'] == ref]
+    values['latency_ms_p50'] = f'{np.median(lat) * 1e3:.1f}'
+    values['latency_ms_p95'] = f'{np.percentile(lat, 95) * 1e3:.1f}'
+    values['latency_reference'] = (
+        f'receive time (header stamps {s.stats[-1]["skew"]:.1f} s from the node clock)'
+        if ref else 'header stamp')
+
+
+def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
+                values: dict[str, str]) -> None:
+    last = s.last
+    if last is None:
+        return
+    values.update({
+        'points_in': str(last.points_in), 'points_used': str(last.points_used),
+        'points_nonfinite': str(last.points_nonfinite),
+        'has_intensity': str(last.has_intensity), 'detections': str(len(last.detections)),
+        'memory_samples': str(last.memory_samples), 'memory_bytes': str(last.memory_bytes),
+        'used_memory': str(last.used_memory),
+        'velocity_filter_tracks': 'off' if last.track_ids is None else str(last.tracks),
+        'pose_source': last.pose_source, 'pose_age_s': f'{last.pose_age_s:.3f}',
+        'input_warnings': ','.join(last.warnings) or 'none',
+        'last_warning': last.warning or 'none'})
+    levels.extend((WARN, text) for text in s.held_warnings)
+    if last.single_frame is not None:
+        levels.append((WARN, f'single-frame: {last.pose_source}'))
+
+
+def health_report(s: HealthSnapshot) -> tuple[int, str, dict[str, str]]:
+    """``(level, message, values)``: the worst level of every reason, the reasons joined
+    (``running`` when there is none), and the diagnostic values as strings."""
+    levels: list[tuple[int, str]] = []
+    values: dict[str, str] = {}
+    period = _input(s, levels, values)
+    values.update({k: str(v) for k, v in s.counters.items()})
+    values.update(s.facts)
+    if s.losses:
+        levels.append((WARN, f'{s.counters.get("lost_before_callback", 0)} clouds published '
+                             'but never received so far (gaps in the publisher sequence; last '
+                             f'{s.now - s.losses[-1]:.1f} s ago): the network or the reader '
+                             'lost them'))
+    # how long clouds waited in the reader; odometry receive time minus its stamp
+    values['reader_delay_ms_p50'] = _ms(s.reader_delays, 'p50')
+    values['reader_delay_ms_max'] = _ms(s.reader_delays, 'max')
+    values['odometry_delay_ms_p50'] = _ms(s.odom_delays, 'p50')
+    values['odometry_delay_ms_max'] = _ms(s.odom_delays, 'max')
+    _timing(s, period, levels, values)
+    _last_frame(s, levels, values)
+    for key, count in s.single_reasons:
+        values[f'single_frame.{key}'] = str(count)
+    for key, count in s.reason_counts:
+        values[f'warnings.{key}'] = str(count)
+    values['last_reset_reason'] = s.last_reset_reason
+    values['memory_resets'] = str(s.memory_resets)
+    values['odometry_rejected'] = str(s.odometry_rejected)
+    level = max((lvl for lvl, _ in levels), default=OK)
+    return level, '; '.join(text for _, text in levels) or 'running', values

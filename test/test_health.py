@@ -1,0 +1,64 @@
+"""The node's health report (suit_ros.health), rclpy-free: levels, reasons and values."""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from suit_ros.health import ERROR, OK, WARN, HealthSnapshot, health_report
+from suit_ros.pipeline import PipelineOutput
+from suit_ros.structures import Detections
+
+
+def snap(**kw):
+    base = HealthSnapshot(now=100.0, started=90.0, arrivals=[], stats=[], odom_delays=[],
+                          reader_delays=[], losses=[], last=None, held_warnings=[],
+                          single_reasons=[], reason_counts=[], counters={'frames_in': 0},
+                          facts={'model_device': 'cpu'}, last_reset_reason='start',
+                          memory_resets=0, odometry_rejected=0, input_timeout_s=1.0,
+                          stale_periods=3.0)
+    return replace(base, **kw)
+
+
+def frame_stats(n, model=0.05):
+    return [{'convert': 0.005, 'model': model, 'publish': 0.002, 'latency': 0.07,
+             'by_receive': False, 'skew': 0.0} for _ in range(n)]
+
+
+def healthy(**kw):
+    arrivals = list(np.arange(95.0, 100.0, 0.1))
+    last = PipelineOutput(header=None, detections=Detections.empty(), pose_source='odometry',
+                          pose_age_s=0.01)
+    return snap(arrivals=arrivals, stats=frame_stats(20), last=last, **kw)
+
+
+def test_running_when_clouds_flow():
+    level, message, values = health_report(healthy())
+    assert (level, message) == (OK, 'running')
+    assert values['input_rate_hz'] == '10.00' and values['input_period_ms'] == '100.0'
+    assert values['latency_reference'] == 'header stamp' and values['model_device'] == 'cpu'
+
+
+def test_no_input_yet_then_timeout():
+    assert health_report(snap(now=90.5))[:2] == (WARN, 'no point cloud received yet')
+    level, message, _ = health_report(snap())                 # 10 s after the start
+    assert level == ERROR and 'no point cloud for 10.0 s' in message
+    stale = healthy(now=100.35)                               # 0.45 s since the last: > 3 x 0.1
+    assert 'expected every 0.10 s' in health_report(stale)[1]
+
+
+def test_slow_processing_lost_clouds_held_warnings_and_single_frame():
+    level, message, _ = health_report(replace(healthy(), stats=frame_stats(20, model=0.2)))
+    assert level == WARN and 'exceeds the input period' in message
+    lost = replace(healthy(), losses=[99.0], counters={'lost_before_callback': 3})
+    assert 'the network or the reader lost them' in health_report(lost)[1]
+    held = replace(healthy(), held_warnings=['frame_id changed'])
+    assert health_report(held)[:2] == (WARN, 'frame_id changed')
+    single = healthy()
+    single.last.single_frame = 'no_odometry'
+    single.last.pose_source = 'none: no odometry received'
+    assert 'single-frame: none: no odometry' in health_report(single)[1]
+    counts = replace(healthy(), single_reasons=[('no_odometry', 2)],
+                     reason_counts=[('sector_gap', 4)])
+    values = health_report(counts)[2]
+    assert values['single_frame.no_odometry'] == '2' and values['warnings.sector_gap'] == '4'
