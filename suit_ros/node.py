@@ -42,6 +42,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from suit_ros.errors import ConfigError, SuitRosError
+from suit_ros.inbox import CloudMailbox, OdometryGate
 from suit_ros.params import DetectorParams, parameter_descriptions
 
 # seconds between two log lines of the same input-contract reason
@@ -120,24 +121,18 @@ class DetectorNode(Node):
         self.pipeline = DetectionPipeline(self.detector, self.params,
                                           MessageClasses.from_rclpy())
 
-        self._cv = threading.Condition()
-        self._slot: Received | None = None
-        self._odom: collections.deque[Odometry] = collections.deque(maxlen=10_000)
-        self._odom_latest_ns = -1
+        self._cv = threading.Condition()      # requests, counters and the last frame
+        self.mailbox: CloudMailbox[Received] = CloudMailbox()
+        self.odometry: OdometryGate[Odometry] = OdometryGate()
         self._reset_request: str | None = None
         self._pending: DetectorParams | None = None
         self._stop = False
         self._started = time.monotonic()
-        self.frames_in = 0
         self.frames_out = 0
-        self.dropped = 0
         self.frames_single = 0
         self.single_reasons: collections.Counter[str] = collections.Counter()
-        self.odom_waits = 0
         self.reason_counts: collections.Counter[str] = collections.Counter()
         self._reason_logged: dict[str, float] = {}
-        self._arrivals: collections.deque[float] = collections.deque(maxlen=1000)
-        self._odom_delays: collections.deque[float] = collections.deque(maxlen=500)
         self._stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
         self._last: Any = None
         self._recent_warnings: dict[str, tuple[str, float]] = {}   # reason -> (text, when)
@@ -145,12 +140,6 @@ class DetectorNode(Node):
         self._points_topic = self.resolve_topic_name(self.params.points_topic)
         self._points_sub: Subscription | None = None
         self._retiring: list[tuple[float, Subscription]] = []
-        self._recent: collections.deque[tuple[int, int, str]] = collections.deque(maxlen=8)
-        self.duplicates = 0
-        self.lost_in_reader = 0          # clouds published but never taken (sequence gaps)
-        self._last_seq: int | None = None
-        self._reader_delays: collections.deque[float] = collections.deque(maxlen=200)
-        self._losses: collections.deque[float] = collections.deque(maxlen=100)
         self.points_reliability = ReliabilityPolicy.BEST_EFFORT
         self._reliability_fixed = False
         self._reliability_fixed = self._create_points_subscription_first()
@@ -272,56 +261,15 @@ class DetectorNode(Node):
 
     def _on_cloud(self, msg: PointCloud2, info: dict[str, Any] | None) -> None:
         received = Received(msg, self.get_clock().now().nanoseconds, time.monotonic())
+        # the same cloud through a retiring subscription is taken once; sequence gaps count
+        # as losses only while one publisher and one subscription exist
         key = (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id)
-        with self._cv:
-            if key in self._recent:      # the same cloud through a retiring subscription
-                self.duplicates += 1
-                return
-            self._recent.append(key)
-            self._account_sequence(info)
-            self.frames_in += 1
-            self._arrivals.append(received.monotonic)
-            if self._slot is not None:
-                self.dropped += 1
-            self._slot = received
-            self._cv.notify_all()
-
-    def _account_sequence(self, info: dict[str, Any] | None) -> None:
-        """Count the clouds lost before this callback (from the publisher's sequence numbers)
-        and how long this one waited in the reader (middleware receive time to callback).
-
-        Sequence numbers count per publisher, so gaps are only counted while exactly one
-        publisher and one points subscription exist (a retiring subscription delivers out of
-        order); ``None`` where the middleware does not report them.
-        """
-        if not info:
-            return
-        recv = info.get('received_timestamp')
-        if recv:
-            self._reader_delays.append((time.time_ns() - int(recv)) * 1e-9)
-        seq = info.get('publication_sequence_number')
-        if seq is None:
-            return
-        seq = int(seq)
-        last, self._last_seq = self._last_seq, seq
-        if (last is not None and seq > last and not self._retiring
-                and self.count_publishers(self._points_topic) <= 1):
-            self.lost_in_reader += seq - last - 1
-            if seq - last > 1:
-                self._losses.append(time.monotonic())
+        self.mailbox.put(received, key, info, count_gaps=not self._retiring
+                         and self.count_publishers(self._points_topic) <= 1)
 
     def _on_odom(self, msg: Odometry) -> None:
-        stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-        now = self.get_clock().now().nanoseconds
-        delay = (now - stamp) * 1e-9
-        with self._cv:
-            self._odom_delays.append(delay)
-            self._odom.append(msg)
-            # a stamp from the future (refused when drained) must not end the wait of later
-            # clouds
-            if not now or -delay <= self.params.max_stamp_skew_s:
-                self._odom_latest_ns = max(self._odom_latest_ns, stamp)
-            self._cv.notify_all()
+        self.odometry.put(msg, msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec,
+                          self.get_clock().now().nanoseconds, self.params.max_stamp_skew_s)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
@@ -340,17 +288,13 @@ class DetectorNode(Node):
                            os.getpriority(os.PRIO_PROCESS, tid) + WORKER_NICENESS)
         except (AttributeError, OSError):    # not Linux: threads share the process priority
             pass
-        while True:
-            with self._cv:
-                while self._slot is None and not self._stop:
-                    self._cv.wait(0.5)
-                if self._stop:
-                    return
-                received, self._slot = self._slot, None
-                reset, self._reset_request = self._reset_request, None
-                pending, self._pending = self._pending, None
+        while not self._stop:
+            received = self.mailbox.take(0.5)
             if received is None:
                 continue
+            with self._cv:
+                reset, self._reset_request = self._reset_request, None
+                pending, self._pending = self._pending, None
             try:
                 if pending is not None:
                     self.pipeline.configure(pending)
@@ -365,30 +309,18 @@ class DetectorNode(Node):
                 self.get_logger().error(f'frame failed: {type(exc).__name__}: {exc}')
 
     def _wait_for_odometry(self, msg: PointCloud2) -> None:
-        """Wait up to ``odom_wait_s`` for odometry at or after the cloud stamp (as a tf2
-        message filter would); no wait while nobody publishes odometry."""
+        """Wait up to ``odom_wait_s`` for odometry at or after the cloud stamp; no wait while
+        nobody publishes odometry."""
         stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec
-        deadline = time.monotonic() + self.params.odom_wait_s
-        with self._cv:
-            if self._odom_latest_ns >= stamp:
-                return
-        if self.params.odom_wait_s <= 0.0 or (
-                self._odom_latest_ns < 0 and self.count_publishers(self.params.odom_topic) == 0):
-            return                        # no waiting, or nobody publishes odometry
-        with self._cv:
-            self.odom_waits += 1
-            while self._odom_latest_ns < stamp and not self._stop:
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    return
-                self._cv.wait(left)
+        if self.odometry.covers(stamp) or self.params.odom_wait_s <= 0.0 or (
+                self.odometry.latest_ns < 0
+                and self.count_publishers(self.params.odom_topic) == 0):
+            return
+        self.odometry.wait_for(stamp, self.params.odom_wait_s)
 
     def _drain_odometry(self) -> None:
-        with self._cv:
-            batch = list(self._odom)
-            self._odom.clear()
         now = self.get_clock().now().nanoseconds
-        for odom in batch:
+        for odom in self.odometry.drain():
             if not self.pipeline.add_odometry(odom, now):
                 self._warn_reason('odometry_rejected',
                                   f'odometry rejected: {self.pipeline.last_odom_error}')
@@ -454,20 +386,20 @@ class DetectorNode(Node):
         now = time.monotonic()
         with self._cv:
             snap = HealthSnapshot(
-                now=now, started=self._started, arrivals=list(self._arrivals),
-                stats=list(self._stats), odom_delays=list(self._odom_delays),
-                reader_delays=list(self._reader_delays),
-                losses=[t for t in self._losses if t >= now - RATE_WINDOW_S],
+                now=now, started=self._started, arrivals=list(self.mailbox.arrivals),
+                stats=list(self._stats), odom_delays=list(self.odometry.delays),
+                reader_delays=list(self.mailbox.reader_delays),
+                losses=[t for t in self.mailbox.losses if t >= now - RATE_WINDOW_S],
                 last=self._last,
                 held_warnings=[text for text, when in self._recent_warnings.values()
                                if now - when <= WARNING_HOLD_S],
                 single_reasons=sorted(self.single_reasons.items()),
                 reason_counts=sorted(self.reason_counts.items()),
-                counters={'frames_in': self.frames_in, 'frames_out': self.frames_out,
-                          'dropped_frames': self.dropped,
-                          'lost_before_callback': self.lost_in_reader,
+                counters={'frames_in': self.mailbox.frames_in, 'frames_out': self.frames_out,
+                          'dropped_frames': self.mailbox.dropped,
+                          'lost_before_callback': self.mailbox.lost,
                           'frames_single_frame': self.frames_single,
-                          'odometry_waits': self.odom_waits},
+                          'odometry_waits': self.odometry.waits},
                 facts={'points_reliability': self.points_reliability.name.lower(),
                        'model_device': self.detector.device.type,
                        'model_precision': self.detector.precision},
@@ -489,9 +421,9 @@ class DetectorNode(Node):
 
     def destroy_node(self) -> None:
         """Stop the worker, then the node."""
-        with self._cv:
-            self._stop = True
-            self._cv.notify_all()
+        self._stop = True
+        self.mailbox.close()
+        self.odometry.close()
         self._worker.join(timeout=5.0)
         super().destroy_node()
 

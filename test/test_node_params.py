@@ -138,7 +138,7 @@ def test_odom_wait_s_waits_for_covering_odometry(make_node):
     assert node.frames_out == 1                          # still waiting for odometry
     node._on_odom(odom(t + S // 10 + S // 50))
     wait_frames(node, 2)
-    assert node._last.pose_source == 'odometry' and node.odom_waits == 1
+    assert node._last.pose_source == 'odometry' and node.odometry.waits == 1
 
 
 def _publisher(node, reliability):

@@ -1,0 +1,146 @@
+"""What the detector node's callbacks hand to its worker thread, rclpy-free.
+
+- :class:`CloudMailbox`: one slot. A cloud that arrives while the worker is busy replaces the
+  waiting one (counted as dropped: the model always takes the newest, a stale cloud is never
+  queued); the same cloud arriving twice (through a retiring subscription) is taken once; the
+  publisher's sequence numbers tell the clouds lost before the callback.
+- :class:`OdometryGate`: odometry queued by its callback and drained by the worker, and the
+  worker's wait (up to a timeout) for odometry that reaches a cloud's stamp, as a tf2 message
+  filter would. A stamp further ahead of the clock than the skew tolerance does not end a
+  wait (the pipeline refuses that message when it is drained).
+
+Both are thread-safe; :meth:`close` wakes every waiter for shutdown.
+"""
+from __future__ import annotations
+
+import collections
+from collections.abc import Hashable
+import threading
+import time
+from typing import Any, Generic, TypeVar
+
+T = TypeVar('T')
+
+
+class CloudMailbox(Generic[T]):
+    """The newest cloud for the worker, with the counts the diagnostics report."""
+
+    def __init__(self, dedupe: int = 8) -> None:
+        self._cv = threading.Condition()
+        self._slot: T | None = None
+        self._recent: collections.deque[Hashable] = collections.deque(maxlen=dedupe)
+        self._last_seq: int | None = None
+        self.closed = False
+        self.frames_in = 0
+        self.dropped = 0            # replaced in the slot before the worker took them
+        self.duplicates = 0
+        self.lost = 0               # never reached the callback (publisher sequence gaps)
+        self.arrivals: collections.deque[float] = collections.deque(maxlen=1000)
+        self.losses: collections.deque[float] = collections.deque(maxlen=100)
+        self.reader_delays: collections.deque[float] = collections.deque(maxlen=200)
+
+    def put(self, item: T, key: Hashable, info: dict[str, Any] | None = None,
+            count_gaps: bool = True) -> bool:
+        """Offer a cloud; False for a duplicate.
+
+        :param info: the middleware's message info (``publication_sequence_number``,
+            ``received_timestamp`` in ns since the epoch) or None.
+        :param count_gaps: whether sequence gaps mean losses now (only while one publisher and
+            one subscription exist: sequence numbers count per publisher).
+        """
+        now = time.monotonic()
+        with self._cv:
+            if key in self._recent:
+                self.duplicates += 1
+                return False
+            self._recent.append(key)
+            self._account(info, count_gaps, now)
+            self.frames_in += 1
+            self.arrivals.append(now)
+            if self._slot is not None:
+                self.dropped += 1
+            self._slot = item
+            self._cv.notify_all()
+        return True
+
+    def _account(self, info: dict[str, Any] | None, count_gaps: bool, now: float) -> None:
+        if not info:
+            return
+        recv = info.get('received_timestamp')
+        if recv:
+            self.reader_delays.append((time.time_ns() - int(recv)) * 1e-9)
+        seq = info.get('publication_sequence_number')
+        if seq is None:
+            return
+        last, self._last_seq = self._last_seq, int(seq)
+        if count_gaps and last is not None and int(seq) > last + 1:
+            self.lost += int(seq) - last - 1
+            self.losses.append(now)
+
+    def take(self, timeout: float = 0.5) -> T | None:
+        """The waiting cloud (emptying the slot), or None after ``timeout`` s or on close."""
+        with self._cv:
+            if self._slot is None and not self.closed:
+                self._cv.wait(timeout)
+            item, self._slot = self._slot, None
+            return None if self.closed else item
+
+    def close(self) -> None:
+        """Wake the worker for shutdown; later takes return None."""
+        with self._cv:
+            self.closed = True
+            self._cv.notify_all()
+
+
+class OdometryGate(Generic[T]):
+    """Odometry between its callback and the worker."""
+
+    def __init__(self, capacity: int = 10_000) -> None:
+        self._cv = threading.Condition()
+        self._queue: collections.deque[T] = collections.deque(maxlen=capacity)
+        self.latest_ns = -1         # newest usable stamp (not from beyond the clock)
+        self.waits = 0
+        self.delays: collections.deque[float] = collections.deque(maxlen=500)
+        self.closed = False
+
+    def put(self, msg: T, stamp_ns: int, now_ns: int, max_ahead_s: float) -> None:
+        """Queue a message; ``now_ns`` 0 (a simulated clock not started) checks nothing."""
+        delay = (now_ns - stamp_ns) * 1e-9
+        with self._cv:
+            self.delays.append(delay)
+            self._queue.append(msg)
+            if not now_ns or -delay <= max_ahead_s:
+                self.latest_ns = max(self.latest_ns, stamp_ns)
+            self._cv.notify_all()
+
+    def drain(self) -> list[T]:
+        """Every queued message, oldest first."""
+        with self._cv:
+            batch = list(self._queue)
+            self._queue.clear()
+        return batch
+
+    def covers(self, stamp_ns: int) -> bool:
+        """Whether odometry reached ``stamp_ns``."""
+        with self._cv:
+            return self.latest_ns >= stamp_ns
+
+    def wait_for(self, stamp_ns: int, timeout: float) -> bool:
+        """Wait up to ``timeout`` s for odometry that reaches ``stamp_ns``; True if it did."""
+        deadline = time.monotonic() + timeout
+        with self._cv:
+            if self.latest_ns >= stamp_ns:
+                return True
+            self.waits += 1
+            while self.latest_ns < stamp_ns and not self.closed:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    return False
+                self._cv.wait(left)
+            return self.latest_ns >= stamp_ns
+
+    def close(self) -> None:
+        """Wake a waiting worker for shutdown."""
+        with self._cv:
+            self.closed = True
+            self._cv.notify_all()

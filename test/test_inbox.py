@@ -1,0 +1,68 @@
+"""The node's mailbox and odometry gate (suit_ros.inbox), rclpy-free, with real threads."""
+from __future__ import annotations
+
+import threading
+import time
+
+from suit_ros.inbox import CloudMailbox, OdometryGate
+
+S = 10**9
+
+
+def test_the_newest_cloud_wins_and_replaced_ones_are_dropped():
+    box: CloudMailbox[str] = CloudMailbox()
+    for k in range(5):
+        assert box.put(f'c{k}', k, {'publication_sequence_number': k + 1})
+    assert box.take(0.01) == 'c4'
+    assert (box.frames_in, box.dropped, box.lost) == (5, 4, 0)
+    assert box.take(0.01) is None                          # empty: waits, then None
+    assert not box.put('again', 4) and box.duplicates == 1  # the same cloud twice
+
+
+def test_sequence_gaps_count_as_lost_only_when_asked():
+    box: CloudMailbox[int] = CloudMailbox()
+    box.put(1, 'a', {'publication_sequence_number': 1})
+    box.put(2, 'b', {'publication_sequence_number': 5})
+    assert box.lost == 3 and len(box.losses) == 1
+    box.put(3, 'c', {'publication_sequence_number': 9}, count_gaps=False)
+    assert box.lost == 3
+    box.put(4, 'd', {'publication_sequence_number': 10,
+                     'received_timestamp': time.time_ns() - 20_000_000})
+    assert box.lost == 3 and 0.015 < box.reader_delays[-1] < 1.0
+
+
+def test_a_waiting_worker_is_woken_by_a_cloud_and_by_close():
+    box: CloudMailbox[str] = CloudMailbox()
+    got: list[object] = []
+    worker = threading.Thread(target=lambda: got.append(box.take(5.0)))
+    worker.start()
+    time.sleep(0.05)
+    box.put('cloud', 1)
+    worker.join(2.0)
+    assert got == ['cloud']
+    worker = threading.Thread(target=lambda: got.append(box.take(5.0)))
+    worker.start()
+    t0 = time.monotonic()
+    box.close()
+    worker.join(2.0)
+    assert got[-1] is None and time.monotonic() - t0 < 1.0
+
+
+def test_odometry_gate_waits_for_the_stamp_and_ignores_the_future():
+    gate: OdometryGate[str] = OdometryGate()
+    now = 100 * S
+    gate.put('a', now - S // 10, now, 1.0)
+    assert gate.covers(now - S // 10) and not gate.covers(now)
+    gate.put('future', now + 10 * S, now, 1.0)             # queued, but ends no wait
+    assert gate.latest_ns == now - S // 10
+    t0 = time.monotonic()
+    assert not gate.wait_for(now, 0.1) and 0.09 < time.monotonic() - t0 < 1.0
+    threading.Timer(0.05, lambda: gate.put('b', now + S // 100, now, 1.0)).start()
+    assert gate.wait_for(now, 2.0)
+    assert gate.drain() == ['a', 'future', 'b'] and gate.drain() == []
+    assert gate.waits == 2
+    sim: OdometryGate[str] = OdometryGate()
+    sim.put('sim', 500 * S, 0, 1.0)                         # no clock yet: not checked
+    assert sim.latest_ns == 500 * S
+    gate.close()
+    assert not gate.wait_for(10**12, 5.0)
