@@ -147,3 +147,49 @@ def health_report(s: HealthSnapshot) -> tuple[int, str, dict[str, str]]:
     values['odometry_rejected'] = str(s.odometry_rejected)
     level = max((lvl for lvl, _ in levels), default=OK)
     return level, '; '.join(text for _, text in levels) or 'running', values
+
+
+class Reasons:
+    """Input-contract and odometry reasons: counted, held for the diagnostics a while after
+    their last frame (so a once-a-second report shows a one-frame event), and logged the first
+    time and then at most every ``log_period_s`` per reason. Thread-safe.
+
+    :param log: called with the line to log (``"<text> [<reason>: <n> so far]"``).
+    """
+
+    def __init__(self, log: Any, hold_s: float = 5.0, log_period_s: float = 30.0) -> None:
+        import collections
+        import threading
+        self._lock = threading.Lock()
+        self._log = log
+        self.hold_s = hold_s
+        self.log_period_s = log_period_s
+        self.counts: collections.Counter[str] = collections.Counter()
+        self._logged: dict[str, float] = {}
+        self._seen: dict[str, tuple[str, float]] = {}
+
+    def report(self, reasons: dict[str, str], when: float, hold: bool = True) -> None:
+        """Count, hold (unless ``hold`` is False) and log ``reason -> text`` seen at ``when``
+        (monotonic seconds)."""
+        lines = []
+        with self._lock:
+            for key, text in reasons.items():
+                self.counts[key] += 1
+                if hold:
+                    self._seen[key] = (text, when)
+                last = self._logged.get(key)
+                if last is None or when - last >= self.log_period_s:
+                    self._logged[key] = when
+                    lines.append(f'{text} [{key}: {self.counts[key]} so far]')
+        for line in lines:
+            self._log(line)
+
+    def held(self, now: float) -> list[str]:
+        """The texts of the reasons seen within ``hold_s`` before ``now``."""
+        with self._lock:
+            return [text for text, when in self._seen.values() if now - when <= self.hold_s]
+
+    def sorted_counts(self) -> list[tuple[str, int]]:
+        """``(reason, count)`` pairs, sorted."""
+        with self._lock:
+            return sorted(self.counts.items())

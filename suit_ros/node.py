@@ -42,6 +42,7 @@ from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
 
 from suit_ros.errors import ConfigError, SuitRosError
+from suit_ros.health import Reasons
 from suit_ros.inbox import CloudMailbox, OdometryGate
 from suit_ros.params import DetectorParams, parameter_descriptions
 
@@ -131,11 +132,10 @@ class DetectorNode(Node):
         self.frames_out = 0
         self.frames_single = 0
         self.single_reasons: collections.Counter[str] = collections.Counter()
-        self.reason_counts: collections.Counter[str] = collections.Counter()
-        self._reason_logged: dict[str, float] = {}
+        self.reasons = Reasons(lambda line: self.get_logger().warn(line), WARNING_HOLD_S,
+                               REASON_LOG_PERIOD_S)
         self._stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
         self._last: Any = None
-        self._recent_warnings: dict[str, tuple[str, float]] = {}   # reason -> (text, when)
 
         self._points_topic = self.resolve_topic_name(self.params.points_topic)
         self._points_sub: Subscription | None = None
@@ -322,8 +322,9 @@ class DetectorNode(Node):
         now = self.get_clock().now().nanoseconds
         for odom in self.odometry.drain():
             if not self.pipeline.add_odometry(odom, now):
-                self._warn_reason('odometry_rejected',
-                                  f'odometry rejected: {self.pipeline.last_odom_error}')
+                self.reasons.report({'odometry_rejected': 'odometry rejected: '
+                                     f'{self.pipeline.last_odom_error}'}, time.monotonic(),
+                                    hold=False)
 
     def _process(self, received: Received) -> None:
         msg = received.msg
@@ -351,32 +352,9 @@ class DetectorNode(Node):
             self._stats.append(stats)
             self._last = out
             # counted with the frame, so a diagnostic never shows a frame without its reasons
-            counts = [self._count_reason(key) for key in out.warnings]
-            for key, text in out.warnings.items():
-                self._recent_warnings[key] = (text, received.monotonic)
+            self.reasons.report(out.warnings, received.monotonic)
         if out.reset_reason:
             self.get_logger().info(f'memory reset: {out.reset_reason}')
-        for (key, text), count in zip(out.warnings.items(), counts):
-            self._log_reason(key, text, count)
-
-    def _count_reason(self, key: str) -> int:
-        """Count a reason (call with ``self._cv`` held); :return: its count so far."""
-        self.reason_counts[key] += 1
-        return self.reason_counts[key]
-
-    def _warn_reason(self, key: str, text: str) -> None:
-        """Count a reason and log it (see :meth:`_log_reason`)."""
-        with self._cv:
-            count = self._count_reason(key)
-        self._log_reason(key, text, count)
-
-    def _log_reason(self, key: str, text: str, count: int) -> None:
-        """Log a reason the first time and then at most every 30 s (per reason)."""
-        now = time.monotonic()
-        last = self._reason_logged.get(key)
-        if last is None or now - last >= REASON_LOG_PERIOD_S:
-            self._reason_logged[key] = now
-            self.get_logger().warn(f'{text} [{key}: {count} so far]')
 
     # ------------------------------------------------------------------ diagnostics
     def diagnostic_status(self) -> DiagnosticStatus:
@@ -391,10 +369,9 @@ class DetectorNode(Node):
                 reader_delays=list(self.mailbox.reader_delays),
                 losses=[t for t in self.mailbox.losses if t >= now - RATE_WINDOW_S],
                 last=self._last,
-                held_warnings=[text for text, when in self._recent_warnings.values()
-                               if now - when <= WARNING_HOLD_S],
+                held_warnings=self.reasons.held(now),
                 single_reasons=sorted(self.single_reasons.items()),
-                reason_counts=sorted(self.reason_counts.items()),
+                reason_counts=self.reasons.sorted_counts(),
                 counters={'frames_in': self.mailbox.frames_in, 'frames_out': self.frames_out,
                           'dropped_frames': self.mailbox.dropped,
                           'lost_before_callback': self.mailbox.lost,

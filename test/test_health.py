@@ -62,3 +62,18 @@ def test_slow_processing_lost_clouds_held_warnings_and_single_frame():
                      reason_counts=[('sector_gap', 4)])
     values = health_report(counts)[2]
     assert values['single_frame.no_odometry'] == '2' and values['warnings.sector_gap'] == '4'
+
+
+def test_reasons_are_counted_held_and_logged_sparingly():
+    from suit_ros.health import Reasons
+    lines: list[str] = []
+    r = Reasons(lines.append, hold_s=5.0, log_period_s=30.0)
+    r.report({'frame_changed': 'frame_id changed'}, 100.0)
+    r.report({'frame_changed': 'frame_id changed'}, 101.0)
+    r.report({'odometry_rejected': 'odometry rejected'}, 101.0, hold=False)
+    assert lines == ['frame_id changed [frame_changed: 1 so far]',
+                     'odometry rejected [odometry_rejected: 1 so far]']
+    assert r.held(105.5) == ['frame_id changed'] and r.held(106.5) == []
+    r.report({'frame_changed': 'frame_id changed'}, 131.0)          # 30 s on: logged again
+    assert lines[-1] == 'frame_id changed [frame_changed: 3 so far]'
+    assert r.sorted_counts() == [('frame_changed', 3), ('odometry_rejected', 1)]
