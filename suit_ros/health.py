@@ -189,6 +189,11 @@ class Reasons:
         with self._lock:
             return [text for text, when in self._seen.values() if now - when <= self.hold_s]
 
+    def logged(self) -> set[str]:
+        """The reasons logged so far."""
+        with self._lock:
+            return set(self._logged)
+
     def sorted_counts(self) -> list[tuple[str, int]]:
         """``(reason, count)`` pairs, sorted."""
         with self._lock:

@@ -229,7 +229,7 @@ def test_each_input_contract_case_raises_its_diagnostic(make_node):
     node._on_cloud(no_i2, None)
     wait_frames(node, len(cases) + 2)       # one cloud at a time: none replaced in the slot
     assert diag(node)[2]['warnings.no_intensity'] == '2'
-    assert set(node._reason_logged) == {r for r, _, _ in cases}   # one log line per reason
+    assert node.reasons.logged() == {r for r, _, _ in cases}     # one log line per reason
 
 
 def test_intensity_as_reflectance_raises_its_diagnostic(make_node):
