@@ -73,6 +73,8 @@ def test_train_config_strict(tmp_path):
     with pytest.raises(ConfigError, match='stepz'):
         load_train_config(tmp_path / 'bad.yaml')
     assert load_train_config(REPO / 'params/train_single.yaml').temporal == 'none'
+    street = load_train_config(REPO / 'docs/experiments/street/configs/train_suit_street.yaml')
+    assert (street.preset, street.tilt_deg, street.point_dropout) == ('train-street', 1.5, 0.3)
     (tmp_path / 'neg.yaml').write_text('train_first_sequence: -1\n')
     with pytest.raises(ConfigError, match='train_first_sequence'):
         load_train_config(tmp_path / 'neg.yaml')
