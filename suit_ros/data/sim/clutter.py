@@ -358,24 +358,35 @@ def _street_objects(b: _Builder, seg: _Segment, kerb: float, road: float, densit
             ax, ay, _ = _place(seg, pos, near_kerb - 1.5)
             b.part([ax, ay, hgt - 0.2, 0.12, 3.0, 0.12, yaw], 0.5)
         elif kind < 0.93:                                 # facade columns / pilasters
-            for k in range(int(rng.integers(2, 6))):
-                x, y, yaw = _place(seg, pos + 3.5 * k, kerb + 0.9)
-                w = rng.uniform(0.35, 0.8)
-                hgt = rng.uniform(2.5, 6.0)
-                b.single('column', [x, y, hgt / 2, w, rng.uniform(0.3, 0.6), hgt, yaw],
-                         rng.uniform(0.2, 0.6))
-            pos += 14.0
+            pos += _columns(b, seg, pos, kerb, rng)
         else:                                             # bus shelter: posts, roof, glass
-            x, y, yaw = _place(seg, pos + 2.0, kerb - 0.8)
-            b.open('shelter', [x, y, 1.25, 4.0, 1.5, 2.5, yaw])
-            for end in (-1.9, 1.9):
-                px, py, _ = _place(seg, pos + 2.0 + end, kerb - 0.8)
-                b.part([px, py, 1.15, 0.1, 0.1, 2.3, yaw], 0.5)
-            b.part([x, y, 2.4, 4.0, 1.5, 0.1, yaw], 0.5)
-            gx, gy, _ = _place(seg, pos + 2.0, kerb - 0.1)
-            b.part([gx, gy, 1.2, 3.8, 0.05, 1.8, yaw], 0.3, 0.4, 0.6)
-            pos += 4.0
+            pos += _shelter(b, seg, pos, kerb)
         pos += rng.uniform(2.0, 14.0) / density
+
+
+def _columns(b: _Builder, seg: _Segment, pos: float, kerb: float,
+             rng: np.random.Generator) -> float:
+    """2-5 columns against the building line; :return: the length used."""
+    for k in range(int(rng.integers(2, 6))):
+        x, y, yaw = _place(seg, pos + 3.5 * k, kerb + 0.9)
+        w = rng.uniform(0.35, 0.8)
+        hgt = rng.uniform(2.5, 6.0)
+        b.single('column', [x, y, hgt / 2, w, rng.uniform(0.3, 0.6), hgt, yaw],
+                 rng.uniform(0.2, 0.6))
+    return 14.0
+
+
+def _shelter(b: _Builder, seg: _Segment, pos: float, kerb: float) -> float:
+    """A bus shelter: two posts, a roof and a glass back wall; :return: the length used."""
+    x, y, yaw = _place(seg, pos + 2.0, kerb - 0.8)
+    b.open('shelter', [x, y, 1.25, 4.0, 1.5, 2.5, yaw])
+    for end in (-1.9, 1.9):
+        px, py, _ = _place(seg, pos + 2.0 + end, kerb - 0.8)
+        b.part([px, py, 1.15, 0.1, 0.1, 2.3, yaw], 0.5)
+    b.part([x, y, 2.4, 4.0, 1.5, 0.1, yaw], 0.5)
+    gx, gy, _ = _place(seg, pos + 2.0, kerb - 0.1)
+    b.part([gx, gy, 1.2, 3.8, 0.05, 1.8, yaw], 0.3, 0.4, 0.6)
+    return 4.0
 
 
 # ------------------------------------------------------------------ false positives on clutter
