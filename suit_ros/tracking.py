@@ -210,19 +210,7 @@ class VelocityFilter:
         Rm[:, 1, 1] = var_v
         hit = match >= 0
         if hit.any():
-            t = match[hit]
-            P = self.P[t]                                                  # (H, 2, 2)
-            S = P + Rm[hit]                                                # measurement: H = I
-            det_S = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
-            S_inv = np.stack([np.stack([S[:, 1, 1], -S[:, 0, 1]], -1),
-                              np.stack([-S[:, 1, 0], S[:, 0, 0]], -1)], -2) / det_S[:, None, None]
-            K = P @ S_inv                                                  # (H, 2, 2)
-            for axis in range(2):                                          # x then y
-                cols = np.array([axis, axis + 2])
-                state = self.x[t][:, cols]
-                meas = np.stack([centres[hit, axis], vel[hit, axis]], -1)
-                self.x[np.ix_(t, cols)] = state + np.einsum('nij,nj->ni', K, meas - state)
-            self.P[t] = P - K @ P
+            self._correct(match[hit], centres[hit], vel[hit], Rm[hit])
         scores = det.scores.astype(np.float64)
         if hit.any():
             t = match[hit]
@@ -258,6 +246,23 @@ class VelocityFilter:
         self.labels, self.ids, self.misses = self.labels[keep], self.ids[keep], self.misses[keep]
         self.score = self.score[keep]
         return Detections(boxes, out_vel, scores, det.labels), ids
+
+    def _correct(self, t: NDArray[np.int64], centres: NDArray[np.float64],
+                 vel: NDArray[np.float64], Rm: NDArray[np.float64]) -> None:
+        """The Kalman update of tracks ``t`` with their detections' centres and velocities
+        (measurement noise ``Rm`` per axis; the axes share one 2 x 2 covariance)."""
+        P = self.P[t]                                                      # (H, 2, 2)
+        S = P + Rm                                                         # measurement: H = I
+        det_S = S[:, 0, 0] * S[:, 1, 1] - S[:, 0, 1] * S[:, 1, 0]
+        S_inv = np.stack([np.stack([S[:, 1, 1], -S[:, 0, 1]], -1),
+                          np.stack([-S[:, 1, 0], S[:, 0, 0]], -1)], -2) / det_S[:, None, None]
+        K = P @ S_inv                                                      # (H, 2, 2)
+        for axis in range(2):                                              # x then y
+            cols = np.array([axis, axis + 2])
+            state = self.x[t][:, cols]
+            meas = np.stack([centres[:, axis], vel[:, axis]], -1)
+            self.x[np.ix_(t, cols)] = state + np.einsum('nij,nj->ni', K, meas - state)
+        self.P[t] = P - K @ P
 
     def _settle_headings(self, det: Detections, rows: NDArray[np.int64],
                          vel: NDArray[np.float64]) -> NDArray[np.floating[Any]]:
