@@ -124,42 +124,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
-          resume: bool = False) -> dict[str, Any]:
-    """Run one training stage; return the final metrics."""
-    import torch
-    from tqdm import tqdm  # type: ignore[import-untyped]
-
-    from suit_ros.checkpoint import load_weights_into, save_checkpoint
-    from suit_ros.config import load_model_config
-    from suit_ros.data import augment
-    from suit_ros.data.sequences import ClipSampler, synthetic_split
-    from suit_ros.model.detector import SUITDetector
-
-    rank, world = _dist_info()
-    if world > 1:
-        import torch.distributed as dist
-        dist.init_process_group('nccl' if device == 'cuda' else 'gloo')
-    if threads:
-        torch.set_num_threads(threads)
-    dev = torch.device('cuda' if device == 'cuda' or (device == 'auto'
-                                                     and torch.cuda.is_available()) else 'cpu')
-    if dev.type == 'cuda' and world > 1:
-        dev = torch.device('cuda', rank % torch.cuda.device_count())
-    torch.manual_seed(tc.seed + rank)
-    mcfg = load_model_config(tc.model_config)
-    if tc.temporal:
-        mcfg = replace(mcfg, temporal=tc.temporal)
-    model = SUITDetector(mcfg).to(dev)
-    if tc.init_from:
-        fresh = load_weights_into(model, tc.init_from)
-        if rank == 0:
-            print(f'[train] initialised from {tc.init_from}; new: {len(fresh)} tensors')
-    module = model
-    if world > 1:
-        from torch.nn.parallel import DistributedDataParallel
-        model = DistributedDataParallel(model, find_unused_parameters=True)  # type: ignore
-    out.mkdir(parents=True, exist_ok=True)
+def training_sequences(tc: TrainConfig, class_names: tuple[str, ...]) -> Any:
+    """The training data a config names (sequences of sensor frames; KITTI and Argoverse 2 are
+    read lazily, a real split does not fit in memory)."""
+    from suit_ros.data.sequences import synthetic_split
+    data: Any
     if tc.dataset == 'synthetic':
         data = synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir,
                                preset_name=tc.preset or None,
@@ -178,45 +147,198 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         if not tc.dataset_paths:
             raise ConfigError('dataset kitti needs dataset_paths: [ROOT]')
         # read lazily (a KITTI split does not fit in memory); ClipSampler takes any Sequence
-        data = kitti_sequences(  # type: ignore[assignment]
+        data = kitti_sequences(
             tc.dataset_paths[0], fov_points_only=True)
     elif tc.dataset == 'av2':
         from suit_ros.data.av2 import av2_sequences
         if not tc.dataset_paths:
             raise ConfigError('dataset av2 needs dataset_paths: [ROOT]')
-        data = av2_sequences(  # type: ignore[assignment]   # lazy; ClipSampler takes any Sequence
-            tc.dataset_paths[0], mcfg.class_names)
+        data = av2_sequences(
+            tc.dataset_paths[0], class_names)
     else:
         raise ConfigError('dataset must be synthetic, bags, nuscenes, kitti or av2, not '
                           f'{tc.dataset!r}')
-    lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
-    batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
-    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps)
-    aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
+    return data
+
+
+class _LossLog:
+    """``log.csv``: one row per step (appended on resume)."""
+
+    def __init__(self, path: Path) -> None:
+        self.file = open(path, 'a', newline='', encoding='utf-8')
+        self.writer = csv.writer(self.file)
+        if path.stat().st_size == 0:
+            self.writer.writerow(['step', 'time_s', 'lr', 'loss', 'hm_loss', 'loc_loss',
+                                  'geo_loss'])
+
+    def row(self, step: int, time_s: float, lr: float, vals: dict[str, float]) -> None:
+        """Log one step."""
+        self.writer.writerow([step, round(time_s, 2), lr, vals['loss'], vals['hm_loss'],
+                              vals['loc_loss'], vals['geo_loss']])
+
+    def flush(self) -> None:
+        """Write what is buffered."""
+        self.file.flush()
+
+    def close(self) -> None:
+        """Close the file."""
+        self.file.close()
+
+
+def _schedule(opt: Any, progress: float, max_lr: float) -> float:
+    """Set the one-cycle learning rate and momentum for ``progress``; :return: the lr."""
+    lr, beta1 = one_cycle(progress, max_lr)
+    for group in opt.param_groups:
+        group['lr'] = lr * group['lr_scale']
+        group['betas'] = (beta1, group['betas'][1])
+    return lr
+
+
+def _device(device: str, threads: int, rank: int, world: int) -> Any:
+    """The torch device of this process (joining the process group when distributed)."""
+    import torch
+    if world > 1:
+        import torch.distributed as dist
+        dist.init_process_group('nccl' if device == 'cuda' else 'gloo')
+    if threads:
+        torch.set_num_threads(threads)
+    dev = torch.device('cuda' if device == 'cuda' or (device == 'auto'
+                                                     and torch.cuda.is_available()) else 'cpu')
+    if dev.type == 'cuda' and world > 1:
+        dev = torch.device('cuda', rank % torch.cuda.device_count())
+    return dev
+
+
+def _optimizer(module: Any, tc: TrainConfig) -> Any:
+    """AdamW with the temporal modules (fusion, GeoNet) in their own group at
+    ``temporal_lr_scale`` x the learning rate."""
+    import torch
     temporal = [p for n, p in module.named_parameters() if n.startswith(('fusion.', 'geonet.'))]
     ids = {id(p) for p in temporal}
     groups = [{'params': [p for p in module.parameters() if id(p) not in ids], 'lr_scale': 1.0}]
     if temporal:
         groups.append({'params': temporal, 'lr_scale': tc.temporal_lr_scale})
-    opt = torch.optim.AdamW(groups, lr=tc.lr, weight_decay=tc.weight_decay, betas=(0.95, 0.99))
+    return torch.optim.AdamW(groups, lr=tc.lr, weight_decay=tc.weight_decay, betas=(0.95, 0.99))
+
+
+def _draw(tc: TrainConfig, rng: np.random.Generator) -> Any:
+    """One clip's augmentation as the config asks."""
+    from suit_ros.data import augment
+    return augment.draw(rng, flip_probability=tc.flip_probability,
+                        intensity_dropout=tc.intensity_dropout, tilt_deg=tc.tilt_deg,
+                        lift_m=tc.lift_m, point_dropout=tc.point_dropout)
+
+
+def _optimise(model: Any, module: Any, opt: Any, clips: Any, grad_clip: float
+              ) -> dict[str, float]:
+    """One optimisation step; :return: the losses."""
+    import torch
+    losses = model(clips)
+    opt.zero_grad(set_to_none=True)
+    losses['loss'].backward()
+    torch.nn.utils.clip_grad_norm_(module.parameters(), grad_clip)
+    opt.step()
+    return {k: float(v.detach()) for k, v in losses.items()}
+
+
+def _resume(last: Path, module: Any, opt: Any) -> tuple[int, float]:
+    """Load a run's ``last.pt`` (weights only, no pickled code); :return: its step and the
+    wall time it had used."""
+    import torch
+    state = torch.load(last, map_location='cpu', weights_only=True)
+    module.load_state_dict(state['model'])
+    opt.load_state_dict(state['optimizer'])
+    torch.set_rng_state(state['torch_rng'])
+    step = int(state['step'])
+    print(f'[train] resumed from {last} at step {step}')
+    return step, float(state.get('elapsed_s', 0.0))
+
+
+def _snapshot(out: Path, module: Any, opt: Any, mcfg: Any, step: int, elapsed_s: float
+              ) -> None:
+    """``last.pt`` (to resume) and ``snapshot.safetensors`` (to evaluate mid-run)."""
+    import torch
+
+    from suit_ros.checkpoint import save_checkpoint
+    torch.save({'model': module.state_dict(), 'optimizer': opt.state_dict(), 'step': step,
+                'elapsed_s': elapsed_s, 'torch_rng': torch.get_rng_state()}, out / 'last.pt')
+    save_checkpoint(out / 'snapshot.safetensors', module, mcfg, {'steps': step},
+                    {'snapshot': True})
+
+
+def _finish(tc: TrainConfig, out: Path, module: Any, mcfg: Any, dev: Any, step: int,
+            elapsed: float, rank: int, world: int) -> dict[str, Any]:
+    """The run's metrics; rank 0 writes the model (and evaluates it when asked)."""
+    if tc.max_minutes and step < tc.steps:
+        print(f'[train] time budget reached at step {step}')
+    metrics: dict[str, Any] = {'steps': step, 'train_minutes': round(elapsed / 60, 2),
+                               'device': str(dev), 'world_size': world}
+    if rank == 0:
+        _write_model(tc, out, module, mcfg, metrics, dev)
+        print(f'[train] wrote {out / "model.safetensors"} ({elapsed / 60:.1f} min)')
+    return metrics
+
+
+def _write_model(tc: TrainConfig, out: Path, module: Any, mcfg: Any, metrics: dict[str, Any],
+                 dev: Any) -> None:
+    """``model.safetensors``, before the end-of-run evaluation too (a failing evaluation
+    cannot lose the model), then with its figures."""
+    from suit_ros.checkpoint import save_checkpoint
+    from suit_ros.data.sequences import synthetic_split
+    extra = {'train_config': {k: (list(v) if isinstance(v, tuple) else v)
+                              for k, v in tc.__dict__.items()}}
+    save_checkpoint(out / 'model.safetensors', module, mcfg, metrics, extra)
+    if tc.eval_at_end:
+        from suit_ros.evaluate import evaluate_model
+        val = synthetic_split('val', tc.val_sequences, tc.val_frames, tc.cache_dir)
+        result = evaluate_model(module, val, dev)
+        metrics.update(result.summary())
+        print(result.table())
+        save_checkpoint(out / 'model.safetensors', module, mcfg, metrics, extra)
+
+
+def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
+          resume: bool = False) -> dict[str, Any]:
+    """Run one training stage; return the final metrics."""
+    import torch
+    from tqdm import tqdm  # type: ignore[import-untyped]
+
+    from suit_ros.checkpoint import load_weights_into
+    from suit_ros.config import load_model_config
+    from suit_ros.data import augment
+    from suit_ros.data.sequences import ClipSampler
+    from suit_ros.model.detector import SUITDetector
+
+    rank, world = _dist_info()
+    dev = _device(device, threads, rank, world)
+    torch.manual_seed(tc.seed + rank)
+    mcfg = load_model_config(tc.model_config)
+    if tc.temporal:
+        mcfg = replace(mcfg, temporal=tc.temporal)
+    module = SUITDetector(mcfg).to(dev)
+    if tc.init_from:
+        fresh = load_weights_into(module, tc.init_from)
+        if rank == 0:
+            print(f'[train] initialised from {tc.init_from}; new: {len(fresh)} tensors')
+    model: Any = module
+    if world > 1:
+        from torch.nn.parallel import DistributedDataParallel
+        model = DistributedDataParallel(module, find_unused_parameters=True)
+    out.mkdir(parents=True, exist_ok=True)
+    data = training_sequences(tc, mcfg.class_names)
+    lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
+    batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
+    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps)
+    aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
+    opt = _optimizer(module, tc)
     step = 0
     done_s = 0.0                     # wall time of earlier runs of a resumed training
     last = out / 'last.pt'
     if resume and last.is_file():
-        state = torch.load(last, map_location='cpu', weights_only=True)
-        module.load_state_dict(state['model'])
-        opt.load_state_dict(state['optimizer'])
-        step = int(state['step'])
-        done_s = float(state.get('elapsed_s', 0.0))
-        torch.set_rng_state(state['torch_rng'])
+        step, done_s = _resume(last, module, opt)
         sampler.rng = np.random.default_rng([tc.seed, step, rank])
         aug_rng = np.random.default_rng([tc.seed, step, rank, 1])
-        print(f'[train] resumed from {last} at step {step}')
-    log_path = out / 'log.csv'
-    log_file = open(log_path, 'a', newline='', encoding='utf-8') if rank == 0 else None
-    writer = csv.writer(log_file) if log_file else None
-    if writer and log_path.stat().st_size == 0:
-        writer.writerow(['step', 'time_s', 'lr', 'loss', 'hm_loss', 'loc_loss', 'geo_loss'])
+    log = _LossLog(out / 'log.csv') if rank == 0 else None
     start = time.monotonic() - done_s
 
     def progress() -> float:
@@ -227,64 +349,29 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
                desc=f'train[{mcfg.temporal}]')
     model.train()
     while True:                      # at least one step per call, then until the budget is spent
-        lr, beta1 = one_cycle(progress(), tc.lr)
-        for group in opt.param_groups:
-            group['lr'] = lr * group['lr_scale']
-            group['betas'] = (beta1, group['betas'][1])
+        lr = _schedule(opt, progress(), tc.lr)
         clips = sampler.batch(batch)
         if tc.augment:
-            clips = [augment.apply_clip(c, augment.draw(
-                aug_rng, flip_probability=tc.flip_probability,
-                intensity_dropout=tc.intensity_dropout, tilt_deg=tc.tilt_deg,
-                lift_m=tc.lift_m, point_dropout=tc.point_dropout)) for c in clips]
-        losses = model(clips)
-        opt.zero_grad(set_to_none=True)
-        losses['loss'].backward()
-        torch.nn.utils.clip_grad_norm_(module.parameters(), tc.grad_clip)
-        opt.step()
+            clips = [augment.apply_clip(c, _draw(tc, aug_rng)) for c in clips]
+        vals = _optimise(model, module, opt, clips, tc.grad_clip)
         step += 1
-        vals = {k: float(v.detach()) for k, v in losses.items()}
         if not math.isfinite(vals['loss']):
             raise RuntimeError(f'loss became {vals["loss"]} at step {step}; lower the lr')
-        if writer:
-            writer.writerow([step, round(time.monotonic() - start, 2), lr,
-                             vals['loss'], vals['hm_loss'], vals['loc_loss'], vals['geo_loss']])
-        bar.set_postfix(loss=f'{vals["loss"]:.3f}', hm=f'{vals["hm_loss"]:.3f}',
-                        loc=f'{vals["loc_loss"]:.3f}', geo=f'{vals["geo_loss"]:.3f}')
+        if log:
+            log.row(step, time.monotonic() - start, lr, vals)
+        bar.set_postfix({k.replace('_loss', ''): f'{v:.3f}' for k, v in vals.items()})
         bar.update(1)
         finished = progress() >= 1.0
         if rank == 0 and (step % tc.checkpoint_every == 0 or finished):
-            torch.save({'model': module.state_dict(), 'optimizer': opt.state_dict(),
-                        'step': step, 'elapsed_s': time.monotonic() - start,
-                        'torch_rng': torch.get_rng_state()}, last)
-            save_checkpoint(out / 'snapshot.safetensors', module, mcfg, {'steps': step},
-                            {'snapshot': True})
-            if log_file:
-                log_file.flush()
+            _snapshot(out, module, opt, mcfg, step, time.monotonic() - start)
+            if log:
+                log.flush()
         if finished:
             break
     bar.close()
-    if tc.max_minutes and step < tc.steps:
-        print(f'[train] time budget reached at step {step}')
-    elapsed = time.monotonic() - start
-    metrics: dict[str, Any] = {'steps': step, 'train_minutes': round(elapsed / 60, 2),
-                               'device': str(dev), 'world_size': world}
-    if rank == 0:
-        extra = {'train_config': {k: (list(v) if isinstance(v, tuple) else v)
-                                  for k, v in tc.__dict__.items()}}
-        # written before the evaluation too, so a failing evaluation cannot lose the model
-        save_checkpoint(out / 'model.safetensors', module, mcfg, metrics, extra)
-        if tc.eval_at_end:
-            from suit_ros.evaluate import evaluate_model
-            val = synthetic_split('val', tc.val_sequences, tc.val_frames, tc.cache_dir)
-            result = evaluate_model(module, val, dev)
-            metrics.update(result.summary())
-            print(result.table())
-            save_checkpoint(out / 'model.safetensors', module, mcfg, metrics, extra)
-        print(f'[train] wrote {out / "model.safetensors"} ({elapsed / 60:.1f} min)')
-    if log_file:
-        log_file.close()
+    metrics = _finish(tc, out, module, mcfg, dev, step, time.monotonic() - start, rank, world)
+    if log:
+        log.close()
     if world > 1:
-        import torch.distributed as dist
-        dist.destroy_process_group()
+        torch.distributed.destroy_process_group()
     return metrics
