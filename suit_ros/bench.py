@@ -60,43 +60,20 @@ def _model(args: argparse.Namespace, temporal: TemporalMode) -> Any:
     return other.eval()
 
 
-def run(args: argparse.Namespace) -> int:
-    """Run every measurement and print the table."""
-    import torch
-
-    from suit_ros.data.sim import preset
-    from suit_ros.data.sim.scene import Simulation, to_frame
+def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C: Any
+               ) -> dict[str, Any]:
+    """Per stage, SUIT (memory carried) and single frame; the models step frame by frame in
+    turn, so a change of the machine's speed hits all of them alike."""
     from suit_ros.evaluate import step_inputs
-    from suit_ros.model.streaming import StreamingDetector
-    from suit_ros.msg_adapters.classes import MessageClasses
     from suit_ros.msg_adapters.detections import (
         detections_to_markerarray,
         detections_to_pointcloud2,
     )
-    from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2, pointcloud2_to_xyzi
-    from suit_ros.tracking import FilterConfig
-    torch.set_num_threads(args.threads)
-    n = args.frames
-    sim = Simulation(preset('demo-real', frames=max(n, 12)), 7)
-    simframes = [sim.render(k) for k in range(n)]
-    frames = [to_frame(f, 7) for f in simframes]
-    C = MessageClasses.from_rclpy()
-    clouds = [array_to_pointcloud2(f.cloud, C.header(f.stamp_ns, 'lidar'), C)
-              for f in simframes]
-    from suit_ros.model.inference import resolve_precision
-    res: dict[str, Any] = {'machine': machine(), 'threads': args.threads, 'device': args.device,
-                           'precision': resolve_precision(args.precision, args.device),
-                           'points_per_frame': int(np.mean([len(f.cloud) for f in simframes]))}
-    # --- per stage, SUIT (memory carried) and single frame; the three models step frame by
-    # frame in turn, so a change of the machine's speed hits all of them alike
+    from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
     stage_times: dict[str, list[float]] = {k: [] for k in (
         'convert', 'sweeps', 'encode', 'head_decode', 'sampling', 'fusion', 'tracking',
         'output')}
-    temporals: tuple[TemporalMode, ...] = ('none', 'suit', 'dense')
-    # as the node runs them by default: velocity filter on
-    runners = {t: StreamingDetector(_model(args, t), args.device, precision=args.precision,
-                                    velocity_filter=FilterConfig())
-               for t in temporals}
+    temporals = tuple(runners)
     names = runners['suit'].cfg.class_names
     steps: dict[str, list[float]] = {t: [] for t in temporals}
     memory: dict[str, dict[int, int]] = {t: {} for t in temporals}
@@ -124,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
                 stage_times['output'].append(t3 - t2)
                 for k in ('sweeps', 'encode', 'head_decode', 'sampling', 'fusion', 'tracking'):
                     stage_times[k].append(r.timings[k])
+    res: dict[str, Any] = {}
     res['stages_ms'] = {k: {'p50': pct(v, 50), 'p95': pct(v, 95)} for k, v in
                         stage_times.items()}
     res['step_ms'] = {k: {'p50': pct(v, 50), 'p95': pct(v, 95)} for k, v in steps.items()}
@@ -131,8 +109,12 @@ def run(args: argparse.Namespace) -> int:
     res['memory_bytes'] = memory
     res['memory_ratio_suit_dense'] = {k: memory['suit'].get(k, 0) / max(memory['dense'].get(k, 1),
                                                                           1) for k in (2, 10)}
-    # --- scaling with points per cloud (resampled demo frame) and with objects
-    runner = runners['suit']
+    return res
+
+
+def _scaling_points(runner: Any, frames: list[Any], n: int) -> dict[int, float]:
+    """Step p50 (ms) with 10k-300k points per cloud (a resampled demo frame)."""
+    from suit_ros.evaluate import step_inputs
     runner.reset('bench')
     base = np.concatenate([f.points for f in frames[:8]])
     rng = np.random.default_rng(0)
@@ -146,7 +128,14 @@ def run(args: argparse.Namespace) -> int:
                             *step_inputs(frames[0])[2:])
             times.append(r.timings['total'])
         scaling[count] = pct(times[2:], 50)
-    res['scaling_points_ms'] = scaling
+    return scaling
+
+
+def _scaling_objects(runner: Any) -> list[dict[str, float]]:
+    """Step p50 (ms) with 10, 40 and 120 actors in the scene."""
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.scene import Simulation, to_frame
+    from suit_ros.evaluate import step_inputs
     by_objects = []
     for actors in (10, 40, 120):
         cfg = preset('demo-real', frames=6, moving_vehicles=actors // 2,
@@ -162,7 +151,40 @@ def run(args: argparse.Namespace) -> int:
         by_objects.append({'objects_with_points': float(np.mean(objs[2:])),
                            'step_ms_p50': pct(times[2:], 50),
                            'detections': len(r.detections)})
-    res['scaling_objects'] = by_objects
+    return by_objects
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run every measurement and print the table."""
+    import torch
+
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.scene import Simulation, to_frame
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.msg_adapters.classes import MessageClasses
+    from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2
+    from suit_ros.tracking import FilterConfig
+    torch.set_num_threads(args.threads)
+    n = args.frames
+    sim = Simulation(preset('demo-real', frames=max(n, 12)), 7)
+    simframes = [sim.render(k) for k in range(n)]
+    frames = [to_frame(f, 7) for f in simframes]
+    C = MessageClasses.from_rclpy()
+    clouds = [array_to_pointcloud2(f.cloud, C.header(f.stamp_ns, 'lidar'), C)
+              for f in simframes]
+    from suit_ros.model.inference import resolve_precision
+    res: dict[str, Any] = {'machine': machine(), 'threads': args.threads, 'device': args.device,
+                           'precision': resolve_precision(args.precision, args.device),
+                           'points_per_frame': int(np.mean([len(f.cloud) for f in simframes]))}
+    temporals: tuple[TemporalMode, ...] = ('none', 'suit', 'dense')
+    # as the node runs them by default: velocity filter on
+    runners = {t: StreamingDetector(_model(args, t), args.device, precision=args.precision,
+                                    velocity_filter=FilterConfig())
+               for t in temporals}
+    res.update(_per_stage(runners, frames, clouds, C))
+    runner = runners['suit']
+    res['scaling_points_ms'] = _scaling_points(runner, frames, n)
+    res['scaling_objects'] = _scaling_objects(runner)
     if not args.skip_node:
         from suit_ros.bench_node import node_latency
         res['node'] = {f'{hz}Hz': node_latency(args.checkpoint, rate=hz / 10.0,

@@ -28,15 +28,10 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     from sensor_msgs.msg import PointCloud2
 
     from suit_ros.checkpoint import default_checkpoint_path
-    from suit_ros.data.sim import preset
-    from suit_ros.data.simulate_cli import write_bag
     from suit_ros.rosenv import local_ros_env
     env = local_ros_env()
     os.environ.update(env)
-    bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f')
-    if not os.path.exists(bag):
-        os.makedirs(workdir, exist_ok=True)
-        write_bag(bag, preset('demo-real', frames=frames), seed, 'mcap')
+    bag = demo_bag(workdir, seed, frames)
     ckpt = checkpoint or str(default_checkpoint_path())
     node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
                              f'checkpoint:={ckpt}', '-p', f'threads:={threads}', '-p',
@@ -88,12 +83,29 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
         try_shutdown(context=ctx)
         node.terminate()
         node.wait(10)
+    return {'node_threads': threads, 'node_precision': precision,
+            **_summary(clouds, dets, diags[-1] if diags else {}, t_play)}
+
+
+def demo_bag(workdir: str, seed: int, frames: int) -> str:
+    """The demo drive's bag (written once, then reused)."""
+    from suit_ros.data.sim import preset
+    from suit_ros.data.simulate_cli import write_bag
+    bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f')
+    if not os.path.exists(bag):
+        os.makedirs(workdir, exist_ok=True)
+        write_bag(bag, preset('demo-real', frames=frames), seed, 'mcap')
+    return bag
+
+
+def _summary(clouds: dict[int, float], dets: dict[int, float], last: dict[str, str],
+             t_play: float) -> dict[str, Any]:
+    """Frames, rate, latency at the probe (cloud received -> detections received), the
+    node's model time and its overhead."""
     lat = [dets[s] - clouds[s] for s in dets if s in clouds]
-    last = diags[-1] if diags else {}
     model = float(last.get('model_ms_p50', 'nan'))
     overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50'))
-    return {'node_threads': threads, 'node_precision': precision, 'frames_in': len(clouds),
-            'frames_out': len(dets),
+    return {'frames_in': len(clouds), 'frames_out': len(dets),
             'dropped': int(last.get('dropped_frames', -1)),
             'rate_hz': len(dets) / max(t_play - 1.0, 1e-9),
             'latency_ms_p50': float(np.median(lat)) * 1e3 if lat else float('nan'),
