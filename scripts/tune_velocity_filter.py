@@ -46,7 +46,7 @@ def main() -> int:
     from suit_ros.model.sweeps import boxes_to_lidar, model_frame
     from suit_ros.ops.geometry import transform_boxes
     from suit_ros.structures import Detections
-    from suit_ros.tracking import FilterConfig, VelocityFilter, sweep_velocities
+    from suit_ros.tracking import FilterConfig, VelocityFilter, sweep_velocities, track_step
 
     t0 = time.monotonic()
     seqs = synthetic_split('tune', args.drives, args.frames, args.cache_dir)
@@ -73,12 +73,14 @@ def main() -> int:
     def score(filt: FilterConfig | None) -> dict[str, float]:
         dets = run.det
         if filt is not None:
-            dets, vf, drive = [], VelocityFilter(filt), -1
+            dets, vf, drive = [], VelocityFilter(filt, names), -1
             for (d, T_ob, T_bl, swept), f, k in zip(replay, frames, run.drive):
                 if k != drive:
                     vf.reset()
                     drive = k
-                dets.append(boxes_to_lidar(vf.update(d, f.stamp_ns, T_ob, swept)[0], T_bl))
+                # the streaming detector's own tracking step, on the replayed frame
+                dets.append(boxes_to_lidar(track_step(vf, d, f.stamp_ns, T_ob, None, swept)[0],
+                                           T_bl))
         res = evaluate(run.gt, dets, names, num_points=run.num_points)
         motion = car_motion(run.gt, dets, car)
         ave = {f'AVE {c}': round(res.tp[c]['vel_err'], 3) for c in res.evaluated}

@@ -121,6 +121,7 @@ class VelocityFilter:
         from suit_ros import CLASS_NAMES
         self.config = config or FilterConfig()
         names = tuple(class_names or CLASS_NAMES)
+        self.class_names = names
         # the classes that move along their heading (the sweep reading's, too)
         self.vehicle_labels = frozenset(i for i, n in enumerate(names)
                                         if n in self.config.sweep_classes)
@@ -282,6 +283,23 @@ class VelocityFilter:
         boxes = det.boxes.copy()
         boxes[turn, 6] = (yaw[turn] + 2.0 * np.pi) % (2.0 * np.pi) - np.pi
         return boxes
+
+
+def track_step(tracks: VelocityFilter, det: Detections, stamp_ns: int,
+               T_odom_base: NDArray[np.float64], model_points: NDArray[np.floating[Any]] | None,
+               swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None
+               ) -> tuple[Detections, NDArray[np.int64]]:
+    """The streaming detector's tracking step: read the vehicles' velocities from the sweeps
+    (when the config asks for it; ``swept`` given: already read), then update the tracks.
+
+    :param det: the frame's detections in base_link (the model frame).
+    :param model_points: the model input ``(N, 5)`` in base_link.
+    """
+    fc = tracks.config
+    if swept is None and fc.sweep_sigma is not None and model_points is not None:
+        swept = sweep_velocities(model_points, det.boxes,
+                                 fc.sweep_targets(det, tracks.class_names))
+    return tracks.update(det, stamp_ns, T_odom_base, swept)
 
 
 def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],

@@ -19,7 +19,7 @@ from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_pr
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.ops.geometry import count_points_in_boxes
 from suit_ros.structures import Detections
-from suit_ros.tracking import FilterConfig, VelocityFilter, sweep_velocities
+from suit_ros.tracking import FilterConfig, VelocityFilter, track_step
 
 
 @dataclass
@@ -199,12 +199,7 @@ class StreamingDetector:
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
         ids = np.zeros(len(det), np.int64)
         if self.tracks is not None and T_odom_base is not None:
-            fc = self.tracks.config
-            swept = None
-            if fc.sweep_sigma is not None:       # boxes and model points both in base_link
-                swept = sweep_velocities(model_points, det.boxes,
-                                         fc.sweep_targets(det, self.cfg.class_names))
-            det, ids = self.tracks.update(det, stamp_ns, poses[0], swept)
+            det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points)
         published = det.scores >= self.score_thresholds[det.labels]
         if not published.all():
             det, ids = det.select(published), ids[published]
