@@ -162,3 +162,16 @@ def test_clip_sampler_takes_consecutive_frames(tmp_path):
         np.testing.assert_allclose(lags, [0.0, period * 1e-9], atol=1e-3)
     with pytest.raises(ValueError, match='7 frames'):
         ClipSampler([seq[:6]], [7], 0)
+
+
+def test_a_fresh_and_a_cached_drive_are_the_same_frames(tmp_path):
+    """The first call simulates and caches (float16 points); it returns what every later call
+    reads, so an evaluation's first run gives the same figures as its reruns."""
+    from suit_ros.data.sequences import synthetic_sequence
+    fresh = synthetic_sequence('test', 5, 3, tmp_path)
+    cached = synthetic_sequence('test', 5, 3, tmp_path)
+    for a, b in zip(fresh, cached):
+        assert a.points.dtype == b.points.dtype == np.float32
+        np.testing.assert_array_equal(a.points, b.points)
+    uncached = synthetic_sequence('test', 5, 3, None)          # no cache: full precision
+    assert any(not np.array_equal(a.points, u.points) for a, u in zip(fresh, uncached))
