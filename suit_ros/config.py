@@ -34,6 +34,10 @@ class PillarConfig:
     # 0.2 s weighs 1/40 of a metre-scale coordinate and its weight learns slowly (Adam moves
     # every weight at the same rate); 10 = the lag in 100 ms units
     time_scale: float = 1.0
+    # at most about this many points per pillar (0: all): a denser pillar keeps a
+    # deterministic pseudo-random subset of this expected size, as PointPillars caps its
+    # pillars; the near field of a 64-beam sensor holds hundreds of points per pillar
+    max_points_per_pillar: int = 0
 
 
 @dataclass(frozen=True)
@@ -137,6 +141,8 @@ def validate(cfg: ModelConfig) -> None:
         raise bad(f'point_range must be (x0, y0, z0, x1, y1, z1) with x0 < x1 ...: {r}')
     if cfg.pillars.pillar_size <= 0:
         raise bad('pillars.pillar_size must be > 0')
+    if not 0 <= cfg.pillars.max_points_per_pillar <= 10_000:
+        raise bad('pillars.max_points_per_pillar must be within 0..10000 (0: no cap)')
     if not cfg.pillars.time_scale > 0:
         raise bad(f'pillars.time_scale must be > 0, got {cfg.pillars.time_scale}')
     for extent in (r[3] - r[0], r[4] - r[1]):

@@ -566,3 +566,28 @@ def test_model_yaml_base_and_overrides(tmp_path):
     (tmp_path / 'b.yaml').write_text('_base_: a.yaml\n')
     with pytest.raises(ConfigError, match='cycle'):
         load_model_config(tmp_path / 'a.yaml')
+
+
+def test_pillar_cap_thins_only_dense_pillars_deterministically():
+    """``pillars.max_points_per_pillar``: a pillar of c > cap points keeps about cap of them
+    (a hash of the index, the same every call); sparser pillars keep every point; no pillar is
+    emptied; 0 keeps everything."""
+    grid = BEVGrid((-25.6, -25.6, -3.0, 25.6, 25.6, 3.0), 0.4, 2)
+    enc = PillarEncoder(grid, 5, 16, max_points=32)
+    g = torch.Generator().manual_seed(0)
+    dense = torch.rand(2000, 5, generator=g) * torch.tensor([0.39, 0.39, 1, 1, 0]) \
+        + torch.tensor([0.01, 0.01, 0, 0, 0])                          # one pillar
+    sparse = torch.rand(20, 5, generator=g) * torch.tensor([0.39, 0.39, 1, 1, 0]) \
+        + torch.tensor([4.01, 0.01, 0, 0, 0])                          # another pillar
+    rows = torch.cat([torch.zeros(2020, 1), torch.cat([dense, sparse])], 1)
+    kept = enc.cap(rows)
+    assert torch.equal(kept, enc.cap(rows))
+    in_dense = kept[:, 1] < 1.0
+    assert 16 <= int(in_dense.sum()) <= 56 and int((~in_dense).sum()) == 20
+    off, loose = PillarEncoder(grid, 5, 16).eval(), PillarEncoder(grid, 5, 16, 10_000).eval()
+    loose.load_state_dict(off.state_dict())
+    with torch.no_grad():                     # a cap above every pillar changes nothing
+        assert torch.equal(loose(rows, 1), off(rows, 1))
+        enc.load_state_dict(off.state_dict())
+        enc.eval()
+        assert not torch.equal(enc(rows, 1), off(rows, 1))        # the dense pillar thinned

@@ -28,8 +28,9 @@ class PillarEncoder(nn.Module):
     TIME_CHANNEL = 4
 
     def __init__(self, grid: BEVGrid, in_channels: int = 5, channels: int = 32,
-                 time_scale: float = 1.0) -> None:
+                 time_scale: float = 1.0, max_points: int = 0) -> None:
         super().__init__()
+        self.max_points = max_points
         self.grid = grid
         self.in_channels = in_channels
         self.learned_channels = channels
@@ -109,9 +110,24 @@ class PillarEncoder(nn.Module):
         # the max
         return torch.relu_(pillar.sub_(per_pillar))
 
+    def cap(self, points: Tensor) -> Tensor:
+        """``points`` with the denser pillars thinned to about ``max_points`` each: a pillar of
+        ``c > max_points`` points keeps each with probability ``max_points / c``, drawn from a
+        hash of the point's index (deterministic, the same in training and inference)."""
+        pts, inverse, keys = self.voxelize(points)
+        count = torch.bincount(inverse, minlength=len(keys))
+        if len(count) == 0 or int(count.max()) <= self.max_points:
+            return pts
+        h = (torch.arange(len(pts), device=pts.device) * 2654435761) % 4294967296
+        keep = h.to(torch.float64) < self.max_points / count[inverse].to(torch.float64) \
+            * 4294967296.0
+        return pts[keep]
+
     def forward(self, points: Tensor, batch_size: int) -> Tensor:
         """Encode ``(P, 1 + in_channels)`` points into ``(B, C, ny, nx)``."""
         g = self.grid
+        if self.max_points:
+            points = self.cap(points)
         pts, inverse, keys = self.voxelize(points)
         feats = pts[:, 1:]
         U = keys.shape[0]
