@@ -68,5 +68,8 @@ wait
 wait
 cp runs/suit_t10/model.safetensors suit_ros/checkpoints/suit_default.safetensors
 cp runs/single_t10/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
+# the thresholds the node publishes at (best F1 on the synthetic tune split), in each checkpoint
+"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
+"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/centerpoint_single.safetensors --write
 "$py" scripts/ablation.py --single suit_ros/checkpoints/centerpoint_single.safetensors \
   --suit suit_ros/checkpoints/suit_default.safetensors
