@@ -19,13 +19,10 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     :param threads: the node's ``threads`` parameter (0: its default, all cores but one).
     :param precision: the node's ``precision`` parameter.
     """
-    from diagnostic_msgs.msg import DiagnosticArray
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, QoSReliabilityPolicy
     from rclpy.utilities import try_shutdown
-    from sensor_msgs.msg import PointCloud2
 
     from suit_ros.checkpoint import default_checkpoint_path
     from suit_ros.rosenv import local_ros_env
@@ -40,30 +37,12 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     ctx = Context()
     rclpy.init(context=ctx)
     probe = rclpy.create_node('suit_ros_bench_probe', context=ctx)
-    clouds: dict[int, float] = {}
-    dets: dict[int, float] = {}
-    diags: list[dict[str, str]] = []
-
-    def key(m: Any) -> int:
-        return int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec)
-
-    def on_cloud(m: Any) -> None:
-        clouds.setdefault(key(m), time.monotonic())
-
-    def on_detections(m: Any) -> None:
-        dets.setdefault(key(m), time.monotonic())
-
-    def on_diagnostics(m: Any) -> None:
-        diags.append({kv.key: kv.value for kv in m.status[0].values})
-    probe.create_subscription(PointCloud2, '/points', on_cloud,
-                              QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE))
-    probe.create_subscription(PointCloud2, '/detector/detections', on_detections, 50)
-    probe.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+    rec = OutputRecorder(probe)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(probe)
     try:
         end = time.monotonic() + 90
-        while not diags and time.monotonic() < end:
+        while not rec.diags and time.monotonic() < end:
             ex.spin_once(timeout_sec=0.1)
         player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', bag,
                                    '--rate', str(rate), '--start-delay', '1.0',
@@ -84,7 +63,42 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
         node.terminate()
         node.wait(10)
     return {'node_threads': threads, 'node_precision': precision,
-            **_summary(clouds, dets, diags[-1] if diags else {}, t_play)}
+            **_summary(rec.clouds, {k: t for k, (t, _) in rec.dets.items()},
+                       rec.diags[-1] if rec.diags else {}, t_play)}
+
+
+class OutputRecorder:
+    """What a probe node sees of a running detector: when each input cloud and each
+    detections message arrived (monotonic s, by header stamp; detections parsed) and the
+    detector's diagnostics values. The demo and the node benchmark record with it."""
+
+    def __init__(self, probe: Any) -> None:
+        from diagnostic_msgs.msg import DiagnosticArray
+        from rclpy.qos import QoSProfile, QoSReliabilityPolicy
+        from sensor_msgs.msg import PointCloud2
+        self.clouds: dict[int, float] = {}
+        self.dets: dict[int, tuple[float, dict[str, Any]]] = {}
+        self.diags: list[dict[str, str]] = []
+        probe.create_subscription(PointCloud2, '/points', self._on_cloud,
+                                  QoSProfile(depth=10,
+                                             reliability=QoSReliabilityPolicy.RELIABLE))
+        probe.create_subscription(PointCloud2, '/detector/detections', self._on_detections, 50)
+        probe.create_subscription(DiagnosticArray, '/diagnostics', self._on_diagnostics, 10)
+
+    @staticmethod
+    def _key(m: Any) -> int:
+        return int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec)
+
+    def _on_cloud(self, m: Any) -> None:
+        self.clouds.setdefault(self._key(m), time.monotonic())
+
+    def _on_detections(self, m: Any) -> None:
+        from suit_ros.msg_adapters.detections import pointcloud2_to_detections
+        received = time.monotonic()
+        self.dets.setdefault(self._key(m), (received, pointcloud2_to_detections(m)))
+
+    def _on_diagnostics(self, m: Any) -> None:
+        self.diags.append({kv.key: kv.value for kv in m.status[0].values})
 
 
 def demo_bag(workdir: str, seed: int, frames: int) -> str:

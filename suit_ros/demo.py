@@ -62,41 +62,22 @@ def run(args: argparse.Namespace) -> int:
 
 def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
             env: dict[str, str], out: Path) -> int:
-    from diagnostic_msgs.msg import DiagnosticArray
     import rclpy
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import QoSProfile, QoSReliabilityPolicy
     from rclpy.utilities import try_shutdown
-    from sensor_msgs.msg import PointCloud2
 
-    from suit_ros.msg_adapters.detections import pointcloud2_to_detections
-    from suit_ros.msg_adapters.odometry import stamp_to_ns
+    from suit_ros.bench_node import OutputRecorder
     ctx = Context()
     rclpy.init(context=ctx)
     probe = rclpy.create_node('suit_ros_demo_recorder', context=ctx)
-    clouds: dict[int, float] = {}
-    dets: dict[int, tuple[float, dict[str, Any]]] = {}
-    diags: list[dict[str, str]] = []
-    def on_cloud(m: Any) -> None:
-        clouds.setdefault(stamp_to_ns(m.header.stamp), time.monotonic())
-
-    def on_detections(m: Any) -> None:
-        dets.setdefault(stamp_to_ns(m.header.stamp),
-                        (time.monotonic(), pointcloud2_to_detections(m)))
-
-    def on_diagnostics(m: Any) -> None:
-        diags.append({kv.key: kv.value for kv in m.status[0].values})
-    probe.create_subscription(PointCloud2, '/points', on_cloud,
-                              QoSProfile(depth=10, reliability=QoSReliabilityPolicy.RELIABLE))
-    probe.create_subscription(PointCloud2, '/detector/detections', on_detections, 50)
-    probe.create_subscription(DiagnosticArray, '/diagnostics', on_diagnostics, 10)
+    rec = OutputRecorder(probe)
     ex = SingleThreadedExecutor(context=ctx)
     ex.add_node(probe)
     deadline = time.monotonic() + args.timeout
     try:
         print('[demo] waiting for the detector node ...', flush=True)
-        while not diags:
+        while not rec.diags:
             ex.spin_once(timeout_sec=0.1)
             if node.poll() is not None:
                 text = node.stdout.read() if node.stdout else ''
@@ -123,7 +104,7 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
         ex.shutdown()
         probe.destroy_node()
         try_shutdown(context=ctx)
-    return _report(bag, clouds, dets, diags, play_s, out)
+    return _report(bag, rec.clouds, rec.dets, rec.diags, play_s, out)
 
 
 def _report(bag: Path, clouds: dict[int, float], dets: dict[int, Any],
@@ -184,17 +165,13 @@ def _print_published(gt: list[Any], det: list[Any], num_points: list[Any]) -> No
     """Published boxes per frame against the objects present (GT with returns), per class,
     and recall / precision of the published boxes (BEV centre within 2 m, within 50 m)."""
     from suit_ros import CLASS_NAMES
-    from suit_ros.evaluate import filter_frames
-    from suit_ros.report import count_matches
+    from suit_ros.report import class_counts
     n = max(len(gt), 1)
     print('published boxes per frame within 50 m (objects with returns there), recall / '
           'precision:')
-    g50, d50, _ = filter_frames(gt, det, CLASS_NAMES, dict.fromkeys(CLASS_NAMES, 50.0),
-                                num_points)
-    for k, c in enumerate(CLASS_NAMES):
-        boxes = sum(int((d.labels == k).sum()) for d in d50) / n
-        present = sum(int((g.labels == k).sum()) for g in g50) / n
-        at = count_matches(g50, d50, k, 2.0).at(0.0)
+    for c, counts in class_counts(gt, det, CLASS_NAMES, num_points).items():
+        boxes, present = len(counts.scores) / n, counts.npos / n
+        at = counts.at(0.0)
         print(f'  {c:<11} {boxes:6.1f} ({present:5.1f})   recall {at["recall"]:.3f}  '
               f'precision {at["precision"]:.3f}')
 

@@ -10,7 +10,9 @@ ran single-frame; OK (``running``) otherwise.
 """
 from __future__ import annotations
 
+import collections
 from dataclasses import dataclass
+import threading
 from typing import Any
 
 import numpy as np
@@ -158,8 +160,6 @@ class Reasons:
     """
 
     def __init__(self, log: Any, hold_s: float = 5.0, log_period_s: float = 30.0) -> None:
-        import collections
-        import threading
         self._lock = threading.Lock()
         self._log = log
         self.hold_s = hold_s

@@ -14,7 +14,7 @@ Both are thread-safe; :meth:`close` wakes every waiter for shutdown.
 from __future__ import annotations
 
 import collections
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable
 import threading
 import time
 from typing import Any, Generic, TypeVar
@@ -40,13 +40,14 @@ class CloudMailbox(Generic[T]):
         self.reader_delays: collections.deque[float] = collections.deque(maxlen=200)
 
     def put(self, item: T, key: Hashable, info: dict[str, Any] | None = None,
-            count_gaps: bool = True) -> bool:
+            count_gaps: bool | Callable[[], bool] = True) -> bool:
         """Offer a cloud; False for a duplicate.
 
         :param info: the middleware's message info (``publication_sequence_number``,
             ``received_timestamp`` in ns since the epoch) or None.
         :param count_gaps: whether sequence gaps mean losses now (only while one publisher and
-            one subscription exist: sequence numbers count per publisher).
+            one subscription exist: sequence numbers count per publisher); a callable is asked
+            only when a gap appears (it may query the ROS graph).
         """
         now = time.monotonic()
         with self._cv:
@@ -63,7 +64,8 @@ class CloudMailbox(Generic[T]):
             self._cv.notify_all()
         return True
 
-    def _account(self, info: dict[str, Any] | None, count_gaps: bool, now: float) -> None:
+    def _account(self, info: dict[str, Any] | None, count_gaps: bool | Callable[[], bool],
+                 now: float) -> None:
         if not info:
             return
         recv = info.get('received_timestamp')
@@ -73,7 +75,8 @@ class CloudMailbox(Generic[T]):
         if seq is None:
             return
         last, self._last_seq = self._last_seq, int(seq)
-        if count_gaps and last is not None and int(seq) > last + 1:
+        if last is not None and int(seq) > last + 1 and (
+                count_gaps() if callable(count_gaps) else count_gaps):
             self.lost += int(seq) - last - 1
             self.losses.append(now)
 

@@ -264,7 +264,7 @@ class DetectorNode(Node):
         # the same cloud through a retiring subscription is taken once; sequence gaps count
         # as losses only while one publisher and one subscription exist
         key = (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id)
-        self.mailbox.put(received, key, info, count_gaps=not self._retiring
+        self.mailbox.put(received, key, info, count_gaps=lambda: not self._retiring
                          and self.count_publishers(self._points_topic) <= 1)
 
     def _on_odom(self, msg: Odometry) -> None:

@@ -135,11 +135,9 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
                 pub_in = pub.select(o.contains(pub.boxes[:, :2])) if len(pub) else pub
                 objects[d, j] += len(gt)
                 boxes[d, j] += len(pub_in)
-                all_gt = f.gt
                 for k in range(len(thresholds)):
-                    m = match_frame(gt, pub, k, MATCH_DIST)
-                    found[d, j] += int(m.tp.sum())
-                    true[d, j] += int(match_frame(all_gt, pub_in, k, MATCH_DIST).tp.sum())
+                    found[d, j] += int(match_frame(gt, pub, k, MATCH_DIST).tp.sum())
+                    true[d, j] += int(match_frame(f.gt, pub_in, k, MATCH_DIST).tp.sum())
     return OutageCounts(objects, found, boxes, true)
 
 

@@ -155,17 +155,27 @@ class Report:
         return '\n'.join(lines) + '\n'
 
 
+def class_counts(gt: Sequence[Detections], det: Sequence[Detections],
+                 class_names: Sequence[str], num_points: Sequence[Any] | None,
+                 max_range: float = 50.0, match_dist: float = 2.0) -> dict[str, ClassCounts]:
+    """Per class, the detections within ``max_range`` matched to the GT with returns there
+    (one matching; any threshold is a cut of it: :meth:`ClassCounts.at`)."""
+    from suit_ros.evaluate import filter_frames
+    names = tuple(class_names)
+    gts, dets, _ = filter_frames(gt, det, names, dict.fromkeys(names, max_range), num_points)
+    return {c: count_matches(gts, dets, k, match_dist) for k, c in enumerate(names)}
+
+
 def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[float],
                  source: str, max_range: float = 50.0, match_dist: float = 2.0) -> Report:
     """The report of a :class:`~suit_ros.evaluate.ModelRun` (detections at the decoding
     threshold; the published thresholds are cuts of them)."""
-    from suit_ros.evaluate import evaluate, filter_frames
+    from suit_ros.evaluate import evaluate
     names = tuple(class_names)
-    ranges = dict.fromkeys(names, max_range)
-    gts, dets, _ = filter_frames(run.gt, run.scored_detections(), names, ranges,
-                                 run.num_points)
-    counts = {c: count_matches(gts, dets, k, match_dist) for k, c in enumerate(names)}
-    ap = evaluate(run.gt, run.scored_detections(), names, ranges, run.num_points).class_ap
+    scored = run.scored_detections()
+    counts = class_counts(run.gt, scored, names, run.num_points, max_range, match_dist)
+    ap = evaluate(run.gt, scored, names, dict.fromkeys(names, max_range),
+                  run.num_points).class_ap
     return Report(names, [float(t) for t in thresholds], counts, ap, len(run.gt), source)
 
 
@@ -312,16 +322,17 @@ def run(args: argparse.Namespace) -> int:
     out.mkdir(parents=True, exist_ok=True)
     (out / 'report.json').write_text(json.dumps(report.to_json(), indent=2), encoding='utf-8')
     (out / 'report.md').write_text(report.markdown(), encoding='utf-8')
-    frames = [(k, f) for s in seqs for k, f in enumerate(s[:args.pictures])]
     scored = result.scored_detections()
-    starts = np.cumsum([0] + [len(s) for s in seqs])
-    for i, (k, f) in enumerate(frames):
-        n = int(starts[sum(1 for _ in frames[:i + 1] if _[0] == 0) - 1]) + k
-        draw_bev(out / 'bev' / f'{f.sequence_id or "seq"}_{k:04d}.png',
-                 f.points, result.gt[n], scored[n], names, thresholds,
-                 f.ignore_boxes, args.max_range, args.match_dist,
-                 f'{source}: frame {k} of {f.sequence_id}')
+    first = drawn = 0                  # first: the run's index of the sequence's frame 0
+    for seq in seqs:
+        for k, f in enumerate(seq[:max(args.pictures, 0)]):
+            draw_bev(out / 'bev' / f'{f.sequence_id or "seq"}_{k:04d}.png',
+                     f.points, result.gt[first + k], scored[first + k], names, thresholds,
+                     f.ignore_boxes, args.max_range, args.match_dist,
+                     f'{source}: frame {k} of {f.sequence_id}')
+            drawn += 1
+        first += len(seq)
     print(report.markdown())
     print(f'wrote {out / "report.json"}, {out / "report.md"} and '
-          f'{len(frames)} picture(s) in {out / "bev"}')
+          f'{drawn} picture(s) in {out / "bev"}')
     return 0

@@ -44,21 +44,20 @@ def run(args: argparse.Namespace) -> int:
     """Choose (and with ``--write`` store) the published thresholds."""
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, update_metadata
     from suit_ros.data.sequences import synthetic_split
-    from suit_ros.evaluate import filter_frames, run_model
-    from suit_ros.report import count_matches
+    from suit_ros.evaluate import run_model
+    from suit_ros.report import class_counts
     from suit_ros.tracking import FilterConfig
     path = args.checkpoint or default_checkpoint_path()
     model, cfg, _ = load_checkpoint(path)
     names = tuple(cfg.class_names)
     seqs = synthetic_split('tune', args.drives, TUNE_FRAMES, args.cache_dir)
     run_ = run_model(model, seqs, velocity_filter=FilterConfig())
-    gts, dets, _ = filter_frames(run_.gt, run_.det, names, dict.fromkeys(names, 50.0),
-                                 run_.num_points)
+    counts = class_counts(run_.gt, run_.det, names, run_.num_points)
     chosen: dict[str, float] = {}
     print(f'{path}: tune split, {args.drives} drives x {TUNE_FRAMES} frames, node defaults')
     print(f'{"class":<12}{"threshold":>10}{"recall":>8}{"precision":>10}{"F1":>7}{"GT":>6}')
-    for k, c in enumerate(names):
-        row = best_f1(count_matches(gts, dets, k, 2.0))
+    for c in names:
+        row = best_f1(counts[c])
         chosen[c] = float(row['threshold'])
         print(f'{c:<12}{row["threshold"]:>10.2f}{row["recall"]:>8.3f}'
               f'{row["precision"]:>10.3f}{row["f1"]:>7.3f}{row["gt"]:>6d}')

@@ -1,7 +1,8 @@
 """Helpers for tests over real DDS: processes, a private rclpy context, bounded spinning."""
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+import contextlib
 from pathlib import Path
 import subprocess
 import sys
@@ -26,6 +27,21 @@ def start_node(checkpoint: str, *params: str, cmd: list[str] | None = None
         args += ['-p', p]
     return subprocess.Popen(args, env=ros_env(), stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)
+
+
+@contextlib.contextmanager
+def running_node(checkpoint: str, make_probe: Callable[[], Any], *params: str
+                 ) -> Iterator[tuple[subprocess.Popen[str], Any]]:
+    """A detector node in its own process and a probe (with ``ready(proc)`` and a ``p``
+    :class:`Probe`) that waited for it; both closed afterwards (the node's log printed)."""
+    proc = start_node(checkpoint, *params)
+    probe = make_probe()
+    try:
+        probe.ready(proc)
+        yield proc, probe
+    finally:
+        probe.p.close()
+        print(stop(proc)[-3000:])
 
 
 def stop(proc: subprocess.Popen[str]) -> str:

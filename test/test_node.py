@@ -7,7 +7,16 @@ import sys
 import numpy as np
 import pytest
 from rclpy.qos import QoSProfile, QoSReliabilityPolicy
-from rosgraph import Probe, diag_values, node_checkpoint, ros_env, start_node, stop, synthetic_bag
+from rosgraph import (
+    Probe,
+    diag_values,
+    node_checkpoint,
+    ros_env,
+    running_node,
+    start_node,
+    stop,
+    synthetic_bag,
+)
 
 # separate processes over DDS: integration tests, outside the fast unit loop
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -38,7 +47,7 @@ class Recorder:
         self.pub = n.create_publisher(PointCloud2, '/points', QoSProfile(
             depth=10, reliability=QoSReliabilityPolicy.RELIABLE))
 
-    def wait_ready(self, node_proc, timeout=60.0):
+    def ready(self, node_proc, timeout=60.0):
         ok = self.p.spin_until(lambda: bool(self.diags) or node_proc.poll() is not None,
                                timeout)
         assert ok and node_proc.poll() is None, stop(node_proc)
@@ -48,15 +57,8 @@ class Recorder:
 
 @pytest.fixture()
 def node_and_recorder(checkpoint):
-    proc = start_node(checkpoint, 'diagnostics_period_s:=0.2')
-    rec = Recorder()
-    try:
-        rec.wait_ready(proc)
-        yield proc, rec
-    finally:
-        rec.p.close()
-        out = stop(proc)
-        print(out[-3000:])
+    with running_node(checkpoint, Recorder, 'diagnostics_period_s:=0.2') as pair:
+        yield pair
 
 
 def stamp_ns(msg):

@@ -6,7 +6,7 @@ import signal
 import time
 
 import pytest
-from rosgraph import Probe, diag_values, node_checkpoint, start_node, stop
+from rosgraph import Probe, diag_values, node_checkpoint, running_node, start_node, stop
 from test_node import cloud
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
@@ -68,14 +68,8 @@ class Watcher:
 
 @pytest.fixture()
 def node_and_watcher(checkpoint):
-    proc = start_node(checkpoint, 'diagnostics_period_s:=0.2')
-    w = Watcher()
-    try:
-        w.ready(proc)
-        yield proc, w
-    finally:
-        w.p.close()
-        print(stop(proc)[-3000:])
+    with running_node(checkpoint, Watcher, 'diagnostics_period_s:=0.2') as pair:
+        yield pair
 
 
 def test_odometry_from_the_future_is_refused_and_counted(node_and_watcher):

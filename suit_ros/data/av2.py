@@ -213,12 +213,15 @@ class Av2Sequence(LazySequence):
         if not neighbours or not len(rows):
             return out
         T_now = self.pose(stamp_ns)
+        poses: dict[int, NDArray[np.float64]] = {}          # each neighbour's, looked up once
         for n, r in enumerate(rows):
             track = str(ann.track[r])
             ends = [(stamp_ns, T_now, ann.boxes[r, :3])]
             for s, by_track in neighbours:
                 if track in by_track:
-                    ends.append((s, self.pose(s), ann.boxes[by_track[track], :3]))
+                    if s not in poses:
+                        poses[s] = self.pose(s)
+                    ends.append((s, poses[s], ann.boxes[by_track[track], :3]))
             if len(ends) < 2:
                 continue
             ends.sort(key=lambda e: e[0])

@@ -203,10 +203,11 @@ class StreamingDetector:
         published = det.scores >= self.score_thresholds[det.labels]
         if not published.all():
             det, ids = det.select(published), ids[published]
-        this_sweep = (model_points[model_points[:, 4] == 0] if model_points.shape[1] > 4
-                      else model_points)
-        num_points = count_points_in_boxes(this_sweep[:, :3], det.boxes)   # both in base_link
         det = boxes_to_lidar(det, T_bl)
+        # the returns of this cloud in each box, counted on the input as it came (LiDAR
+        # frame), not on the accumulated sweeps
+        this_sweep = pts if pts.shape[1] == 4 else pts[pts[:, 4] == 0]
+        num_points = count_points_in_boxes(this_sweep[:, :3], det.boxes)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
                    'head_decode': t4 - t3, 'sampling': t5 - t4, 'tracking': t6 - t5,
