@@ -63,6 +63,13 @@ def outages_for(drive: int, frames: int, width_deg: float = 120.0, length: int =
             for first in range(6, frames - length + 1, period)]
 
 
+def seen_ids(frame: Frame) -> set[int]:
+    """Instance ids of the frame's GT objects that have returns in it."""
+    if frame.gt is None or frame.num_points is None or frame.instance_ids is None:
+        return set()
+    return {int(i) for i, c in zip(frame.instance_ids, frame.num_points) if c > 0}
+
+
 def with_outages(seq: Sequence[Frame], outages: Sequence[Outage]) -> list[Frame]:
     """The drive with the outages' sectors removed from its sweeps (GT kept)."""
     from suit_ros.ops.geometry import count_points_in_boxes
@@ -119,10 +126,7 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
     thr = np.asarray(thresholds, np.float64)
     for d, (frames, dets, outs) in enumerate(zip(gt_seqs, det_seqs, outages)):
         for o in outs:
-            seen_before: set[int] = set()
-            f0 = frames[o.first - 1]
-            if f0.gt is not None and f0.num_points is not None and f0.instance_ids is not None:
-                seen_before = {int(i) for i, c in zip(f0.instance_ids, f0.num_points) if c > 0}
+            seen_before = seen_ids(frames[o.first - 1])
             for j in range(o.frames):
                 f, det = frames[o.first + j], dets[o.first + j]
                 if f.gt is None or f.instance_ids is None:

@@ -57,6 +57,11 @@ class TrainConfig:
     lift_m: float = 0.0              # ground height offset, uniform +-lift_m per clip
     point_dropout: float = 0.0       # half the clips lose up to this fraction of points
     preset: str = ''                 # synthetic world of the training drives ('': train-real)
+    freeze: tuple[str, ...] = ()     # modules kept as loaded (pillars, backbone, fusion, ...)
+    outage_probability: float = 0.0  # clips with a sensor sector lost (ClipSampler)
+    outage_width_deg: tuple[float, float] = (60.0, 180.0)
+    distill_weight: float = 0.0      # ordinary frames kept near the starting model (distill)
+    frozen_batchnorm: bool = False   # every batch norm keeps its statistics (small batches)
     eval_at_end: bool = True
     checkpoint_every: int = 200
 
@@ -73,7 +78,26 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     if tc.train_sequences < 1 or tc.train_first_sequence < 0:
         raise ConfigError(f'{path}: train_sequences must be >= 1 and train_first_sequence >= 0, '
                           f'not {tc.train_sequences} and {tc.train_first_sequence}')
+    unknown = set(tc.freeze) - set(FREEZABLE)
+    if unknown:
+        raise ConfigError(f'{path}: freeze names modules {sorted(unknown)}; choose from '
+                          f'{", ".join(FREEZABLE)}')
+    if not 0.0 <= tc.outage_probability <= 1.0 or tc.distill_weight < 0:
+        raise ConfigError(f'{path}: outage_probability must be in [0, 1] and distill_weight '
+                          f'>= 0, not {tc.outage_probability} and {tc.distill_weight}')
     return tc
+
+
+FREEZABLE = ('pillars', 'backbone', 'fusion', 'geonet', 'head')
+
+
+def freeze(module: Any, names: tuple[str, ...]) -> list[Any]:
+    """Stop the gradients of the named submodules; :return: those modules (kept in eval mode
+    while training, so batch-norm statistics stay)."""
+    frozen = [getattr(module, n) for n in names if getattr(module, n, None) is not None]
+    for m in frozen:
+        m.requires_grad_(False)
+    return frozen
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -169,12 +193,12 @@ class _LossLog:
         self.writer = csv.writer(self.file)
         if path.stat().st_size == 0:
             self.writer.writerow(['step', 'time_s', 'lr', 'loss', 'hm_loss', 'loc_loss',
-                                  'geo_loss'])
+                                  'geo_loss', 'distill_loss'])
 
     def row(self, step: int, time_s: float, lr: float, vals: dict[str, float]) -> None:
         """Log one step."""
         self.writer.writerow([step, round(time_s, 2), lr, vals['loss'], vals['hm_loss'],
-                              vals['loc_loss'], vals['geo_loss']])
+                              vals['loc_loss'], vals['geo_loss'], vals['distill_loss']])
 
     def flush(self) -> None:
         """Write what is buffered."""
@@ -229,11 +253,11 @@ def _draw(tc: TrainConfig, rng: np.random.Generator) -> Any:
                         lift_m=tc.lift_m, point_dropout=tc.point_dropout)
 
 
-def _optimise(model: Any, module: Any, opt: Any, clips: Any, grad_clip: float
-              ) -> dict[str, float]:
+def _optimise(model: Any, module: Any, opt: Any, clips: Any, grad_clip: float,
+              lost: Any = None, distiller: Any = None) -> dict[str, float]:
     """One optimisation step; :return: the losses."""
     import torch
-    losses = model(clips)
+    losses = model(clips, lost, distiller)
     opt.zero_grad(set_to_none=True)
     losses['loss'].backward()
     torch.nn.utils.clip_grad_norm_(module.parameters(), grad_clip)
@@ -328,7 +352,14 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     data = training_sequences(tc, mcfg.class_names)
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
-    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps)
+    sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps,
+                          tc.outage_probability, tc.outage_width_deg)
+    frozen = freeze(module, tc.freeze)
+    distiller = None
+    if tc.distill_weight > 0:
+        from suit_ros.model.distill import Distiller
+        distiller = Distiller(module.head, module.fusion.current if module.fusion else None,
+                              tc.distill_weight).to(dev)
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
     opt = _optimizer(module, tc)
     step = 0
@@ -348,12 +379,18 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     bar = tqdm(total=tc.steps, initial=step, disable=rank != 0, dynamic_ncols=True,
                desc=f'train[{mcfg.temporal}]')
     model.train()
+    for m in frozen:
+        m.eval()
+    if tc.frozen_batchnorm:
+        for m in module.modules():
+            if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
+                m.eval()
     while True:                      # at least one step per call, then until the budget is spent
         lr = _schedule(opt, progress(), tc.lr)
-        clips = sampler.batch(batch)
+        clips, lost = sampler.batch_with_outages(batch)
         if tc.augment:
             clips = [augment.apply_clip(c, _draw(tc, aug_rng)) for c in clips]
-        vals = _optimise(model, module, opt, clips, tc.grad_clip)
+        vals = _optimise(model, module, opt, clips, tc.grad_clip, lost, distiller)
         step += 1
         if not math.isfinite(vals['loss']):
             raise RuntimeError(f'loss became {vals["loss"]} at step {step}; lower the lr')

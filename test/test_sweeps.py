@@ -175,3 +175,34 @@ def test_a_fresh_and_a_cached_drive_are_the_same_frames(tmp_path):
         np.testing.assert_array_equal(a.points, b.points)
     uncached = synthetic_sequence('test', 5, 3, None)          # no cache: full precision
     assert any(not np.array_equal(a.points, u.points) for a, u in zip(fresh, uncached))
+
+
+def test_outage_clips_lose_a_sector_and_keep_the_objects_seen_before(tmp_path):
+    """An outage clip loses one sector of its sweeps from clip frame 1 or 2 on; the GT of
+    those frames keeps the objects that had returns just before (so the loss asks the memory
+    to carry them), and the frames before the outage are untouched."""
+    from suit_ros.data.sequences import ClipSampler, synthetic_sequence
+    from suit_ros.outage import seen_ids
+    seq = synthetic_sequence('test', 3, 8, tmp_path)
+    lossy = ClipSampler([seq], [6], 4, sweeps=3, outage_probability=1.0,
+                        outage_width_deg=(120.0, 120.0))
+    stamps = [f.stamp_ns for f in seq]
+    carried = 0
+    for _ in range(4):
+        (b,), (lost,) = lossy.batch_with_outages(1)
+        start = stamps.index(b[0].stamp_ns)
+        a = [model_frame(seq, start + t, 3) for t in range(6)]
+        begin = lost.index(True)
+        assert begin in (1, 2) and all(lost[begin:]) and not any(lost[:begin])
+        for t in range(begin):
+            np.testing.assert_array_equal(a[t].points, b[t].points)
+        assert len(b[-1].points) < len(a[-1].points)
+        seen = seen_ids(b[begin - 1])
+        for f in b[begin:]:
+            kept = set(f.instance_ids.tolist())
+            with_returns = {int(i) for i, c in zip(f.instance_ids, f.num_points) if c > 0}
+            assert kept == with_returns | (seen & set(kept))
+            carried += len(kept - with_returns)
+    assert carried > 0           # some seen objects lost their returns and stayed in the GT
+    with pytest.raises(ValueError, match='outage_probability'):
+        ClipSampler([seq], [6], 0, outage_probability=1.5)

@@ -185,3 +185,40 @@ def test_one_cycle_matches_torch_and_ends_annealed():
     assert one_cycle(1.0, 1e-3) == pytest.approx((1e-6, 0.95))
     assert one_cycle(0.0, 1e-3) == pytest.approx((1e-4, 0.95))
     assert one_cycle(0.3, 1e-3)[0] == pytest.approx(1e-3)
+
+
+def test_frozen_base_and_distillation_train_only_the_temporal_part():
+    """With pillars and backbone frozen no gradient reaches them and the encoder builds no
+    graph; the distillation term is zero for a student equal to its teacher on frames without
+    a memory, positive once the student's head moves, and skipped on outage frames."""
+    from suit_ros.config import load_model_config
+    from suit_ros.model.detector import SUITDetector
+    from suit_ros.model.distill import Distiller
+    from suit_ros.train import freeze
+    torch.manual_seed(0)
+    cfg = replace(load_model_config(REPO / 'params/model_cpu.yaml'), temporal='suit')
+    model = SUITDetector(cfg)
+    frozen = freeze(model, ('pillars', 'backbone'))
+    assert frozen == [model.pillars, model.backbone]
+    distiller = Distiller(model.head, model.fusion.current, 1.0)
+    model.eval()                   # as with frozen_batchnorm: the head's statistics stay
+    noise = np.random.default_rng(0).normal(0, 0.3, (50, 5)) * [1, 1, 1, 0, 0]
+    frames = [replace(f, points=(np.tile(f.points, (50, 1)) + noise).astype(np.float32))
+              for f in two_frames()]
+    points = [torch.from_numpy(frames[0].points)]
+    assert not model.encode(points).requires_grad
+    current = model.encode(points)
+    preds = model.head(model.fusion(current, None))
+    zero = distiller.loss(current, preds, torch.tensor([True]))
+    assert float(zero.detach()) == pytest.approx(0.0, abs=1e-10)
+    with torch.no_grad():
+        model.head.heatmap[-1].bias.add_(1.0)
+    preds = model.head(model.fusion(current, None))
+    moved = distiller.loss(current, preds, torch.tensor([True]))
+    assert float(moved.detach()) > 1e-4 and moved.requires_grad
+    assert float(distiller.loss(current, preds, torch.tensor([False]))) == 0.0
+    losses = model.forward_sequence([frames], [[False, True]], distiller)
+    losses['loss'].backward()
+    assert all(p.grad is None for m in frozen for p in m.parameters())
+    assert any(p.grad is not None for p in model.head.parameters())
+    assert float(losses['distill_loss']) > 0

@@ -150,11 +150,15 @@ def load_sequence(path: Path, points_dtype: PointsDtype = np.float32) -> list[Fr
     return out
 
 
-def training_view(frame: Frame, min_points: int = 1) -> Frame:
-    """The frame with GT restricted to boxes that have at least ``min_points`` returns."""
+def training_view(frame: Frame, min_points: int = 1, keep_ids: set[int] | None = None
+                  ) -> Frame:
+    """The frame with GT restricted to boxes that have at least ``min_points`` returns (or
+    whose instance id is in ``keep_ids``: objects seen before an outage)."""
     if frame.gt is None or frame.num_points is None:
         return frame
     keep = frame.num_points >= min_points
+    if keep_ids and frame.instance_ids is not None:
+        keep |= np.isin(frame.instance_ids, np.fromiter(keep_ids, np.int64))
     from dataclasses import replace
     return replace(frame, gt=frame.gt.select(keep), num_points=frame.num_points[keep],
                    instance_ids=(frame.instance_ids[keep] if frame.instance_ids is not None
@@ -166,30 +170,66 @@ class ClipSampler:
 
     :param sweeps: sweeps per model frame (the model config's ``sweeps``); a clip's first frame
         still gets its previous sweeps when the sequence has them.
+    :param outage_probability: share of the clips with a sensor outage drawn in (the memory's
+        training signal): a sector of ``outage_width_deg`` (uniform within the range) is lost
+        from the sensor sweeps from clip frame 1 or 2 to the clip's end, before the sweeps are
+        accumulated; the GT of those frames keeps the objects that had returns just before
+        the outage (they are still there), so the loss rewards carrying them.
     """
 
     def __init__(self, sequences: Sequence[Sequence[Frame]], lengths: Sequence[int],
-                 seed: int, sweeps: int = 1) -> None:
+                 seed: int, sweeps: int = 1, outage_probability: float = 0.0,
+                 outage_width_deg: tuple[float, float] = (60.0, 180.0)) -> None:
         span = max(lengths)
         self.sequences = [s for s in sequences if len(s) >= span]
         if not self.sequences:
             raise ValueError(f'no sequence has {span} frames (clips of {span} frames)')
+        if not 0.0 <= outage_probability <= 1.0:
+            raise ValueError(f'outage_probability must be in [0, 1], not {outage_probability}')
+        if outage_probability and span < 3:
+            raise ValueError('clips with outages need at least 3 frames')
         self.lengths = list(lengths)
         self.sweeps = sweeps
+        self.outage_probability = outage_probability
+        self.outage_width_deg = outage_width_deg
         self.rng = np.random.default_rng(seed)
 
     def batch(self, batch_size: int) -> list[list[Frame]]:
         """``batch_size`` clips of one common length."""
+        return self.batch_with_outages(batch_size)[0]
+
+    def batch_with_outages(self, batch_size: int
+                           ) -> tuple[list[list[Frame]], list[list[bool]]]:
+        """Clips as :meth:`batch`, and per clip frame whether an outage is active in it."""
         from suit_ros.model.sweeps import model_frame
         L = int(self.rng.choice(self.lengths))
-        out = []
+        clips, lost = [], []
         for _ in range(batch_size):
             seq = self.sequences[int(self.rng.integers(len(self.sequences)))]
             start = int(self.rng.integers(len(seq) - L + 1))
-            out.append([training_view(model_frame(seq, t, self.sweeps))
-                        for t in range(start, start + L)])
-        return out
+            first = max(start - self.sweeps + 1, 0)
+            window = list(seq[first:start + L])
+            active = [False] * L
+            seen: set[int] | None = None
+            if L >= 3 and self.rng.random() < self.outage_probability:
+                window, active, seen = self._draw_outage(window, start - first, L)
+            clip = []
+            for t in range(L):
+                f = model_frame(window, start - first + t, self.sweeps)
+                clip.append(training_view(f, keep_ids=seen if active[t] else None))
+            clips.append(clip)
+            lost.append(active)
+        return clips, lost
 
+    def _draw_outage(self, window: list[Frame], offset: int, L: int
+                     ) -> tuple[list[Frame], list[bool], set[int]]:
+        """Remove a random sector from the window's sweeps from clip frame 1 or 2 on."""
+        from suit_ros.outage import Outage, seen_ids, with_outages
+        begin = int(self.rng.integers(1, min(2, L - 2) + 1))
+        o = Outage(float(self.rng.uniform(-180, 180)),
+                   float(self.rng.uniform(*self.outage_width_deg)), offset + begin, L - begin)
+        return (with_outages(window, [o]), [t >= begin for t in range(L)],
+                seen_ids(window[offset + begin - 1]))
 
 def bag_sequences(paths: Sequence[str | os.PathLike[str]]) -> list[list[Frame]]:
     """Sequences from rosbag2 bags that carry ``/points``, ``/odom`` and ``/gt/objects``."""

@@ -19,6 +19,7 @@ from torch import Tensor, nn
 
 from suit_ros.config import ModelConfig
 from suit_ros.model.backbone import BEVBackbone
+from suit_ros.model.distill import Distiller
 from suit_ros.model.fusion import PastTerm, TemporalFusion, sparse_past_term, warp_dense
 from suit_ros.model.geonet import GeoNet
 from suit_ros.model.grid import BEVGrid
@@ -69,8 +70,12 @@ class SUITDetector(nn.Module):
         """Pillars + backbone for a batch of ``(N_i, 5)`` clouds -> ``(B, C, H, W)``."""
         rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
                 for i, pts in enumerate(points)]
-        bev = self.pillars(torch.cat(rows, dim=0), len(points))
-        out: Tensor = self.backbone(bev)
+        # a frozen base (temporal fine-tuning) builds no graph: no backward through it
+        trainable = any(p.requires_grad for m in (self.pillars, self.backbone)
+                        for p in m.parameters())
+        with torch.set_grad_enabled(torch.is_grad_enabled() and trainable):
+            bev = self.pillars(torch.cat(rows, dim=0), len(points))
+            out: Tensor = self.backbone(bev)
         return out
 
     @staticmethod
@@ -163,14 +168,22 @@ class SUITDetector(nn.Module):
                             self.cfg.sampling.window)
 
     # ------------------------------------------------------------------ training
-    def forward(self, frames: Sequence[Sequence[Frame]]) -> dict[str, Tensor]:
+    def forward(self, frames: Sequence[Sequence[Frame]],
+                lost: Sequence[Sequence[bool]] | None = None,
+                distiller: Distiller | None = None) -> dict[str, Tensor]:
         """Training forward (what DistributedDataParallel calls): :meth:`forward_sequence`."""
-        return self.forward_sequence(frames)
+        return self.forward_sequence(frames, lost, distiller)
 
-    def forward_sequence(self, frames: Sequence[Sequence[Frame]]) -> dict[str, Tensor]:
+    def forward_sequence(self, frames: Sequence[Sequence[Frame]],
+                         lost: Sequence[Sequence[bool]] | None = None,
+                         distiller: Distiller | None = None) -> dict[str, Tensor]:
         """Losses over a batch of ``B`` sequences of ``T`` frames, memory passed frame to frame.
 
-        :return: ``hm_loss``, ``loc_loss``, ``geo_loss`` (averaged over frames) and ``loss``.
+        :param lost: per sequence and frame, whether a sensor outage is active (those frames
+            are not distilled); :param distiller: keeps ordinary frames' outputs near a frozen
+            teacher's (:mod:`suit_ros.model.distill`).
+        :return: ``hm_loss``, ``loc_loss``, ``geo_loss``, ``distill_loss`` (averaged over
+            frames) and ``loss``.
         """
         T = len(frames[0])
         if any(len(seq) != T for seq in frames):
@@ -180,7 +193,8 @@ class SUITDetector(nn.Module):
         prev_gt: list[Frame] | None = None
         totals = {'hm_loss': torch.zeros((), device=device),
                   'loc_loss': torch.zeros((), device=device),
-                  'geo_loss': torch.zeros((), device=device)}
+                  'geo_loss': torch.zeros((), device=device),
+                  'distill_loss': torch.zeros((), device=device)}
         geo_terms = 0
         for t in range(T):
             step = [seq[t] for seq in frames]
@@ -195,6 +209,11 @@ class SUITDetector(nn.Module):
             losses = self.head.loss(preds, targets)
             totals['hm_loss'] = totals['hm_loss'] + losses['hm_loss']
             totals['loc_loss'] = totals['loc_loss'] + losses['loc_loss']
+            if distiller is not None:
+                ordinary = torch.tensor([not (lost and lost[b][t]) for b in range(len(step))],
+                                        device=device)
+                totals['distill_loss'] = (totals['distill_loss']
+                                          + distiller.loss(current, preds, ordinary))
             if 'geo_logits' in aux and prev_gt is not None and isinstance(memory, SparseMemory):
                 totals['geo_loss'] = totals['geo_loss'] + self.geo_loss(memory, aux, prev_gt)
                 geo_terms += 1
@@ -202,7 +221,7 @@ class SUITDetector(nn.Module):
             prev_gt = step
         out = {k: v / (max(geo_terms, 1) if k == 'geo_loss' else T) for k, v in totals.items()}
         out['loss'] = (out['hm_loss'] + self.cfg.head.loc_weight * out['loc_loss']
-                       + self.cfg.geo_loss_weight * out['geo_loss'])
+                       + self.cfg.geo_loss_weight * out['geo_loss'] + out['distill_loss'])
         return out
 
     def geo_loss(self, memory: SparseMemory, aux: dict[str, Tensor],
