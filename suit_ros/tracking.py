@@ -44,6 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.ops.geometry import CellIndex
 from suit_ros.structures import Detections
 
 
@@ -333,26 +334,17 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     past_lags = np.unique(lags[lags > 0])
     if len(past_lags) == 0:
         return vel, ok
-    # a coarse grid over the points (cells of ``cell`` m, sorted by cell key): each box reads
-    # only the cells its search area touches
-    cell = 4.0
-    ij = np.floor(pts[:, :2] / cell).astype(np.int64)
-    key = ij[:, 0] * 1_000_003 + ij[:, 1]
-    order = np.argsort(key, kind='stable')
-    keys = key[order]
+    # only the points near the boxes' search areas, bucketed by a coarse grid (each box reads
+    # the cells its area touches)
     speeds = np.arange(-max_speed, max_speed + 1e-9, 0.25)
     reach = max_speed * float(past_lags.max())
-    for j in np.flatnonzero(which):
+    picked = np.flatnonzero(which)
+    r = 0.5 * b[picked, 3] + reach + b[picked, 4]
+    index = CellIndex(pts, b[picked, :2] - r[:, None], b[picked, :2] + r[:, None], 4.0)
+    for n, j in enumerate(picked):
         cx, cy, cz, length, width, height, yaw = b[j]
         half = 0.5 * length + reach
-        r = half + width
-        i0, i1 = int(np.floor((cx - r) / cell)), int(np.floor((cx + r) / cell))
-        j0, j1 = int(np.floor((cy - r) / cell)), int(np.floor((cy + r) / cell))
-        want = (np.arange(i0, i1 + 1)[:, None] * 1_000_003 + np.arange(j0, j1 + 1)[None]).ravel()
-        starts = np.searchsorted(keys, want, 'left')
-        ends = np.searchsorted(keys, want, 'right')
-        sel = np.concatenate([order[a:e] for a, e in zip(starts, ends) if e > a] or
-                             [np.zeros(0, np.int64)])
+        sel = index.select(n)
         p = pts[sel]
         c, s = np.cos(yaw), np.sin(yaw)
         dx, dy = p[:, 0] - cx, p[:, 1] - cy

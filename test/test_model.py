@@ -257,7 +257,7 @@ def test_variants_train_and_stream(temporal):
     torch.manual_seed(0)
     model = SUITDetector(small_config(temporal))
     losses = model.forward_sequence([[frame(0), frame(1), frame(2)]])
-    assert set(losses) == {'hm_loss', 'loc_loss', 'geo_loss', 'loss'}
+    assert set(losses) == {'hm_loss', 'loc_loss', 'geo_loss', 'distill_loss', 'loss'}
     assert torch.isfinite(losses['loss'])
     losses['loss'].backward()
     runner = StreamingDetector(model)
@@ -495,6 +495,21 @@ def test_inference_copy_folds_batch_norms_exactly():
             assert torch.allclose(pa[k], pb[k], atol=1e-4, rtol=1e-4), k
     with pytest.raises(ValueError, match='eval mode'):
         fold_batchnorm(SUITDetector(small_config()).train())
+
+
+def test_folded_pillars_are_the_same_in_chunks_of_points(monkeypatch):
+    """The inference encoder takes its per-pillar max over chunks of points (no large fresh
+    allocation per frame); the pseudo-image equals the one-chunk result exactly."""
+    from suit_ros.model.inference import inference_copy
+    torch.manual_seed(1)
+    fast = inference_copy(SUITDetector(small_config()).eval(), channels_last=False)
+    pts = torch.from_numpy(np.concatenate([cloud_in_grid(k) for k in range(8)]))
+    rows = torch.cat([torch.zeros(len(pts), 1), pts], 1)
+    with torch.no_grad():
+        whole = fast.pillars(rows, 1)
+        monkeypatch.setattr(type(fast.pillars), 'CHUNK', 97)
+        assert len(rows) > 10 * 97
+        assert torch.equal(fast.pillars(rows, 1), whole)
 
 
 def test_bfloat16_inference_copy_wraps_the_convolutions_and_keeps_float32_outputs():

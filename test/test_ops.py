@@ -127,3 +127,29 @@ def test_ego_transform_static_object():
     moved, _ = transform_boxes(ego_transform(p1, p0), b0)
     np.testing.assert_allclose(moved, b1, atol=1e-5)
     np.testing.assert_allclose(se3_inverse(p0) @ p0, np.eye(4), atol=1e-12)
+
+
+def test_cell_index_selects_exactly_the_points_of_the_touched_cells():
+    """A rectangle's selection is every point whose cell its corners span, no other."""
+    from suit_ros.ops.geometry import CellIndex
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-30, 30, (5000, 2))
+    lo = np.array([[-10.0, -3.0], [5.0, 5.0], [100.0, 100.0]])
+    hi = np.array([[-4.0, 7.5], [5.5, 20.0], [101.0, 101.0]])
+    index = CellIndex(xy, lo, hi, 2.0)
+    cells = np.floor(xy / 2.0)
+    for k in range(3):
+        want = np.flatnonzero(np.all((cells >= np.floor(lo[k] / 2)) & (cells <= np.floor(hi[k] / 2)),
+                                     axis=1))
+        np.testing.assert_array_equal(np.sort(index.select(k)), want)
+    assert len(CellIndex(xy[:0], lo, hi, 2.0).select(1)) == 0
+
+
+def test_count_points_in_boxes_matches_the_dense_membership_on_a_large_cloud():
+    from suit_ros.ops.geometry import count_points_in_boxes, points_in_boxes
+    rng = np.random.default_rng(4)
+    xyz = np.c_[rng.uniform(-50, 50, (200_000, 2)), rng.uniform(-1, 3, 200_000)]
+    boxes = np.c_[rng.uniform(-45, 45, (30, 2)), rng.uniform(0, 1, 30), rng.uniform(1, 8, 30),
+                  rng.uniform(0.5, 3, 30), rng.uniform(1, 3, 30), rng.uniform(-3, 3, 30)]
+    np.testing.assert_array_equal(count_points_in_boxes(xyz, boxes),
+                                  points_in_boxes(xyz, boxes).sum(0))

@@ -26,6 +26,7 @@ class PillarEncoder(nn.Module):
     """
 
     TIME_CHANNEL = 4
+    CHUNK = 32768                # points per product in the inference path (see _folded_pillars)
 
     def __init__(self, grid: BEVGrid, in_channels: int = 5, channels: int = 32,
                  time_scale: float = 1.0, max_points: int = 0) -> None:
@@ -74,7 +75,8 @@ class PillarEncoder(nn.Module):
         xyz = points[:, 1:4]
         inside = ((xyz[:, 0] >= x0) & (xyz[:, 0] < x1) & (xyz[:, 1] >= y0) & (xyz[:, 1] < y1)
                   & (xyz[:, 2] >= z0) & (xyz[:, 2] < z1))
-        pts = points if bool(inside.all()) else points[inside]
+        pts = (points if bool(inside.all())
+               else points.index_select(0, torch.nonzero(inside, as_tuple=True)[0]))
         ix = ((pts[:, 1] - x0) / g.pillar_size).long().clamp_(0, g.nx - 1)
         iy = ((pts[:, 2] - y0) / g.pillar_size).long().clamp_(0, g.ny - 1)
         key = (pts[:, 0].long() * g.ny + iy) * g.nx + ix
@@ -102,10 +104,15 @@ class PillarEncoder(nn.Module):
                       + centre_y[:, None] * W[:, C + 4])
         if self.linear.bias is not None:
             per_pillar = per_pillar - self.linear.bias
-        z = feats @ A.T
-        pillar = torch.empty(per_pillar.shape, dtype=z.dtype, device=z.device)
-        pillar = pillar.scatter_reduce_(0, inverse[:, None].expand_as(z), z, 'amax',
-                                        include_self=False)
+        # in chunks of points: a (P, C) product of a 64-beam input (over 40 MB) would be a
+        # fresh allocation every frame (above the allocator's reuse threshold, paid in page
+        # faults, 3x the work itself); the max does not depend on the order of the points
+        pillar = torch.full(per_pillar.shape, float('-inf'), dtype=feats.dtype,
+                            device=feats.device)
+        A_t = A.T.to(feats.dtype)
+        for a in range(0, feats.shape[0], self.CHUNK):
+            z = feats[a:a + self.CHUNK] @ A_t
+            pillar.scatter_reduce_(0, inverse[a:a + self.CHUNK, None].expand_as(z), z, 'amax')
         # the per-pillar term is the same for every point of the pillar: subtract it after
         # the max
         return torch.relu_(pillar.sub_(per_pillar))

@@ -63,20 +63,27 @@ def accumulate_sweeps(sweeps: Sequence[Sweep], T_base_lidar: NDArray[np.float64]
         raise ValueError('accumulate_sweeps needs at least the current sweep')
     now = sweeps[0]
     T_base_odom = np.asarray(T_base_lidar, np.float64) @ se3_inverse(now.T_odom_lidar)
-    parts = []
-    for i, s in enumerate(sweeps):
-        pts = np.asarray(s.points, np.float32)
+    arrays = [np.asarray(s.points, np.float32) for s in sweeps]
+    for pts in arrays:
         if pts.ndim != 2 or pts.shape[1] not in (4, 5):
             raise ValueError(f'sweep points must be (N, 4) or (N, 5), got {pts.shape}')
+    # one output written in place (no per-sweep parts to concatenate)
+    out = np.empty((sum(len(p) for p in arrays), 5), np.float32)
+    a = 0
+    for i, (s, pts) in enumerate(zip(sweeps, arrays)):
+        b = a + len(pts)
         T = (np.asarray(T_base_lidar, np.float64) if i == 0
              else T_base_odom @ np.asarray(s.T_odom_lidar, np.float64))
-        out = np.empty((len(pts), 5), np.float32)
-        out[:, :3] = pts[:, :3] @ T[:3, :3].T.astype(np.float32) + T[:3, 3].astype(np.float32)
-        out[:, 3] = pts[:, 3]
+        np.matmul(pts[:, :3], T[:3, :3].T.astype(np.float32), out=out[a:b, :3])
+        out[a:b, :3] += T[:3, 3].astype(np.float32)
+        out[a:b, 3] = pts[:, 3]
         lag = np.float32((now.stamp_ns - s.stamp_ns) * 1e-9)
-        out[:, 4] = pts[:, 4] + lag if pts.shape[1] == 5 else lag
-        parts.append(out)
-    return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        if pts.shape[1] == 5:
+            np.add(pts[:, 4], lag, out=out[a:b, 4])
+        else:
+            out[a:b, 4] = lag
+        a = b
+    return out
 
 
 class SweepBuffer:

@@ -89,53 +89,66 @@ def points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[A
     return inside
 
 
+class CellIndex:
+    """The points of a cloud that lie near some rectangles, bucketed by a coarse BEV grid.
+
+    Built in time linear in the points: a grid of ``cell`` m over the rectangles' cells marks
+    the cells each rectangle touches; only the points in marked cells are kept and sorted by
+    cell. :meth:`select` then gives a rectangle's points by binary search.
+
+    :param xy: ``(N, >= 2)`` points (x, y first).
+    :param lo, hi: ``(M, 2)`` each rectangle's lower and upper corner (m).
+    """
+
+    def __init__(self, xy: NDArray[np.floating[Any]], lo: NDArray[np.floating[Any]],
+                 hi: NDArray[np.floating[Any]], cell: float) -> None:
+        lo_c = np.floor(np.asarray(lo, np.float64).reshape(-1, 2) / cell).astype(np.int64)
+        hi_c = np.floor(np.asarray(hi, np.float64).reshape(-1, 2) / cell).astype(np.int64)
+        self.order = np.zeros(0, np.int64)
+        self.keys = np.zeros(0, np.int64)
+        self.cells: list[NDArray[np.int64]] = []
+        p = np.asarray(xy)
+        if len(lo_c) == 0 or len(p) == 0:
+            self.cells = [np.zeros(0, np.int64)] * len(lo_c)
+            return
+        origin = lo_c.min(0)
+        shape = hi_c.max(0) - origin + 1
+        for a, b in zip(lo_c - origin, hi_c - origin):
+            rows, cols = np.arange(a[0], b[0] + 1), np.arange(a[1], b[1] + 1)
+            self.cells.append((rows[:, None] * shape[1] + cols[None, :]).ravel())
+        marked = np.zeros(int(shape[0]) * int(shape[1]), bool)
+        marked[np.concatenate(self.cells)] = True
+        # columns compared one by one: reductions along a short axis are slow in numpy
+        ix = np.floor(p[:, 0] * (1.0 / cell)).astype(np.int64) - origin[0]
+        iy = np.floor(p[:, 1] * (1.0 / cell)).astype(np.int64) - origin[1]
+        idx = np.flatnonzero((ix >= 0) & (ix < shape[0]) & (iy >= 0) & (iy < shape[1]))
+        flat = ix[idx] * shape[1] + iy[idx]
+        keep = marked[flat]
+        idx, flat = idx[keep], flat[keep]
+        order = np.argsort(flat, kind='stable')
+        self.order, self.keys = idx[order], flat[order]
+
+    def select(self, k: int) -> NDArray[np.int64]:
+        """Indices (into the cloud) of the points in the cells rectangle ``k`` touches."""
+        starts = np.searchsorted(self.keys, self.cells[k], 'left')
+        ends = np.searchsorted(self.keys, self.cells[k], 'right')
+        return np.concatenate([self.order[a:e] for a, e in zip(starts, ends) if e > a]
+                              or [np.zeros(0, np.int64)])
+
+
 def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],
                           cell: float = 2.0) -> NDArray[np.uint32]:
-    """Number of points inside each ``(M, 7)`` box (the rule of :func:`points_in_boxes`).
-
-    Linear in the points: a coarse BEV grid (``cell`` m) marks the cells each box's bounding
-    square touches; only the points in marked cells are tested, against the boxes whose
-    squares touch their cell.
-    """
+    """Number of points inside each ``(M, 7)`` box (the rule of :func:`points_in_boxes`),
+    linear in the points (:class:`CellIndex` over the boxes' bounding squares)."""
     b = np.asarray(boxes, np.float64).reshape(-1, 7)
     out = np.zeros(len(b), np.uint32)
     p = np.asarray(xyz)
     if len(p) == 0 or len(b) == 0:
         return out
     r = 0.5 * np.hypot(b[:, 3], b[:, 4])
-    lo = np.floor((b[:, :2] - r[:, None]) / cell).astype(np.int64)
-    hi = np.floor((b[:, :2] + r[:, None]) / cell).astype(np.int64)
-    origin = lo.min(0)
-    shape = hi.max(0) - origin + 1
-    ix = (p[:, 0] * (1.0 / cell)).astype(np.float64)
-    iy = (p[:, 1] * (1.0 / cell)).astype(np.float64)
-    # within the boxes' cells (columns compared one by one: reductions along a short axis
-    # are slow in numpy)
-    idx = np.flatnonzero((ix >= origin[0]) & (ix < origin[0] + shape[0])
-                         & (iy >= origin[1]) & (iy < origin[1] + shape[1]))
-    if len(idx) == 0:
-        return out
-    ij = np.stack([np.floor(ix[idx]), np.floor(iy[idx])], 1).astype(np.int64) - origin
-    idx_cells = ij
-    cells: list[NDArray[np.int64]] = []
+    index = CellIndex(p, b[:, :2] - r[:, None], b[:, :2] + r[:, None], cell)
     for k in range(len(b)):
-        rows = np.arange(lo[k, 0], hi[k, 0] + 1) - origin[0]
-        cols = np.arange(lo[k, 1], hi[k, 1] + 1) - origin[1]
-        cells.append((rows[:, None] * shape[1] + cols[None, :]).ravel())
-    marked = np.zeros(int(shape[0]) * int(shape[1]), bool)
-    marked[np.concatenate(cells)] = True
-    flat = idx_cells[:, 0] * shape[1] + idx_cells[:, 1]
-    keep = marked[flat]
-    cand, flat = idx[keep], flat[keep]
-    if len(cand) == 0:
-        return out
-    order = np.argsort(flat, kind='stable')
-    keys = flat[order]
-    q = np.asarray(p[cand[order], :3], np.float64)
-    for k in range(len(b)):
-        starts = np.searchsorted(keys, cells[k], 'left')
-        ends = np.searchsorted(keys, cells[k], 'right')
-        sel = np.concatenate([np.arange(a, e) for a, e in zip(starts, ends) if e > a]
-                             or [np.zeros(0, np.int64)])
-        out[k] = int(points_in_boxes(q[sel], b[k:k + 1]).sum())
+        sel = index.select(k)
+        if len(sel):
+            out[k] = int(points_in_boxes(np.asarray(p[sel, :3], np.float64), b[k:k + 1]).sum())
     return out
