@@ -112,23 +112,52 @@ def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C:
     return res
 
 
-def _scaling_points(runner: Any, frames: list[Any], n: int) -> dict[int, float]:
-    """Step p50 (ms) with 10k-300k points per cloud (a resampled demo frame)."""
+SENSOR_SIZES = (('37k', 'sim32', 1.0), ('114k', 'hdl64e', 1.0), ('260k', 'hdl64e', 2.3))
+
+
+def _sensor_sizes(model_args: argparse.Namespace, n: int) -> dict[str, Any]:
+    """The SUIT step by stage at real sensor sizes: the demo drive as a 32-beam (about 37k
+    points a sweep) and a 64-beam sensor (hdl64e, about 114k) sees it, and the 64-beam sweeps
+    densified 2.3x by jittered copies of their points (about 260k, an OS1-128 or AT128).
+    Three sweeps in each input, tracker on; the three step frame by frame in turn."""
+    from dataclasses import replace
+
+    from suit_ros.data.sequences import synthetic_sequence
     from suit_ros.evaluate import step_inputs
-    runner.reset('bench')
-    base = np.concatenate([f.points for f in frames[:8]])
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.tracking import FilterConfig
     rng = np.random.default_rng(0)
-    scaling = {}
-    for count in (10_000, 30_000, 100_000, 300_000):
-        pts = base[rng.integers(0, len(base), count)]
-        pts[:, :2] += rng.normal(0, 0.05, (count, 2)).astype(np.float32)
-        times = []
-        for i in range(max(5, n // 3)):
-            r = runner.step(pts, frames[0].stamp_ns + i * 100_000_000,
-                            *step_inputs(frames[0])[2:])
-            times.append(r.timings['total'])
-        scaling[count] = pct(times[2:], 50)
-    return scaling
+    drives = {}
+    for name, sensor, factor in SENSOR_SIZES:
+        frames = synthetic_sequence('demo-real', 7, max(n, 8), sensor=sensor)
+        if factor != 1.0:
+            dense = []
+            for f in frames:
+                idx = rng.integers(0, len(f.points), int(len(f.points) * factor))
+                pts = f.points[idx].copy()
+                pts[:, :3] += rng.normal(0, 0.03, (len(idx), 3)).astype(np.float32)
+                dense.append(replace(f, points=pts))
+            frames = dense
+        drives[name] = frames
+    model = _model(model_args, 'suit')
+    runners = {k: StreamingDetector(model, model_args.device, precision=model_args.precision,
+                                    velocity_filter=FilterConfig()) for k in drives}
+    keys = ('sweeps', 'encode', 'fusion', 'head_decode', 'sampling', 'tracking', 'total')
+    times: dict[str, dict[str, list[float]]] = {k: {s: [] for s in keys} for k in drives}
+    for i in range(max(n, 8)):
+        for name, frames in drives.items():
+            r = runners[name].step(*step_inputs(frames[i]))
+            if i >= 3:                                           # warm-up
+                for key in keys:
+                    times[name][key].append(r.timings[key])
+    out: dict[str, Any] = {}
+    for name, frames in drives.items():
+        out[name] = {'points': int(np.median([len(f.points) for f in frames])),
+                     **{k: pct(v, 50) for k, v in times[name].items()}}
+    base = out['37k']['total']
+    for name in drives:
+        out[name]['ratio'] = out[name]['total'] / base
+    return out
 
 
 def _scaling_objects(runner: Any) -> list[dict[str, float]]:
@@ -183,14 +212,14 @@ def run(args: argparse.Namespace) -> int:
                for t in temporals}
     res.update(_per_stage(runners, frames, clouds, C))
     runner = runners['suit']
-    res['scaling_points_ms'] = _scaling_points(runner, frames, n)
+    res['sensor_sizes'] = _sensor_sizes(args, n)
     res['scaling_objects'] = _scaling_objects(runner)
     if not args.skip_node:
         from suit_ros.bench_node import node_latency
-        res['node'] = {f'{hz}Hz': node_latency(args.checkpoint, rate=hz / 10.0,
-                                                  threads=args.node_threads,
-                                                  precision=args.precision)
-                       for hz in (10, 20)}
+        res['node'] = {f'{hz}Hz {sensor}': node_latency(
+            args.checkpoint, rate=hz / 10.0, threads=args.node_threads,
+            precision=args.precision, sensor=sensor)
+            for hz, sensor in ((10, 'sim32'), (20, 'sim32'), (10, 'hdl64e'))}
     res['peak_rss_mb'] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     text = table(res)
     if args.json:
@@ -235,8 +264,15 @@ def table(r: dict[str, Any]) -> str:
         lines.append(f'temporal memory after {k:>2} frames: SUIT {m["suit"].get(k, 0):,} B, '
                      f'dense {m["dense"].get(k, 0):,} B, ratio '
                      f'{r["memory_ratio_suit_dense"][k] * 100:.2f}%')
-    lines += ['', 'scaling with points per cloud (SUIT step p50 ms): ' + ', '.join(
-        f'{k // 1000}k: {v:.1f}' for k, v in r['scaling_points_ms'].items())]
+    lines += ['', 'SUIT step by points a sweep (3 sweeps in the input; p50 ms; ratio: total '
+              'over the 37k total)',
+              f'{"sweep":<8}{"points":>8}' + ''.join(f'{k:>12}' for k in (
+                  'sweeps', 'encode', 'fusion', 'head_decode', 'sampling', 'tracking', 'total',
+                  'ratio'))]
+    for name, v in r['sensor_sizes'].items():
+        lines.append(f'{name:<8}{v["points"]:>8}' + ''.join(f'{v[k]:>12.1f}' for k in (
+            'sweeps', 'encode', 'fusion', 'head_decode', 'sampling', 'tracking', 'total'))
+            + f'{v["ratio"]:>11.2f}x')
     lines.append('scaling with objects in the scene: ' + ', '.join(
         f'{o["objects_with_points"]:.0f} objects: {o["step_ms_p50"]:.1f} ms'
         for o in r['scaling_objects']))
@@ -244,7 +280,7 @@ def table(r: dict[str, Any]) -> str:
         for hz, v in r['node'].items():
             lines.append(f'node (threads:={v.get("node_threads", 2)}, precision:='
                          f'{v.get("node_precision", "float32")}) through DDS at {hz}: '
-                         f'latency p50 {v["latency_ms_p50"]:.1f} ms, '
+                         f'CPU {v.get("cpu_cores", float("nan")):.2f} cores, latency p50 {v["latency_ms_p50"]:.1f} ms, '
                          f'p95 {v["latency_ms_p95"]:.1f} ms, output {v["rate_hz"]:.1f} Hz, '
                          f'{v["frames_out"]}/{v["frames_in"]} frames out, dropped '
                          f'{v["dropped"]}, node overhead {v["overhead_pct"]:.1f}% of the model '

@@ -12,9 +12,10 @@ import numpy as np
 
 def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
                  seed: int = 7, workdir: str = 'out/demo', threads: int = 0,
-                 precision: str = 'auto') -> dict[str, Any]:
-    """Play the demo bag at ``rate`` x 10 Hz into a fresh node; measure cloud-received ->
-    detections-received latency at a probe, the output rate, drops and the node's overhead.
+                 precision: str = 'auto', sensor: str = 'sim32') -> dict[str, Any]:
+    """Play the demo drive (as ``sensor`` sees it) at ``rate`` x 10 Hz into a fresh node;
+    measure cloud-received -> detections-received latency at a probe, the output rate, drops,
+    the node's overhead and its CPU use (cores: the process's CPU time over the playback).
 
     :param threads: the node's ``threads`` parameter (0: its default, all cores but one).
     :param precision: the node's ``precision`` parameter.
@@ -28,7 +29,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     from suit_ros.rosenv import local_ros_env
     env = local_ros_env()
     os.environ.update(env)
-    bag = demo_bag(workdir, seed, frames)
+    bag = demo_bag(workdir, seed, frames, sensor)
     ckpt = checkpoint or str(default_checkpoint_path())
     node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
                              f'checkpoint:={ckpt}', '-p', f'threads:={threads}', '-p',
@@ -49,10 +50,11 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
                                    '--wait-subscribers', '20',
                                    '--topics', '/points', '/odom'],
                                   env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        t0 = time.monotonic()
+        t0, cpu0 = time.monotonic(), process_cpu_s(node.pid)
         while player.poll() is None and time.monotonic() < end + 120:
             ex.spin_once(timeout_sec=0.02)
         t_play = time.monotonic() - t0
+        cores = (process_cpu_s(node.pid) - cpu0) / max(t_play, 1e-9)
         settle = time.monotonic() + 2.5
         while time.monotonic() < settle:
             ex.spin_once(timeout_sec=0.05)
@@ -62,8 +64,8 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
         try_shutdown(context=ctx)
         node.terminate()
         node.wait(10)
-    return {'node_threads': threads, 'node_precision': precision,
-            **_summary(rec.clouds, {k: t for k, (t, _) in rec.dets.items()},
+    return {'node_threads': threads, 'node_precision': precision, 'sensor': sensor,
+            'cpu_cores': cores, **_summary(rec.clouds, {k: t for k, (t, _) in rec.dets.items()},
                        rec.diags[-1] if rec.diags else {}, t_play)}
 
 
@@ -101,15 +103,25 @@ class OutputRecorder:
         self.diags.append({kv.key: kv.value for kv in m.status[0].values})
 
 
-def demo_bag(workdir: str, seed: int, frames: int) -> str:
-    """The demo drive's bag (written once, then reused)."""
+def demo_bag(workdir: str, seed: int, frames: int, sensor: str = 'sim32') -> str:
+    """The demo drive's bag as ``sensor`` sees it (written once, then reused)."""
     from suit_ros.data.sim import preset
     from suit_ros.data.simulate_cli import write_bag
-    bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f')
+    name = f'demo-seed{seed}-{frames}f' + ('' if sensor == 'sim32' else f'-{sensor}')
+    bag = os.path.join(workdir, name)
     if not os.path.exists(bag):
         os.makedirs(workdir, exist_ok=True)
-        write_bag(bag, preset('demo-real', frames=frames), seed, 'mcap')
+        write_bag(bag, preset('demo-real', frames=frames, sensor=sensor), seed, 'mcap')
     return bag
+
+
+def process_cpu_s(pid: int) -> float:
+    """User + system CPU seconds a process has used (Linux ``/proc``; nan elsewhere)."""
+    try:
+        fields = open(f'/proc/{pid}/stat', encoding='ascii').read().rsplit(')', 1)[1].split()
+    except OSError:
+        return float('nan')
+    return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
 def _summary(clouds: dict[int, float], dets: dict[int, float], last: dict[str, str],
