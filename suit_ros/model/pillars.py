@@ -118,17 +118,12 @@ class PillarEncoder(nn.Module):
         return torch.relu_(pillar.sub_(per_pillar))
 
     def cap(self, points: Tensor) -> Tensor:
-        """``points`` with the denser pillars thinned to about ``max_points`` each: a pillar of
-        ``c > max_points`` points keeps each with probability ``max_points / c``, drawn from a
-        hash of the point's index (deterministic, the same in training and inference)."""
+        """``points`` with the denser pillars thinned to about ``max_points`` each
+        (:func:`~suit_ros.ops.geometry.thin_per_cell`)."""
+        from suit_ros.ops.geometry import thin_per_cell
         pts, inverse, keys = self.voxelize(points)
-        count = torch.bincount(inverse, minlength=len(keys))
-        if len(count) == 0 or int(count.max()) <= self.max_points:
-            return pts
-        h = (torch.arange(len(pts), device=pts.device) * 2654435761) % 4294967296
-        keep = h.to(torch.float64) < self.max_points / count[inverse].to(torch.float64) \
-            * 4294967296.0
-        return pts[keep]
+        keep = thin_per_cell(inverse.cpu().numpy(), self.max_points)
+        return pts if keep.all() else pts[torch.from_numpy(keep).to(pts.device)]
 
     def forward(self, points: Tensor, batch_size: int) -> Tensor:
         """Encode ``(P, 1 + in_channels)`` points into ``(B, C, ny, nx)``."""

@@ -152,3 +152,21 @@ def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floa
         if len(sel):
             out[k] = int(points_in_boxes(np.asarray(p[sel, :3], np.float64), b[k:k + 1]).sum())
     return out
+
+
+def thin_per_cell(cell: NDArray[np.integer[Any]], max_points: int) -> NDArray[np.bool_]:
+    """Which points to keep so that each cell holds about ``max_points``: a point of a cell
+    with ``c > max_points`` points is kept with probability ``max_points / c``, drawn from a
+    hash of its index (deterministic, the same in training and inference); sparser cells keep
+    every point.
+
+    :param cell: ``(N,)`` a cell id per point (small non-negative integers: counted with
+        ``bincount``).
+    """
+    c = np.asarray(cell)
+    if len(c) == 0:
+        return np.ones(0, bool)
+    per_point = np.bincount(c)[c]
+    h = (np.arange(len(c), dtype=np.uint64) * np.uint64(2654435761)) % np.uint64(4294967296)
+    keep: NDArray[np.bool_] = h.astype(np.float64) < (max_points / per_point) * 4294967296.0
+    return keep | (per_point <= max_points)
