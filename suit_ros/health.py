@@ -51,6 +51,19 @@ class HealthSnapshot:
     rate_window_s: float = 5.0
 
 
+def frame_stats(timings: dict[str, float], publish_s: float, received_ns: int, stamp_ns: int,
+                now_ns: int, max_skew_s: float) -> dict[str, Any]:
+    """One processed frame's entry of :attr:`HealthSnapshot.stats`: its stage times, and its
+    latency from the cloud's stamp, or from its arrival when the stamp is off the node clock
+    by more than ``max_skew_s`` (a sender with another clock)."""
+    skew = (received_ns - stamp_ns) * 1e-9
+    by_receive = abs(skew) > max_skew_s
+    return {'convert': timings['convert'], 'model': timings['model'],
+            'publish': timings['publish'] + publish_s,
+            'latency': (now_ns - (received_ns if by_receive else stamp_ns)) * 1e-9,
+            'by_receive': by_receive, 'skew': skew}
+
+
 def _ms(values: list[float], how: str) -> str:
     if not values:
         return 'nan'

@@ -72,9 +72,9 @@ def odom(stamp_ns):
 
 def wait_frames(node, n, timeout=30.0):
     end = time.monotonic() + timeout
-    while node.frames_out < n and time.monotonic() < end:
+    while node.worker.frames_out < n and time.monotonic() < end:
         time.sleep(0.02)
-    assert node.frames_out >= n
+    assert node.worker.frames_out >= n
 
 
 def diag(node):
@@ -131,14 +131,14 @@ def test_odom_wait_s_waits_for_covering_odometry(make_node):
     node._on_odom(odom(t - S // 20))
     node._on_cloud(cloud(t), None)                             # odometry ends 50 ms before
     wait_frames(node, 1)
-    assert node._last.pose_source.startswith('none')
+    assert node.worker.last.pose_source.startswith('none')
     set_param(node, 'odom_wait_s', 2.0)
     node._on_cloud(cloud(t + S // 10), None)
     time.sleep(0.3)
-    assert node.frames_out == 1                          # still waiting for odometry
+    assert node.worker.frames_out == 1                          # still waiting for odometry
     node._on_odom(odom(t + S // 10 + S // 50))
     wait_frames(node, 2)
-    assert node._last.pose_source == 'odometry' and node.odometry.waits == 1
+    assert node.worker.last.pose_source == 'odometry' and node.worker.odometry.waits == 1
 
 
 def _publisher(node, reliability):
@@ -158,13 +158,13 @@ def _until(cond, timeout=10.0):
 def test_points_qos_auto_follows_the_publishers(make_node):
     from rclpy.qos import ReliabilityPolicy as R
     node = make_node()
-    assert node.points_reliability == R.BEST_EFFORT      # nobody publishes yet
+    assert node.points.reliability == R.BEST_EFFORT      # nobody publishes yet
     other = make_node(points_topic='/unused')
     reliable = _publisher(other, R.RELIABLE)
 
     def check(expected):
-        node.update_points_qos()
-        return node.points_reliability == expected
+        node.points.update()
+        return node.points.reliability == expected
     assert _until(lambda: check(R.RELIABLE))
     best_effort = _publisher(other, R.BEST_EFFORT)
     assert _until(lambda: check(R.BEST_EFFORT))
@@ -184,8 +184,8 @@ def test_fixed_points_qos(make_node, params, expected):
     other = make_node(points_topic='/unused')
     pub = _publisher(other, R.BEST_EFFORT if expected == 'RELIABLE' else R.RELIABLE)
     assert _until(lambda: node.count_publishers('/points') > 0)
-    node.update_points_qos()
-    assert node.points_reliability == getattr(R, expected)
+    node.points.update()
+    assert node.points.reliability == getattr(R, expected)
     other.destroy_publisher(pub)
 
 

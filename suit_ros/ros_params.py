@@ -1,0 +1,50 @@
+"""The detector's parameters as ROS parameters: descriptors with ranges and choices, declared
+and read in one place (:class:`~suit_ros.params.DetectorParams` owns names, defaults, ranges
+and the read-only flags)."""
+from __future__ import annotations
+
+import os
+
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.node import Node
+
+from suit_ros.errors import ConfigError, SuitRosError
+from suit_ros.params import DetectorParams, parameter_descriptions
+
+
+def descriptor(name: str) -> ParameterDescriptor:
+    """The ParameterDescriptor of a :class:`DetectorParams` field."""
+    m = parameter_descriptions()[name]
+    d = ParameterDescriptor(description=m['description'], read_only=m['read_only'])
+    if m['choices']:
+        d.additional_constraints = 'one of: ' + ', '.join(m['choices'])
+    if m['lo'] is not None:
+        if isinstance(getattr(DetectorParams, name), int):
+            d.integer_range = [IntegerRange(from_value=int(m['lo']), to_value=int(m['hi']),
+                                            step=1)]
+        else:
+            d.floating_point_range = [FloatingPointRange(
+                from_value=float(m['lo']), to_value=float(m['hi']), step=0.0)]
+    return d
+
+
+def declare_detector_parameters(node: Node) -> DetectorParams:
+    """Declare every detector parameter on ``node`` and read them (not yet checked against
+    the model's classes: :meth:`DetectorParams.validate`).
+
+    :raises SuitRosError: a value of the wrong type or out of range.
+    """
+    for name, value in DetectorParams().ros_values().items():
+        node.declare_parameter(name, value, descriptor(name))
+    try:
+        return DetectorParams.from_mapping(
+            {n: node.get_parameter(n).value for n in parameter_descriptions()})
+    except ConfigError as exc:
+        raise SuitRosError(f'invalid parameters: {exc}') from exc
+
+
+def torch_threads(requested: int) -> int:
+    """Torch threads for ``threads`` (0: every core this process may use but one)."""
+    if requested > 0:
+        return requested
+    return max(1, len(os.sched_getaffinity(0)) - 1)

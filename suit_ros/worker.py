@@ -1,0 +1,185 @@
+"""The detector node's worker, rclpy-free: takes the newest cloud from the mailbox, waits for
+odometry that covers it, runs the pipeline, hands the messages to the node's publishers and
+keeps the counters that the health report reads.
+
+The node gives it its clock, its publishers (as callables) and a question for the ROS graph
+(whether anybody publishes odometry); everything else is here and runs without ROS.
+"""
+from __future__ import annotations
+
+import collections
+from collections.abc import Callable
+from dataclasses import dataclass
+import os
+import threading
+import time
+from typing import Any, Generic, Protocol, TypeVar
+
+from suit_ros.health import HealthSnapshot, Reasons, frame_stats
+from suit_ros.inbox import CloudMailbox, OdometryGate
+from suit_ros.params import DetectorParams
+
+# the worker runs this much nicer than the executor, so that on a loaded machine the OS runs
+# the odometry and cloud callbacks before more inference
+WORKER_NICENESS = 5
+RATE_WINDOW_S = 5.0          # the input rate counts this window (it decays when input stops)
+
+M = TypeVar('M')
+
+
+@dataclass
+class Received(Generic[M]):
+    """A cloud and when it arrived (node clock ns and monotonic s)."""
+
+    msg: M
+    clock_ns: int
+    monotonic: float
+
+
+def stamp_ns(msg: Any) -> int:
+    """A message's header stamp in nanoseconds."""
+    return int(msg.header.stamp.sec) * 10**9 + int(msg.header.stamp.nanosec)
+
+
+class Pipeline(Protocol):
+    """What the worker needs of :class:`~suit_ros.pipeline.DetectionPipeline`."""
+
+    last_odom_error: str
+    last_reset_reason: str
+    resets: int
+    odom_rejected: int
+
+    def configure(self, params: DetectorParams) -> None: ...
+
+    def reset(self, reason: str) -> None: ...
+
+    def add_odometry(self, msg: Any, now_ns: int) -> bool: ...
+
+    def process(self, msg: Any, markers: bool = True) -> Any: ...
+
+
+class FrameWorker:
+    """The loop of the node's worker thread (:meth:`run`) and its counters.
+
+    :param clock_ns: the node clock (ns).
+    :param publish: ``publish(out)`` sends a frame's messages; :param want_markers: whether
+        anybody subscribes to the markers (they cost more than the rest of the output).
+    :param odometry_published: whether anybody publishes odometry (no wait otherwise).
+    """
+
+    def __init__(self, pipeline: Pipeline, params: Callable[[], DetectorParams],
+                 clock_ns: Callable[[], int], publish: Callable[[Any], None],
+                 want_markers: Callable[[], bool], odometry_published: Callable[[], bool],
+                 reasons: Reasons, log: Any) -> None:
+        self.pipeline, self.params, self.clock_ns = pipeline, params, clock_ns
+        self.publish, self.want_markers = publish, want_markers
+        self.odometry_published, self.reasons, self.log = odometry_published, reasons, log
+        self.lock = threading.Condition()      # requests, counters and the last frame
+        self.mailbox: CloudMailbox[Received[Any]] = CloudMailbox()
+        self.odometry: OdometryGate[Any] = OdometryGate()
+        self.reset_request: str | None = None
+        self.pending: DetectorParams | None = None
+        self.stopping = False
+        self.started = time.monotonic()
+        self.frames_out = self.frames_single = 0
+        self.single_reasons: collections.Counter[str] = collections.Counter()
+        self.stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
+        self.last: Any = None
+
+    def request(self, reset: str | None = None, params: DetectorParams | None = None) -> None:
+        """Ask for a memory reset and/or new pipeline settings before the next frame."""
+        with self.lock:
+            self.reset_request = reset or self.reset_request
+            self.pending = params or self.pending
+
+    def stop(self) -> None:
+        """End :meth:`run` (a frame in progress is abandoned, not reported as failed)."""
+        self.stopping = True
+        self.mailbox.close()
+        self.odometry.close()
+
+    def run(self) -> None:
+        """Process clouds until :meth:`stop`."""
+        try:
+            tid = threading.get_native_id()
+            os.setpriority(os.PRIO_PROCESS, tid,
+                           os.getpriority(os.PRIO_PROCESS, tid) + WORKER_NICENESS)
+        except (AttributeError, OSError):    # not Linux: threads share the process priority
+            pass
+        while not self.stopping:
+            received = self.mailbox.take(0.5)
+            if received is None:
+                continue
+            with self.lock:
+                reset, self.reset_request = self.reset_request, None
+                pending, self.pending = self.pending, None
+            try:
+                if pending is not None:
+                    self.pipeline.configure(pending)
+                if reset:
+                    self.pipeline.reset(reset)
+                self._wait_for_odometry(stamp_ns(received.msg))
+                self._drain_odometry()
+                self.process(received)
+            except Exception as exc:  # keep the node alive; say what happened
+                if self.stopping:
+                    return
+                self.log.error(f'frame failed: {type(exc).__name__}: {exc}')
+
+    def _wait_for_odometry(self, stamp: int) -> None:
+        """Wait up to ``odom_wait_s`` for odometry at or after ``stamp``; no wait while
+        nobody publishes odometry."""
+        wait = self.params().odom_wait_s
+        if self.odometry.covers(stamp) or wait <= 0.0 or (
+                self.odometry.latest_ns < 0 and not self.odometry_published()):
+            return
+        self.odometry.wait_for(stamp, wait)
+
+    def _drain_odometry(self) -> None:
+        now = self.clock_ns()
+        for odom in self.odometry.drain():
+            if not self.pipeline.add_odometry(odom, now):
+                self.reasons.report({'odometry_rejected': 'odometry rejected: '
+                                     f'{self.pipeline.last_odom_error}'}, time.monotonic(),
+                                    hold=False)
+
+    def process(self, received: Received[Any]) -> None:
+        """Run one cloud through the pipeline, publish, count."""
+        out = self.pipeline.process(received.msg, markers=self.want_markers())
+        t0 = time.perf_counter()
+        self.publish(out)
+        stats = frame_stats(out.timings, time.perf_counter() - t0, received.clock_ns,
+                            stamp_ns(received.msg), self.clock_ns(),
+                            self.params().max_stamp_skew_s)
+        with self.lock:
+            self.frames_out += 1
+            if out.single_frame is not None:
+                self.frames_single += 1
+                self.single_reasons[out.single_frame] += 1
+            self.stats.append(stats)
+            self.last = out
+            # counted with the frame, so a diagnostic never shows a frame without its reasons
+            self.reasons.report(out.warnings, received.monotonic)
+        if out.reset_reason:
+            self.log.info(f'memory reset: {out.reset_reason}')
+
+    def snapshot(self, facts: dict[str, str]) -> HealthSnapshot:
+        """The counters now, for :func:`~suit_ros.health.health_report`."""
+        now, box, params, pipeline = time.monotonic(), self.mailbox, self.params(), self.pipeline
+        with self.lock:
+            return HealthSnapshot(
+                now=now, started=self.started, arrivals=list(box.arrivals),
+                stats=list(self.stats), odom_delays=list(self.odometry.delays),
+                reader_delays=list(box.reader_delays),
+                losses=[t for t in box.losses if t >= now - RATE_WINDOW_S], last=self.last,
+                held_warnings=self.reasons.held(now),
+                single_reasons=sorted(self.single_reasons.items()),
+                reason_counts=self.reasons.sorted_counts(),
+                counters={'frames_in': box.frames_in, 'frames_out': self.frames_out,
+                          'dropped_frames': box.dropped, 'lost_before_callback': box.lost,
+                          'frames_single_frame': self.frames_single,
+                          'odometry_waits': self.odometry.waits},
+                facts=facts, last_reset_reason=pipeline.last_reset_reason,
+                memory_resets=pipeline.resets, odometry_rejected=pipeline.odom_rejected,
+                input_timeout_s=params.input_timeout_s, stale_periods=params.stale_periods,
+                rate_window_s=RATE_WINDOW_S)

@@ -1,0 +1,86 @@
+"""The node's worker without a ROS graph: a real pipeline (real model, real message classes),
+clouds and odometry put in its mailbox and gate as the callbacks do, the thread it runs in."""
+from __future__ import annotations
+
+import threading
+import time
+
+import pytest
+from test_pipeline import S, T0, classes, cloud, model, odom  # noqa: F401 - fixtures
+
+from suit_ros.health import Reasons, health_report
+from suit_ros.params import DetectorParams
+from suit_ros.worker import FrameWorker, Received, stamp_ns
+
+
+class Log:
+    def __init__(self):
+        self.lines = []
+
+    def info(self, line):
+        self.lines.append(('info', line))
+
+    def error(self, line):
+        self.lines.append(('error', line))
+
+
+@pytest.fixture
+def worker(request):
+    from test_pipeline import make_pipeline
+    classes = request.getfixturevalue('classes')
+    pipe = make_pipeline(request.getfixturevalue('model'), classes)
+    params = DetectorParams(odom_wait_s=0.3)
+    published, log, warnings = [], Log(), []
+    clock = {'ns': T0}
+    w = FrameWorker(pipe, lambda: params, lambda: clock['ns'], published.append,
+                    lambda: False, lambda: True, Reasons(warnings.append, 5.0, 30.0), log)
+    thread = threading.Thread(target=w.run, daemon=True)
+    thread.start()
+    yield w, classes, published, log, clock
+    w.stop()
+    thread.join(5.0)
+    assert not thread.is_alive()
+
+
+def until(cond, timeout=20.0):
+    end = time.monotonic() + timeout
+    while not cond() and time.monotonic() < end:
+        time.sleep(0.02)
+    return cond()
+
+
+def put_cloud(w, classes, stamp):
+    msg = cloud(classes, stamp)
+    w.mailbox.put(Received(msg, stamp, time.monotonic()), (stamp, 'lidar'), None,
+                  count_gaps=lambda: False)
+
+
+def test_the_worker_waits_for_odometry_then_publishes_and_counts(worker):
+    w, classes, published, log, clock = worker
+    for t in range(T0 - S // 2, T0 + 1, S // 20):
+        w.odometry.put(odom(t), t, clock['ns'], 1.0)
+    put_cloud(w, classes, T0)
+    assert until(lambda: w.frames_out == 1)
+    assert published[0].detections_msg.header.frame_id == 'lidar'
+    assert published[0].markers_msg is None                      # nobody wants markers
+    assert w.last.pose_source == 'odometry' and w.odometry.waits == 0
+    # a cloud ahead of the odometry waits for it (up to odom_wait_s), then runs with it
+    put_cloud(w, classes, T0 + S // 10)
+    time.sleep(0.1)
+    w.odometry.put(odom(T0 + S // 10), T0 + S // 10, clock['ns'], 1.0)
+    assert until(lambda: w.frames_out == 2)
+    assert w.odometry.waits == 1 and w.last.pose_source == 'odometry'
+    level, _, values = health_report(w.snapshot({'points_reliability': 'reliable'}))
+    assert values['frames_out'] == '2' and values['points_reliability'] == 'reliable'
+    assert not [line for kind, line in log.lines if kind == 'error']
+
+
+def test_a_reset_and_new_settings_apply_before_the_next_frame(worker):
+    from dataclasses import replace
+    w, classes, published, log, clock = worker
+    w.request(reset='test', params=replace(DetectorParams(), max_detections=1))
+    put_cloud(w, classes, T0)
+    assert until(lambda: w.frames_out == 1)
+    assert len(published[0].detections_msg.data) <= published[0].detections_msg.point_step
+    assert w.pipeline.last_reset_reason == 'test'
+    assert stamp_ns(published[0].detections_msg) == T0
