@@ -280,7 +280,8 @@ def table(r: dict[str, Any]) -> str:
         for hz, v in r['node'].items():
             lines.append(f'node (threads:={v.get("node_threads", 2)}, precision:='
                          f'{v.get("node_precision", "float32")}) through DDS at {hz}: '
-                         f'CPU {v.get("cpu_cores", float("nan")):.2f} cores, latency p50 {v["latency_ms_p50"]:.1f} ms, '
+                         f'CPU {v.get("cpu_cores", float("nan")):.2f} cores, '
+                         f'latency p50 {v["latency_ms_p50"]:.1f} ms, '
                          f'p95 {v["latency_ms_p95"]:.1f} ms, output {v["rate_hz"]:.1f} Hz, '
                          f'{v["frames_out"]}/{v["frames_in"]} frames out, dropped '
                          f'{v["dropped"]}, node overhead {v["overhead_pct"]:.1f}% of the model '

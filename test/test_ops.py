@@ -139,8 +139,8 @@ def test_cell_index_selects_exactly_the_points_of_the_touched_cells():
     index = CellIndex(xy, lo, hi, 2.0)
     cells = np.floor(xy / 2.0)
     for k in range(3):
-        want = np.flatnonzero(np.all((cells >= np.floor(lo[k] / 2)) & (cells <= np.floor(hi[k] / 2)),
-                                     axis=1))
+        inside = (cells >= np.floor(lo[k] / 2)) & (cells <= np.floor(hi[k] / 2))
+        want = np.flatnonzero(np.all(inside, axis=1))
         np.testing.assert_array_equal(np.sort(index.select(k)), want)
     assert len(CellIndex(xy[:0], lo, hi, 2.0).select(1)) == 0
 

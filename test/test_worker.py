@@ -6,7 +6,7 @@ import threading
 import time
 
 import pytest
-from test_pipeline import S, T0, classes, cloud, model, odom  # noqa: F401 - fixtures
+from test_pipeline import T0, S, classes, cloud, model, odom  # noqa: F401 - fixtures
 
 from suit_ros.health import Reasons, health_report
 from suit_ros.params import DetectorParams
@@ -27,8 +27,8 @@ class Log:
 @pytest.fixture
 def worker(request):
     from test_pipeline import make_pipeline
-    classes = request.getfixturevalue('classes')
-    pipe = make_pipeline(request.getfixturevalue('model'), classes)
+    mc = request.getfixturevalue('classes')
+    pipe = make_pipeline(request.getfixturevalue('model'), mc)
     params = DetectorParams(odom_wait_s=0.3)
     published, log, warnings = [], Log(), []
     clock = {'ns': T0}
@@ -36,7 +36,7 @@ def worker(request):
                     lambda: False, lambda: True, Reasons(warnings.append, 5.0, 30.0), log)
     thread = threading.Thread(target=w.run, daemon=True)
     thread.start()
-    yield w, classes, published, log, clock
+    yield w, mc, published, log, clock
     w.stop()
     thread.join(5.0)
     assert not thread.is_alive()
@@ -49,23 +49,23 @@ def until(cond, timeout=20.0):
     return cond()
 
 
-def put_cloud(w, classes, stamp):
-    msg = cloud(classes, stamp)
+def put_cloud(w, mc, stamp):
+    msg = cloud(mc, stamp)
     w.mailbox.put(Received(msg, stamp, time.monotonic()), (stamp, 'lidar'), None,
                   count_gaps=lambda: False)
 
 
 def test_the_worker_waits_for_odometry_then_publishes_and_counts(worker):
-    w, classes, published, log, clock = worker
+    w, mc, published, log, clock = worker
     for t in range(T0 - S // 2, T0 + 1, S // 20):
         w.odometry.put(odom(t), t, clock['ns'], 1.0)
-    put_cloud(w, classes, T0)
+    put_cloud(w, mc, T0)
     assert until(lambda: w.frames_out == 1)
     assert published[0].detections_msg.header.frame_id == 'lidar'
     assert published[0].markers_msg is None                      # nobody wants markers
     assert w.last.pose_source == 'odometry' and w.odometry.waits == 0
     # a cloud ahead of the odometry waits for it (up to odom_wait_s), then runs with it
-    put_cloud(w, classes, T0 + S // 10)
+    put_cloud(w, mc, T0 + S // 10)
     time.sleep(0.1)
     w.odometry.put(odom(T0 + S // 10), T0 + S // 10, clock['ns'], 1.0)
     assert until(lambda: w.frames_out == 2)
@@ -77,9 +77,9 @@ def test_the_worker_waits_for_odometry_then_publishes_and_counts(worker):
 
 def test_a_reset_and_new_settings_apply_before_the_next_frame(worker):
     from dataclasses import replace
-    w, classes, published, log, clock = worker
+    w, mc, published, log, clock = worker
     w.request(reset='test', params=replace(DetectorParams(), max_detections=1))
-    put_cloud(w, classes, T0)
+    put_cloud(w, mc, T0)
     assert until(lambda: w.frames_out == 1)
     assert len(published[0].detections_msg.data) <= published[0].detections_msg.point_step
     assert w.pipeline.last_reset_reason == 'test'
