@@ -171,6 +171,7 @@ def test_report_counts():
             counts['rejected'] += 1
     tally()
     total = counts['processed'] + counts['rejected']
+    assert counts['processed'] > 0 and counts['rejected'] > 0
     print(f'\nfuzz: {total} clouds tried through the adapters: {counts["processed"]} processed, '
           f'{counts["rejected"]} rejected with a package error, 0 crashes')
     assert total >= ADAPTER_EXAMPLES // 2 and counts['rejected'] > 0 and counts['processed'] > 0

@@ -82,6 +82,7 @@ def diag(node):
     return st.level, st.message, {kv.key: kv.value for kv in st.values}
 
 
+@pytest.mark.slow
 def test_stale_input_warns_then_errors(make_node):
     from diagnostic_msgs.msg import DiagnosticStatus
     node = make_node()

@@ -215,6 +215,7 @@ def test_velocity_filter_tracks_and_can_be_turned_off(model, classes, scene):
     assert pipe.detector.tracks is not None and pipe.detector.tracks.config.max_gap_s == 2.0
 
 
+@pytest.mark.slow
 def test_track_score_mix_smooths_tracked_scores(model, classes, scene):
     def scores(mix):
         pipe = make_pipeline(model, classes, score_thresholds=(0.05,), track_score_mix=mix)
@@ -339,6 +340,7 @@ def test_odometry_from_the_future_is_refused_and_counted(model, classes):
     assert pipe.odom_rejected == 1
 
 
+@pytest.mark.slow
 def test_max_gap_s_is_the_one_staleness_threshold(model, classes):
     pipe = make_pipeline(model, classes)
     pipe.process(cloud(classes, T0))

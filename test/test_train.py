@@ -167,6 +167,7 @@ def test_distributed_gradients_agree_across_ranks(tmp_path):
     torch.testing.assert_close(r0['grads'], r1['grads'])     # all-reduced gradients agree
 
 
+@pytest.mark.slow
 def test_one_cycle_matches_torch_and_ends_annealed():
     import torch
 

@@ -1,0 +1,111 @@
+"""The memory moved by ego motion and fused by equation (11)."""
+from __future__ import annotations
+
+from modelkit import GRID, frame, small_config
+import numpy as np
+import pytest
+import torch
+
+from suit_ros.model.detector import SUITDetector
+from suit_ros.model.fusion import sparse_past_term
+from suit_ros.model.memory import SparseMemory, transform_sample_positions
+from suit_ros.model.streaming import StreamingDetector
+from suit_ros.ops.geometry import ego_transform, pose_from_xyz_rpy, se3_inverse
+
+
+def test_ego_transform_static_object_lands_on_same_cell():
+    world_xy = np.array([8.3, -4.1])
+    p0 = pose_from_xyz_rpy((0, 0, 1.8), (0, 0, 0.0))
+    p1 = pose_from_xyz_rpy((2.0, 0.5, 1.8), (0, 0, 0.3))
+    in0 = (se3_inverse(p0) @ np.r_[world_xy, 0, 1])[:2]
+    in1 = (se3_inverse(p1) @ np.r_[world_xy, 0, 1])[:2]
+    mem = SparseMemory(torch.zeros(1, dtype=torch.long),
+                       torch.tensor(in0, dtype=torch.float32)[None, None], torch.zeros(1, 1, 4),
+                       torch.ones(1, 1), torch.ones(1, 1, dtype=torch.bool),
+                       torch.tensor([[in0[0], in0[1], -1.8, 1, 1, 1, 0]], dtype=torch.float32),
+                       torch.zeros(1, 2), [0], p0[None], 1)
+    moved = transform_sample_positions(mem, ego_transform(p1, p0)[None])[0, 0]
+    np.testing.assert_allclose(moved.numpy(), in1, atol=1e-5)
+    assert torch.equal(torch.floor(GRID.xy_to_cell(moved)),
+                       torch.floor(GRID.xy_to_cell(torch.tensor(in1, dtype=torch.float32))))
+
+
+@pytest.mark.parametrize('dt', [0.1, 0.05])
+def test_fusion_equation_11_single_sample(dt):
+    C = 4
+    proj = torch.nn.Linear(C, C, bias=False)
+    with torch.no_grad():
+        proj.weight.copy_(torch.eye(C) * 2.0)
+    f = torch.tensor([[[1.0, 2.0, 3.0, 4.0]]])
+    pos = torch.tensor([[[5.2, -3.3]]])
+    vel_bins = torch.tensor([[0.0, 0.0], [10.0, 0.0]])
+    disp = (vel_bins * dt)[None]                                    # (1, 2, 2)
+    q = torch.tensor([[0.25, 0.75]])
+    out = sparse_past_term(f, torch.tensor([[0.8]]), torch.ones(1, 1, dtype=torch.bool), pos,
+                           torch.zeros(1, dtype=torch.long), disp, q, proj, GRID, 1)
+    expect = torch.zeros(1, C, GRID.H, GRID.W)
+    for k in range(2):
+        c, r = torch.floor(GRID.xy_to_cell(pos[0, 0] + disp[0, k])).long().tolist()
+        expect[0, :, r, c] += 0.8 * q[0, k] * 2.0 * f[0, 0]
+    torch.testing.assert_close(out.dense(), expect)
+    # added in place: only the touched rows of a channels-last map, a dense add otherwise
+    base = torch.randn(1, C, GRID.H, GRID.W)
+    for x in (base.clone(), base.clone().contiguous(memory_format=torch.channels_last)):
+        assert out.add_to(x) is x
+        torch.testing.assert_close(x, base + expect)
+    with pytest.raises(ValueError, match='shape'):
+        out.add_to(torch.zeros(2, C, GRID.H, GRID.W))
+
+
+def test_sparse_past_term_in_place_add_has_the_dense_gradients():
+    """Training adds the sparse term in place into the channels-last conv output: W2, the
+    features and the current conv get the same gradients as with a dense add."""
+    torch.manual_seed(0)
+    C, M, P = 6, 5, 9
+    conv = torch.nn.Conv2d(C, C, 1)
+    proj = torch.nn.Linear(C, C, bias=False)
+    feats = torch.randn(M, P, C, requires_grad=True)
+    pos = torch.rand(M, P, 2) * 30 - 15
+    disp = torch.randn(M, 3, 2)
+    q = torch.softmax(torch.randn(M, 3), 1)
+    probs = torch.rand(M, P)
+    x = torch.randn(1, C, GRID.H, GRID.W).contiguous(memory_format=torch.channels_last)
+    weight = torch.randn(1, C, GRID.H, GRID.W)
+    grads = []
+    for sparse in (True, False):
+        for t in (conv.weight, proj.weight, feats):
+            t.grad = None
+        term = sparse_past_term(feats, probs, torch.ones(M, P, dtype=torch.bool), pos,
+                                torch.zeros(M, dtype=torch.long), disp, q, proj, GRID, 1)
+        out = conv(x)
+        assert out.is_contiguous(memory_format=torch.channels_last)
+        fused = term.add_to(out) if sparse else out + term.dense()
+        (fused * weight).sum().backward()
+        grads.append([t.grad.clone() for t in (conv.weight, proj.weight, feats)])
+    for a, b in zip(*grads):
+        torch.testing.assert_close(a, b)
+    assert grads[0][1].abs().sum() > 0
+
+
+def test_memory_size_constant_over_frames_and_reset():
+    torch.manual_seed(0)
+    runner = StreamingDetector(SUITDetector(small_config('suit')))
+    f = frame(0)
+    sizes = {}
+    for t in range(10):
+        r = runner.step(f.points, int(1e9 + t * 1e8), f.pose)
+        sizes[t + 1] = r.memory_bytes
+    assert sizes[2] == sizes[10] > 0
+    assert runner.memory.num_samples <= runner.cfg.sampling.top_k
+    runner.reset('test')
+    assert runner.memory_bytes == 0
+    assert not runner.step(f.points, int(3e9), f.pose).used_memory
+    # time going backwards or a missing pose never fuses the memory
+    assert not runner.step(f.points, int(2e9), f.pose).used_memory
+    assert not runner.step(f.points, int(2.1e9), None).used_memory
+    assert runner.memory is None and len(runner.sweeps) == 0
+    dense = StreamingDetector(SUITDetector(small_config('dense')))
+    for t in range(2):
+        d = dense.step(f.points, int(1e9 + t * 1e8), f.pose)
+    assert d.memory_bytes > sizes[10]
+

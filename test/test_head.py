@@ -1,0 +1,78 @@
+"""CenterHead: Gaussian targets, target/decode round trip, headings decoded from velocity."""
+from __future__ import annotations
+
+import math
+
+from modelkit import GRID
+import numpy as np
+import pytest
+import torch
+
+from suit_ros.model.grid import BEVGrid
+from suit_ros.model.head import CenterHead, draw_gaussian, gaussian_radius
+
+
+def test_gaussian_radius_formula():
+    # CornerNet's rule as CenterPoint applies it: the larger root of each of the three
+    # quadratics, with the published "(b + sqrt(b^2 - 4ac)) / 2" normalisation (not / 2a)
+    for h, w in [(5.6, 2.4), (1.0, 1.0), (14.0, 3.5)]:
+        cands = []
+        for a, b, c in [(1, h + w, w * h * 0.9 / 1.1), (4, 2 * (h + w), 0.9 * w * h),
+                        (0.4, -0.2 * (h + w), -0.9 * w * h)]:
+            root = max(np.roots([a, -b, c]).real)            # the true quadratic root
+            cands.append(root * a)                           # == (b + sqrt(...)) / 2
+        assert gaussian_radius(h, w, 0.1) == pytest.approx(min(cands), rel=1e-9)
+    assert gaussian_radius(4.0, 2.0, 0.1) < 4.0
+
+
+def test_draw_gaussian_peak_and_clipping():
+    hm = torch.zeros(10, 10)
+    draw_gaussian(hm, 0, 9, 2)
+    assert hm[9, 0] == 1.0 and hm.max() == 1.0 and (hm > 0).sum() == 9   # 3x3 quarter left
+
+
+def test_targets_decode_round_trip():
+    head = CenterHead(8, 4, GRID)
+    boxes = torch.tensor([[3.3, -7.1, -0.9, 4.5, 1.9, 1.6, 0.7],
+                          [-10.2, 4.4, -0.8, 0.7, 0.6, 1.8, -2.5],
+                          [15.0, 15.0, -0.5, 11.0, 2.9, 3.3, 3.0]])
+    vel = torch.tensor([[5.0, -1.0], [0.5, 0.5], [0.0, 12.0]])
+    labels = torch.tensor([0, 2, 1])
+    tgt = head.build_targets([boxes], [vel], [labels])
+    assert tgt['mask'].sum() == 3
+    # predictions equal to the targets: logits +/- large, regression maps written at centres
+    preds = {'heatmap': torch.where(tgt['heatmap'] == 1, 10.0, -10.0)}
+    reg = torch.zeros(1, 10, GRID.H, GRID.W)
+    for k in range(3):
+        idx = tgt['index'][0, k]
+        reg[0, :, idx // GRID.W, idx % GRID.W] = tgt['reg'][0, k]
+    from suit_ros.model.head import REG_SLICES
+    for name, (a, b) in REG_SLICES.items():
+        preds[name] = reg[:, a:b]
+    out = head.decode(preds, k=10, score_threshold=0.5)[0]
+    order = torch.argsort(out['labels'])
+    torch.testing.assert_close(out['boxes'][order], boxes[[0, 2, 1]], atol=1e-4, rtol=0)
+    torch.testing.assert_close(out['velocities'][order], vel[[0, 2, 1]])
+    assert out['labels'][order].tolist() == [0, 1, 2]
+
+
+def test_decode_turns_moving_boxes_to_face_their_velocity():
+    grid = BEVGrid((-25.6, -25.6, -3.0, 25.6, 25.6, 3.0), 0.4, 2)
+    preds = {'heatmap': torch.full((1, 1, grid.H, grid.W), -10.0),
+             'offset': torch.zeros(1, 2, grid.H, grid.W), 'z': torch.zeros(1, 1, grid.H, grid.W),
+             'size': torch.zeros(1, 3, grid.H, grid.W), 'rot': torch.zeros(1, 2, grid.H, grid.W),
+             'vel': torch.zeros(1, 2, grid.H, grid.W)}
+    preds['rot'][0, 1] = 1.0                                      # yaw 0 everywhere
+    for col, vx in ((10, -5.0), (20, -0.5), (30, 5.0)):          # backwards fast/slow, forwards
+        preds['heatmap'][0, 0, 5, col] = 5.0
+        preds['vel'][0, 0, 5, col] = vx
+    yaws = {}
+    for min_speed in (1.0, 0.0):
+        head = CenterHead(8, 1, grid, 8, yaw_velocity_min_speed=min_speed)
+        out = head.decode(preds, 10, 0.5, 'circle', 0.2, torch.tensor([0.1]), 10)[0]
+        yaws[min_speed] = {int(c): float(y) for c, y in zip(out['cells'][:, 0],
+                                                             out['boxes'][:, 6])}
+    assert yaws[1.0][10] == pytest.approx(-math.pi) or yaws[1.0][10] == pytest.approx(math.pi)
+    assert yaws[1.0][20] == 0.0 and yaws[1.0][30] == 0.0        # slow or forwards: untouched
+    assert set(yaws[0.0].values()) == {0.0}                       # disabled
+

@@ -1,0 +1,103 @@
+"""Inference copies: folded batch norms, bfloat16, the precision choice."""
+from __future__ import annotations
+
+from modelkit import cloud_in_grid, small_config
+import numpy as np
+import pytest
+import torch
+
+from suit_ros.model.detector import SUITDetector
+from suit_ros.model.streaming import StreamingDetector
+
+
+def test_inference_copy_folds_batch_norms_exactly():
+    from suit_ros.model.inference import fold_batchnorm, inference_copy
+    torch.manual_seed(0)
+    model = SUITDetector(small_config())
+    # non-trivial running statistics and affine parameters, as after training
+    for m in model.modules():
+        if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
+            m.running_mean.uniform_(-0.5, 0.5)
+            m.running_var.uniform_(0.5, 2.0)
+            m.weight.data.uniform_(0.5, 1.5)
+            m.bias.data.uniform_(-0.2, 0.2)
+    model.eval()
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    fast = inference_copy(model)
+    n_bn = sum(isinstance(m, torch.nn.modules.batchnorm._BatchNorm) for m in model.modules())
+    assert n_bn > 0 and not any(isinstance(m, torch.nn.modules.batchnorm._BatchNorm)
+                                for m in fast.modules())
+    assert all(torch.equal(before[k], v) for k, v in model.state_dict().items())  # untouched
+    convs = [m for m in fast.modules() if isinstance(m, torch.nn.Conv2d)]
+    assert convs and all(m.weight.is_contiguous(memory_format=torch.channels_last)
+                         for m in convs)                     # NHWC for oneDNN
+    assert all(m.weight.is_contiguous() for m in inference_copy(model, channels_last=False)
+               .modules() if isinstance(m, torch.nn.Conv2d))
+    pts = cloud_in_grid(0)
+    with torch.no_grad():
+        a = model.encode([torch.from_numpy(pts)])
+        b = fast.encode([torch.from_numpy(pts)])
+        assert torch.allclose(a, b, atol=1e-4, rtol=1e-4)
+        pa, pb = model.head(a), fast.head(b)
+        for k in pa:
+            assert torch.allclose(pa[k], pb[k], atol=1e-4, rtol=1e-4), k
+    with pytest.raises(ValueError, match='eval mode'):
+        fold_batchnorm(SUITDetector(small_config()).train())
+
+
+def test_bfloat16_inference_copy_wraps_the_convolutions_and_keeps_float32_outputs():
+    from suit_ros.model.inference import Cast, inference_copy
+    torch.manual_seed(0)
+    model = SUITDetector(small_config()).eval()
+    fast = inference_copy(model, precision='bfloat16')
+    assert isinstance(fast.backbone, Cast) and isinstance(fast.head.shared, Cast)
+    assert isinstance(fast.fusion.current, Cast)
+    assert all(p.dtype == torch.bfloat16 for p in fast.backbone.parameters())
+    # the final 1x1 projections, the pillar encoder and GeoNet stay float32
+    assert fast.head.heatmap[-1].weight.dtype == torch.float32
+    assert fast.head.regression[-1].weight.dtype == torch.float32
+    assert all(p.dtype == torch.float32 for p in fast.pillars.parameters())
+    assert all(p.dtype == torch.float32 for p in fast.geonet.parameters())
+    assert all(p.dtype == torch.float32 for p in model.parameters())        # untouched
+    pts = cloud_in_grid(1)
+    with torch.no_grad():
+        a = model.encode([torch.from_numpy(pts)])
+        b = fast.encode([torch.from_numpy(pts)])
+        assert b.dtype == torch.bfloat16                 # handed on to the fusion as it is
+        # bfloat16 keeps 8 significant bits: relative error about 2^-8 per layer
+        assert (a - b.float()).abs().max() <= 0.05 * a.abs().max()
+        fused = fast.fuse(b, None)
+        assert fused.dtype == torch.bfloat16             # the head takes it as it is
+        pa, pb = model.head(model.fuse(a, None)), fast.head(fused)
+        for k in pa:
+            assert pb[k].dtype == torch.float32
+            assert (pa[k] - pb[k]).abs().max() <= 0.05 * pa[k].abs().max() + 1e-3, k
+        # the memory holds float32 features, and the next frame's past term fuses in bfloat16
+        memory = fast.sample_memory(fused, pb, np.eye(4)[None], [0])
+        assert memory.num_samples > 0 and memory.features.dtype == torch.float32
+        past, _ = fast.past_term(memory, np.eye(4)[None], [100_000_000])
+        assert past is not None and past.values.dtype == torch.float32
+        assert fast.fuse(b, past).dtype == torch.bfloat16
+    with pytest.raises(ValueError, match='precision'):
+        inference_copy(model, precision='float16')
+
+
+def test_precision_auto_follows_the_cpu_flags(tmp_path, monkeypatch):
+    from suit_ros.model import inference
+    amx = tmp_path / 'amx'
+    amx.write_text('processor\t: 0\nflags\t\t: fpu avx2 avx512f amx_bf16 amx_tile\n')
+    plain = tmp_path / 'plain'
+    plain.write_text('processor\t: 0\nflags\t\t: fpu avx2 avx512f avx512bw\n')
+    assert inference.cpu_has_bf16_units(str(amx))
+    assert not inference.cpu_has_bf16_units(str(plain))
+    assert not inference.cpu_has_bf16_units(str(tmp_path / 'missing'))
+    for has_units, want in ((True, 'bfloat16'), (False, 'float32')):
+        monkeypatch.setattr(inference, 'cpu_has_bf16_units', lambda h=has_units: h)
+        assert inference.resolve_precision('auto', 'cpu') == want
+    assert inference.resolve_precision('auto', 'cuda') == 'float32'
+    assert inference.resolve_precision('bfloat16', 'cpu') == 'bfloat16'
+    with pytest.raises(ValueError, match='precision'):
+        inference.resolve_precision('half', 'cpu')
+    runner = StreamingDetector(SUITDetector(small_config()), precision='bfloat16')
+    assert runner.precision == 'bfloat16'
+

@@ -1,0 +1,54 @@
+"""The streaming detector: reset rules with the tracker, candidates and literal modes."""
+from __future__ import annotations
+
+from modelkit import frame, small_config
+import pytest
+import torch
+
+from suit_ros.model.detector import SUITDetector
+from suit_ros.model.streaming import StreamingDetector
+
+
+def test_velocity_filter_in_the_stream_follows_the_reset_rules():
+    from suit_ros.tracking import FilterConfig
+    torch.manual_seed(0)
+    model = SUITDetector(small_config('suit'))
+    K = len(model.cfg.class_names)
+    filt = FilterConfig(birth_score=0.0)         # an untrained head is never confident
+    runner = StreamingDetector(model, score_thresholds=[0.0] * K, velocity_filter=filt)
+    f = frame(0)
+    r1 = runner.step(f.points, int(1e9), f.pose)
+    assert len(r1.detections) > 0 and (r1.track_ids > 0).all()
+    assert len(set(r1.track_ids.tolist())) == len(r1.detections)
+    r2 = runner.step(f.points, int(1.1e9), f.pose)
+    assert set(r2.track_ids.tolist()) & set(r1.track_ids.tolist())
+    assert runner.tracks is not None and 'tracking' in r2.timings
+    tracks = runner.tracks
+    runner.reset('drop memory', sweeps=False)     # the feature memory only: tracks stay
+    assert len(tracks) > 0
+    runner.set_velocity_filter(filt)              # unchanged settings keep the tracks
+    assert runner.tracks is tracks
+    runner.reset('test')
+    assert len(tracks) == 0
+    r3 = runner.step(f.points, int(1.2e9), None)  # no pose: no odometry frame to track in
+    assert len(r3.detections) and not r3.track_ids.any()
+    runner.set_velocity_filter(None)
+    r4 = runner.step(f.points, int(1.3e9), f.pose)
+    assert runner.tracks is None and not r4.track_ids.any()
+
+
+def test_streaming_candidates_and_literal_modes():
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.errors import ConfigError
+    runner = StreamingDetector(SUITDetector(small_config('none')), candidates=7)
+    assert runner.candidates == 7
+    runner.set_thresholds(candidates=None)
+    assert runner.candidates == runner.cfg.head.top_k == 500
+    with pytest.raises(ValueError, match='candidates'):
+        runner.set_thresholds(candidates=0)
+    with pytest.raises(ConfigError, match='head.nms must be one of'):
+        model_config_from_dict({'head': {'nms': 'iou'}})
+    assert model_config_from_dict({'sweeps': 3}).sweeps == 3
+    with pytest.raises(ConfigError, match='sweeps'):
+        model_config_from_dict({'sweeps': 0})
+
