@@ -110,7 +110,7 @@ def main() -> int:
     args = parser.parse_args()
     import torch
     torch.set_num_threads(2)
-    from suit_ros.benchmark import bootstrap, plain_intervals
+    from suit_ros.accuracy import bootstrap, plain_intervals
     from suit_ros.data.sequences import split_drives, synthetic_split
     from suit_ros.evaluate import run_model
     from suit_ros.tracking import FilterConfig
@@ -134,7 +134,7 @@ def main() -> int:
     clutter = ({} if args.quick else
                clutter_fp({k: runs[k] for k in ('single', 'suit')},
                           clutter_frames(split_drives('val', args.drives), args.frames), 0.3))
-    from suit_ros.benchmark import past_share
+    from suit_ros.accuracy import past_share
     share = {} if args.quick else past_share(suit, val[:8])
     print(f'[ablation] past share at car centres: {share}', flush=True)
     held: dict[str, Any] = {}

@@ -44,7 +44,7 @@ def main() -> int:
         parser.error('run names must differ')
     import torch
     torch.set_num_threads(2)
-    from suit_ros.benchmark import bootstrap, plain_intervals
+    from suit_ros.accuracy import bootstrap, plain_intervals
     from suit_ros.checkpoint import load_checkpoint
     from suit_ros.data.sequences import synthetic_split
     from suit_ros.evaluate import run_model

@@ -39,7 +39,7 @@ def main() -> int:
     args = parser.parse_args()
     import torch
     torch.set_num_threads(2)
-    from suit_ros.benchmark import car_motion
+    from suit_ros.accuracy import car_motion
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     from suit_ros.data.sequences import synthetic_split
     from suit_ros.evaluate import evaluate, run_model, step_inputs

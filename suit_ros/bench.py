@@ -215,7 +215,7 @@ def run(args: argparse.Namespace) -> int:
     res['sensor_sizes'] = _sensor_sizes(args, n)
     res['scaling_objects'] = _scaling_objects(runner)
     if not args.skip_node:
-        from suit_ros.bench_node import node_latency
+        from suit_ros.node_probe import node_latency
         res['node'] = {f'{hz}Hz {sensor}': node_latency(
             args.checkpoint, rate=hz / 10.0, threads=args.node_threads,
             precision=args.precision, sensor=sensor)

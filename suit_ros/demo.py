@@ -67,7 +67,7 @@ def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.utilities import try_shutdown
 
-    from suit_ros.bench_node import OutputRecorder
+    from suit_ros.node_probe import OutputRecorder
     ctx = Context()
     rclpy.init(context=ctx)
     probe = rclpy.create_node('suit_ros_demo_recorder', context=ctx)

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from rosgraph import node_checkpoint, synthetic_bag
 
+from suit_ros.detect_bag import configure_parser, params_from_args
 from suit_ros.errors import BagError, ConfigError
 from suit_ros.params import DetectorParams
-from suit_ros.playback import configure_parser, params_from_args
 
 
 def parse(*argv):
@@ -47,7 +47,7 @@ def test_extrinsic_from_tf_static_and_warning_summary(bag, tmp_path, capsys):
     from suit_ros.data.bag import open_reader
     from suit_ros.data.sim import preset
     from suit_ros.data.sim.scene import Simulation
-    from suit_ros.playback import extrinsic_from_tf_static
+    from suit_ros.detect_bag import extrinsic_from_tf_static
     with open_reader(bag) as reader:
         xyz, rpy = extrinsic_from_tf_static(reader, 'base_link', 'lidar')
     T = Simulation(preset('test', frames=1), 11).T_base_lidar

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from suit_ros.benchmark import bootstrap, bucket_mask, bucket_view, car_motion, drive_frames
+from suit_ros.accuracy import bootstrap, bucket_mask, bucket_view, car_motion, drive_frames
 from suit_ros.evaluate import ModelRun
 from suit_ros.structures import Detections
 
@@ -72,7 +72,7 @@ def test_bootstrap_intervals_and_paired_differences():
     iv = stats['good']['mAP']
     assert iv.low <= iv.value <= iv.high
     assert diffs['good - bad']['mAP'].low > 0.3               # holds in every resample
-    from suit_ros.benchmark import plain_intervals
+    from suit_ros.accuracy import plain_intervals
     as_json = plain_intervals(diffs)
     assert as_json['good - bad']['mAP'] == [diffs['good - bad']['mAP'].value,
                                             diffs['good - bad']['mAP'].low,
@@ -124,7 +124,7 @@ def test_car_motion_speed_slope_reads_whether_speed_follows_gt():
 def test_past_share_is_zero_at_init_and_grows_with_the_past_weights():
     import torch
 
-    from suit_ros.benchmark import past_share
+    from suit_ros.accuracy import past_share
     from suit_ros.config import BackboneConfig, ModelConfig, PillarConfig, SamplingConfig
     from suit_ros.model.detector import SUITDetector
     from suit_ros.ops.geometry import pose_from_xyz_rpy
@@ -157,7 +157,7 @@ def test_past_share_is_zero_at_init_and_grows_with_the_past_weights():
 
 
 def test_cached_matches_equal_a_fresh_evaluation_on_any_selection():
-    from suit_ros.benchmark import RunMetrics
+    from suit_ros.accuracy import RunMetrics
     from suit_ros.evaluate import evaluate
     run = make_run(True, drives=3, frames=4, seed=3)
     rng = np.random.default_rng(1)
