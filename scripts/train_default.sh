@@ -71,5 +71,4 @@ cp runs/single_t10/model.safetensors suit_ros/checkpoints/centerpoint_single.saf
 # the thresholds the node publishes at (best F1 on the synthetic tune split), in each checkpoint
 "$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
 "$suit" choose-thresholds --checkpoint suit_ros/checkpoints/centerpoint_single.safetensors --write
-"$py" scripts/ablation.py --single suit_ros/checkpoints/centerpoint_single.safetensors \
-  --suit suit_ros/checkpoints/suit_default.safetensors
+"$suit" compare --ablation --out docs

@@ -25,6 +25,8 @@ COMMANDS: dict[str, tuple[str, str]] = {
     'choose-thresholds': ('suit_ros.thresholds_cli', 'choose the per-class thresholds the node '
                           'publishes at (synthetic tune split) and store them'),
     'outage': ('suit_ros.outage', 'recall through sensor outages: what the memory carries'),
+    'compare': ('suit_ros.compare', 'checkpoints and variants on the validation drives, '
+                'paired intervals (--ablation: docs/results.md)'),
     'detect-bag': ('suit_ros.detect_bag', 'run the detector over a bag and write a bag'),
     'play': ('suit_ros.play', 'publish a bag into the live ROS graph'),
     'bench': ('suit_ros.bench', 'benchmark latency, memory and scaling'),

@@ -174,28 +174,3 @@ def test_cached_matches_equal_a_fresh_evaluation_on_any_selection():
         assert got['mAP'] == pytest.approx(fresh.mean_ap, abs=1e-12)
         assert got['NDS'] == pytest.approx(fresh.nds, abs=1e-12)
         assert got['mATE'] == pytest.approx(fresh.mean_tp['mATE'], abs=1e-12)
-
-
-@pytest.mark.slow
-def test_compare_script_pairs_every_run_and_its_memory_dropped(tmp_path):
-    """scripts/compare.py on the shipped checkpoints (one short validation drive): each run
-    after the first paired with the first, and with --drop-memory the temporal one paired with
-    its memory dropped; the single-frame model gets no such run."""
-    import json
-    from pathlib import Path
-    import subprocess
-    import sys
-    repo = Path(__file__).resolve().parents[1]
-    ckpt = repo / 'suit_ros' / 'checkpoints'
-    out = tmp_path / 'out'
-    subprocess.run([sys.executable, str(repo / 'scripts' / 'compare.py'), '--drives', '1',
-                    '--frames', '4', '--resamples', '5', '--cache-dir', str(tmp_path / 'cache'),
-                    '--drop-memory', '--run', 'suit', str(ckpt / 'suit_default.safetensors'),
-                    '--run', 'single', str(ckpt / 'centerpoint_single.safetensors'),
-                    '--out', str(out)], check=True, cwd=repo, timeout=600)
-    res = json.loads((out / 'results.json').read_text())
-    assert set(res['runs']) == {'suit', 'suit, memory dropped', 'single'}
-    assert set(res['differences']) == {'single - suit', 'suit - suit, memory dropped'}
-    value, low, high = res['differences']['single - suit']['mAP']
-    assert low <= value <= high
-    assert '| suit - suit, memory dropped |' in (out / 'results.md').read_text()

@@ -11,9 +11,9 @@ own body is clutter too.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -440,4 +440,28 @@ def footprint_distance(xy: NDArray[np.float64], boxes: NDArray[np.float64]
     along = np.abs(d[..., 0] * c + d[..., 1] * s) - boxes[:, 3] / 2
     across = np.abs(-d[..., 0] * s + d[..., 1] * c) - boxes[:, 4] / 2
     out: NDArray[np.float64] = np.hypot(np.clip(along, 0, None), np.clip(across, 0, None))
+    return out
+
+
+def clutter_frames(drives: Sequence[tuple[int, str]], frames: int) -> list[Any]:
+    """The validation drives rendered again, for their clutter footprints and types."""
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.scene import Simulation
+    out = []
+    for seed, sensor in drives:
+        sim = Simulation(preset('val-real', sensor=sensor, frames=frames), seed)
+        out += [sim.render(k) for k in range(frames)]
+    return out
+
+
+def clutter_fp(runs: Mapping[str, Any], sim_frames: Sequence[Any], min_score: float
+               ) -> dict[str, dict[str, float]]:
+    """False positives per frame on clutter objects, per clutter type and in all, of each
+    run's detections with ``score >= min_score``."""
+    out = {}
+    for name, run in runs.items():
+        c = clutter_false_positives(sim_frames, [d.select(d.scores >= min_score)
+                                                 for d in run.det])
+        out[name] = {t: float(c[:, j].mean()) for j, t in enumerate(CLUTTER_TYPES)}
+        out[name]['all'] = float(c.sum(1).mean())
     return out

@@ -1,0 +1,325 @@
+"""``suit-ros compare``: checkpoints and their variants on the fixed validation drives, with
+per-drive intervals and paired differences (the one comparison command; ``--ablation`` is the
+docs/results.md set).
+
+Each checkpoint runs as it is (its own config: sweeps, temporal mode) over the validation
+drives (``val`` seeds 9000.., never trained or tuned on); ``--variant`` adds runs of each
+checkpoint changed in one way:
+
+- ``memory dropped``: the feature memory forgotten before every frame (sweeps kept);
+- ``zero displacement``: GeoNet replaced by a zero displacement (SUIT checkpoints);
+- ``no intensity``: the clouds without their intensity channel;
+- ``bfloat16``: the backbone and head convolutions in bfloat16;
+- ``tracking``: the node's tracker over the detections (velocities, scores, ids).
+
+Paired differences (same drive resamples): every checkpoint against the first, each variant
+against its checkpoint (``memory dropped`` and ``zero displacement`` as checkpoint minus
+variant: what the part is worth; the others as variant minus checkpoint), and a variant of
+every checkpoint against the same variant of the first. Writes ``OUT/results.md`` and
+``OUT/results.json``.
+"""
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from dataclasses import dataclass, field, replace
+import json
+import os
+from pathlib import Path
+import platform
+import time
+from typing import Any
+
+import numpy as np
+
+from suit_ros.config import TemporalMode
+from suit_ros.model.inference import PrecisionChoice
+from suit_ros.structures import Frame
+
+VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking')
+WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
+SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
+        'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
+DIFF_COLUMNS = ['mAP', 'NDS', 'mAP moving', 'mAVE', 'mAOE', 'moving car vel err']
+
+
+def no_intensity(frame: Frame) -> Frame:
+    """The frame with its intensity channel zeroed."""
+    pts = frame.points.copy()
+    pts[:, 3] = 0.0
+    return replace(frame, points=pts)
+
+
+def load_as(path: str, temporal: TemporalMode | None = None) -> Any:
+    """A checkpoint's model, or its weights in another temporal mode (strict=False: the
+    modules that mode lacks are left out)."""
+    from suit_ros.checkpoint import load_checkpoint
+    from suit_ros.model.detector import SUITDetector
+    model, cfg, _ = load_checkpoint(path, 'cpu')
+    if temporal is None or temporal == cfg.temporal:
+        return model
+    other = SUITDetector(replace(cfg, temporal=temporal))
+    other.load_state_dict(model.state_dict(), strict=False)
+    return other.eval()
+
+
+def variant_run(path: str, model: Any, variant: str, sequences: Any,
+                precision: PrecisionChoice) -> Any:
+    """One variant's run (None when it does not apply to the model)."""
+    from suit_ros.evaluate import run_model
+    from suit_ros.tracking import FilterConfig
+    temporal = model.cfg.temporal
+    kwargs: dict[str, Any] = {'precision': precision}
+    if variant == 'memory dropped':
+        if temporal == 'none':
+            return None
+        return run_model(model, sequences, drop_memory=True, **kwargs)
+    if variant == 'zero displacement':
+        return None if temporal != 'suit' else run_model(load_as(path, 'sparse'), sequences,
+                                                         **kwargs)
+    if variant == 'no intensity':
+        return run_model(model, sequences, transform=no_intensity, **kwargs)
+    if variant == 'bfloat16':
+        return run_model(model, sequences, precision='bfloat16')
+    if variant == 'tracking':
+        return run_model(model, sequences, velocity_filter=FilterConfig(), **kwargs)
+    raise ValueError(f'unknown variant {variant!r}; choose from {", ".join(VARIANTS)}')
+
+
+def pairs_of(names: list[str], runs: dict[str, Any], variants: list[str]
+             ) -> list[tuple[str, str]]:
+    """The paired differences the module docstring names, for the runs that exist."""
+    first = names[0]
+    pairs = [(n, first) for n in names[1:]]
+    for n in names:
+        for v in variants:
+            key = f'{n}, {v}'
+            if key in runs:
+                pairs.append((n, key) if v in WORTH else (key, n))
+            if n != first and key in runs and f'{first}, {v}' in runs and v not in WORTH:
+                pairs.append((key, f'{first}, {v}'))
+    return pairs
+
+
+@dataclass
+class Comparison:
+    """What :func:`compare` measured (intervals as :class:`~suit_ros.accuracy.Interval`)."""
+
+    stats: dict[str, Any]
+    diffs: dict[str, Any]
+    latency: dict[str, float]
+    memory: dict[str, dict[int, int]]
+    meta: dict[str, Any]
+    class_names: list[str]
+    heldout: dict[str, Any] = field(default_factory=dict)
+    clutter: dict[str, dict[str, float]] = field(default_factory=dict)
+    share: dict[str, float] = field(default_factory=dict)
+
+
+def compare(checkpoints: list[tuple[str, str]], variants: list[str], drives: int = 16,
+            frames: int = 40, resamples: int = 100, cache_dir: str = 'data_cache',
+            precision: PrecisionChoice = 'float32', log: Callable[[str], None] = print
+            ) -> tuple[
+                Comparison, dict[str, Any], Any]:
+    """Run every checkpoint and variant on the validation drives and bootstrap them.
+
+    :return: the comparison, the runs by name, and the validation drives.
+    """
+    from suit_ros.accuracy import bootstrap
+    from suit_ros.data.sequences import split_drives, synthetic_split
+    from suit_ros.evaluate import run_model
+    t0 = time.monotonic()
+    val = synthetic_split('val', drives, frames, cache_dir)
+    runs: dict[str, Any] = {}
+    names: tuple[str, ...] | None = None
+    for name, path in checkpoints:
+        model = load_as(path)
+        if names is not None and tuple(model.cfg.class_names) != names:
+            raise ValueError(f'{path} has classes {model.cfg.class_names}, not {names}')
+        names = tuple(model.cfg.class_names)
+        runs[name] = run_model(model, val, precision=precision)
+        for v in variants:
+            r = variant_run(path, model, v, val, precision)
+            if r is not None:
+                runs[f'{name}, {v}'] = r
+        log(f'[compare] {name}: {(time.monotonic() - t0) / 60:.1f} min')
+    assert names is not None
+    stats, diffs = bootstrap(runs, names, pairs_of([n for n, _ in checkpoints], runs,
+                                                   variants), resamples)
+    meta = {'machine': f'{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, '
+                       f'Python {platform.python_version()}',
+            'date': time.strftime('%Y-%m-%d'), 'checkpoints': dict(checkpoints),
+            'val_drives': [list(d) for d in split_drives('val', drives)],
+            'frames_per_drive': frames, 'resamples': resamples, 'precision': precision,
+            'minutes': round((time.monotonic() - t0) / 60, 1)}
+    result = Comparison(stats, diffs,
+                        {k: float(np.median(r.latency_s)) * 1e3 for k, r in runs.items()},
+                        {k: {n: int(np.median(v)) for n, v in r.memory_after.items()}
+                         for k, r in runs.items()}, meta, list(names))
+    return result, runs, val
+
+
+def extras(result: Comparison, checkpoints: list[tuple[str, str]], runs: dict[str, Any],
+           val: Any, heldout_drives: int, cache_dir: str, log: Callable[[str], None] = print
+           ) -> None:
+    """The ablation's extra sections: the held-out sensor (each checkpoint with and without
+    the tracker), false positives on clutter, and the past term's share at car centres (of the
+    last checkpoint)."""
+    from suit_ros.accuracy import bootstrap, past_share
+    from suit_ros.data.sequences import split_drives, synthetic_split
+    from suit_ros.data.sim.clutter import clutter_fp, clutter_frames
+    from suit_ros.evaluate import run_model
+    from suit_ros.tracking import FilterConfig
+    frames = result.meta['frames_per_drive']
+    base = {n: runs[n] for n, _ in checkpoints}
+    result.clutter = clutter_fp(base, clutter_frames(split_drives('val', len(val)), frames), 0.3)
+    result.share = past_share(load_as(checkpoints[-1][1]), val[:8])
+    log(f'[compare] past share at car centres: {result.share}')
+    if heldout_drives:
+        hv = synthetic_split('heldout', heldout_drives, frames, cache_dir)
+        hruns = {}
+        for name, path in checkpoints:
+            model = load_as(path)
+            hruns[name] = run_model(model, hv)
+            hruns[f'{name}, tracking'] = run_model(model, hv, velocity_filter=FilterConfig())
+        result.heldout, _ = bootstrap(hruns, result.class_names, (), result.meta['resamples'])
+        result.meta['heldout_drives'] = [list(d) for d in split_drives('heldout',
+                                                                       heldout_drives)]
+
+
+def _table(rows: dict[str, Any], cols: list[str]) -> list[str]:
+    lines = ['| run | ' + ' | '.join(cols) + ' |', '|---' * (len(cols) + 1) + '|']
+    for r, m in rows.items():
+        lines.append(f'| {r} | ' + ' | '.join(m[c].fmt(3) if c in m else 'n/a'
+                                             for c in cols) + ' |')
+    return lines
+
+
+def render(r: Comparison, title: str, command: str) -> str:
+    """The results page (markdown)."""
+    meta = r.meta
+    sensors = sorted({s for _, s in meta['val_drives']})
+    lines = [f'# {title}', '', f'Regenerated by `{command}`.', '',
+             f'Validation: {len(meta["val_drives"])} synthetic drives from seeds the training '
+             f'never used (9000+), {meta["frames_per_drive"]} frames each at 10 Hz, sensor '
+             f'models {", ".join(sensors)}; {meta["precision"]} unless the run says otherwise. '
+             f'Every figure: value [95% interval] from {meta["resamples"]} per-drive bootstrap '
+             f'resamples. Machine: {meta["machine"]}; {meta["date"]}.', '',
+             'NDS has no attribute term: (5 mAP + sum over ATE/ASE/AOE/AVE of (1 - min(1, x)))'
+             ' / 9. "moving": GT speed > 1 m/s; "vis a-b": GT with a..b LiDAR points; in a '
+             'bucket, detections matched to GT outside it are ignored and unmatched ones count '
+             "as false positives (nuScenes' attribute rule). Car heading error is over the "
+             'full circle (flipped: > 135 deg), on detections with score >= 0.3 matched within '
+             '2 m; velocity error on cars with GT speed > 1 m/s.', '',
+             '## Checkpoints', '', '| run | checkpoint |', '|---|---|']
+    lines += [f'| {n} | `{p}` |' for n, p in meta['checkpoints'].items()]
+    lines += ['', '## Overall and by bucket', ''] + _table(r.stats, SHOW[:6])
+    lines += ['', '## Heading, velocity, per class', '']
+    lines += _table(r.stats, SHOW[6:] + [f'AP {c}' for c in r.class_names])
+    lines += ['', '## Paired differences (same drive resamples)', '']
+    lines += _table(r.diffs, DIFF_COLUMNS)
+    lines += _extra_sections(r)
+    lines += ['', '## Latency and memory', '',
+              '| run | model step p50 (ms; runs one after another, not a speed comparison) | '
+              'memory bytes after 2 / 10 frames |', '|---|---|---|']
+    for name, ms in r.latency.items():
+        mem = r.memory.get(name, {})
+        lines.append(f'| {name} | {ms:.1f} | {mem.get(2, 0)} / {mem.get(10, 0)} |')
+    return '\n'.join(lines) + '\n'
+
+
+def _extra_sections(r: Comparison) -> list[str]:
+    lines: list[str] = []
+    if r.heldout:
+        held = r.meta['heldout_drives']
+        sensors = ', '.join(sorted({s for _, s in held}))
+        lines += ['', f'## Held-out sensor ({sensors}, never in training; seeds '
+                  f'{held[0][0]}+)', '']
+        lines += _table(r.heldout, ['mAP', 'NDS', 'mAVE'] + [f'AP {c}' for c in r.class_names])
+    if r.clutter:
+        types = [t for t in next(iter(r.clutter.values())) if t != 'all']
+        lines += ['', '## False positives on clutter (per frame, score >= 0.3, no GT within '
+                  '2 m, centre within 0.5 m of the object)', '',
+                  '| run | all | ' + ' | '.join(types) + ' |', '|---' * (len(types) + 2) + '|']
+        for name, c in r.clutter.items():
+            lines.append(f'| {name} | {c["all"]:.2f} | '
+                         + ' | '.join(f'{c[t]:.3f}' for t in types) + ' |')
+    if r.share:
+        lines += ['', f"The fusion's past term at car centres (first 8 drives, "
+                  f'{int(r.share["cells"])} cells): {100 * r.share["past share"]:.1f}% of the '
+                  'norm of the current term W1 F_t (0% at the start of stage 2 by construction).']
+    return lines
+
+
+def write(result: Comparison, out: Path, title: str, command: str) -> str:
+    """``OUT/results.json`` and ``OUT/results.md``; :return: the page."""
+    from suit_ros.accuracy import plain_intervals
+    out.mkdir(parents=True, exist_ok=True)
+    (out / 'results.json').write_text(json.dumps(
+        {'meta': result.meta, 'runs': plain_intervals(result.stats),
+         'differences': plain_intervals(result.diffs),
+         'heldout_sensor': plain_intervals(result.heldout),
+         'latency_p50_ms': result.latency, 'memory_bytes': result.memory,
+         'clutter_fp_per_frame': result.clutter,
+         'past_share_at_car_centres': result.share}, indent=1), encoding='utf-8')
+    text = render(result, title, command)
+    (out / 'results.md').write_text(text, encoding='utf-8')
+    return text
+
+
+# ------------------------------------------------------------------ command line
+def configure_parser(parser: argparse.ArgumentParser) -> None:
+    """Add ``compare`` options."""
+    parser.add_argument('--run', nargs=2, action='append', default=[],
+                        metavar=('NAME', 'CHECKPOINT'), help='a label and a checkpoint '
+                        '(repeatable; the first is the reference of the paired differences)')
+    parser.add_argument('--variant', action='append', default=[], choices=VARIANTS,
+                        help='also run each checkpoint this way (repeatable)')
+    parser.add_argument('--ablation', action='store_true',
+                        help='the docs/results.md set: --run single SINGLE --run suit SUIT '
+                             '(default: the shipped pair), every variant, the held-out sensor, '
+                             'clutter and the past share')
+    parser.add_argument('--drives', type=int, default=16)
+    parser.add_argument('--heldout-drives', type=int, default=4)
+    parser.add_argument('--frames', type=int, default=40)
+    parser.add_argument('--resamples', type=int, default=100)
+    parser.add_argument('--cache-dir', default='data_cache')
+    parser.add_argument('--precision', default='float32',
+                        choices=['auto', 'float32', 'bfloat16'])
+    parser.add_argument('--threads', type=int, default=2, help='torch threads')
+    parser.add_argument('--out', required=True, help='folder for results.md and results.json')
+
+
+def run(args: argparse.Namespace) -> int:
+    """Compare; print and write the page."""
+    import torch
+
+    from suit_ros.checkpoint import default_checkpoint_path
+    from suit_ros.errors import SuitRosError
+    torch.set_num_threads(args.threads)
+    checkpoints = [(n, p) for n, p in args.run]
+    variants = list(dict.fromkeys(args.variant))
+    if args.ablation:
+        shipped = default_checkpoint_path().parent
+        checkpoints = checkpoints or [('single', str(shipped / 'centerpoint_single.safetensors')),
+                                      ('suit', str(shipped / 'suit_default.safetensors'))]
+        variants = list(VARIANTS)
+    if not checkpoints:
+        raise SuitRosError('give checkpoints to compare (--run NAME CHECKPOINT, repeatable) '
+                           'or --ablation')
+    if len({n for n, _ in checkpoints}) != len(checkpoints):
+        raise SuitRosError('run names must differ')
+    for _, path in checkpoints:
+        if not Path(path).is_file():
+            raise SuitRosError(f'checkpoint {path} does not exist')
+    try:
+        result, runs, val = compare(checkpoints, variants, args.drives, args.frames,
+                                    args.resamples, args.cache_dir, args.precision)
+    except ValueError as exc:
+        raise SuitRosError(str(exc)) from exc
+    if args.ablation:
+        extras(result, checkpoints, runs, val, args.heldout_drives, args.cache_dir)
+    title = 'Results' if args.ablation else 'Checkpoint comparison'
+    command = 'suit-ros compare ' + ('--ablation ' if args.ablation else '') + '...'
+    print(write(result, Path(args.out), title, command))
+    return 0

@@ -1,0 +1,52 @@
+"""``suit-ros compare``: checkpoints and variants on validation drives, paired differences."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from suit_ros.compare import VARIANTS, pairs_of
+
+
+def test_pairs_follow_the_documented_directions():
+    runs = dict.fromkeys(('single', 'suit', 'single, tracking', 'suit, tracking',
+                          'suit, memory dropped', 'suit, bfloat16'))
+    pairs = pairs_of(['single', 'suit'], runs, list(VARIANTS))
+    assert ('suit', 'single') in pairs                                  # against the first
+    assert ('suit', 'suit, memory dropped') in pairs                    # what the memory is worth
+    assert ('suit, bfloat16', 'suit') in pairs                          # variant minus run
+    assert ('single, tracking', 'single') in pairs
+    assert ('suit, tracking', 'single, tracking') in pairs              # same variant, both
+    assert not any('zero displacement' in a or 'zero displacement' in b for a, b in pairs)
+
+
+@pytest.mark.slow
+def test_compare_command_writes_paired_results(tmp_path):
+    from suit_ros.checkpoint import default_checkpoint_path
+    shipped = default_checkpoint_path()
+    out = tmp_path / 'cmp'
+    single = shipped.parent / 'centerpoint_single.safetensors'
+    cmd = [sys.executable, '-m', 'suit_ros.cli', 'compare', '--run', 'a', str(shipped),
+           '--run', 'b', str(shipped), '--run', 's', str(single),
+           '--variant', 'memory dropped', '--variant', 'tracking',
+           '--drives', '2', '--frames', '4', '--resamples', '20', '--threads', '1',
+           '--cache-dir', str(tmp_path / 'cache'), '--out', str(out)]
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    data = json.loads((out / 'results.json').read_text())
+    # the single-frame model has no memory to drop
+    assert set(data['runs']) == {'a', 'b', 'a, memory dropped', 'b, memory dropped',
+                                 'a, tracking', 'b, tracking', 's', 's, tracking'}
+    value, low, high = data['differences']['s - a']['mAP']
+    assert low <= value <= high
+    same = data['differences']['b - a']['mAP']
+    assert same == [0.0, 0.0, 0.0]                 # one checkpoint twice: no difference
+    assert 'a - a, memory dropped' in data['differences']
+    assert '## Paired differences' in (out / 'results.md').read_text()
+    bad = subprocess.run(cmd[:4] + ['--out', str(out)], capture_output=True, text=True)
+    assert bad.returncode != 0 and 'give checkpoints' in bad.stderr
+    missing = subprocess.run(cmd[:4] + ['--run', 'x', str(tmp_path / 'nope.safetensors'),
+                                        '--out', str(out)], capture_output=True, text=True)
+    assert missing.returncode != 0 and 'does not exist' in missing.stderr
