@@ -13,10 +13,8 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-import subprocess
 import sys
 import tempfile
-import time
 
 EMPTY_PROFILE = ('<?xml version="1.0" encoding="UTF-8"?>\n'
                  '<dds xmlns="http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles">'
@@ -25,40 +23,26 @@ EMPTY_PROFILE = ('<?xml version="1.0" encoding="UTF-8"?>\n'
 
 def count(bag: str, profile: str, publisher: str, subscriber: str) -> tuple[int, int]:
     """Clouds received and published for one combination."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node('bench_delivery', context=ctx)
+
+    from suit_ros.harness import Probe, start_player, stop
+    probe = Probe('bench_delivery')
     got: list[int] = []
     rel = (ReliabilityPolicy.RELIABLE if subscriber == 'reliable'
            else ReliabilityPolicy.BEST_EFFORT)
-    node.create_subscription(PointCloud2, '/points', lambda m: got.append(1),
-                             QoSProfile(depth=1, reliability=rel))
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
+    probe.node.create_subscription(PointCloud2, '/points', lambda m: got.append(1),
+                                   QoSProfile(depth=1, reliability=rel))
     env = dict(os.environ, FASTRTPS_DEFAULT_PROFILES_FILE=profile)
-    player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', bag, '--topics',
-                               '/points', '--wait-subscribers', '20', '--start-delay', '1.5',
-                               '--reliability', publisher], env=env,
-                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    player = start_player(bag, '--topics', '/points', '--wait-subscribers', '20',
+                          '--start-delay', '1.5', '--reliability', publisher, env=env,
+                          quiet=False)
     try:
-        end = time.monotonic() + 120
-        while player.poll() is None and time.monotonic() < end:
-            ex.spin_once(timeout_sec=0.01)
-        settle = time.monotonic() + 1.0
-        while time.monotonic() < settle:
-            ex.spin_once(timeout_sec=0.01)
+        probe.spin_while_running(player, 120, 0.01)
+        probe.spin_for(1.0, 0.01)
     finally:
-        if player.poll() is None:
-            player.kill()
-        out = player.communicate()[0]
-        ex.shutdown()
-        node.destroy_node()
-        rclpy.try_shutdown(context=ctx)
+        out = stop(player)
+        probe.close()
     sent = next((int(w) for line in out.splitlines() if 'published' in line
                  for w in line.split() if w.isdigit()), -1)
     return len(got), sent

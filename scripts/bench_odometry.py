@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import threading
 import time
@@ -26,23 +25,21 @@ def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str,
     """Run the node against odometry at ``rate_hz``; return its counters."""
     from diagnostic_msgs.msg import DiagnosticArray
     from nav_msgs.msg import Odometry
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile
     from sensor_msgs.msg import PointCloud2
 
+    from suit_ros.checkpoint import default_checkpoint_path
     from suit_ros.data.sim import preset
     from suit_ros.data.sim.scene import Simulation
+    from suit_ros.harness import Probe, start_node, stop
     from suit_ros.msg_adapters.classes import MessageClasses
     from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2
-    args = [sys.executable, '-m', 'suit_ros.node', '--ros-args']
-    for p in node_params:
-        args += ['-p', p]
-    node = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.STDOUT)
-    ctx = Context()
-    rclpy.init(context=ctx)
-    probe = rclpy.create_node('bench_odometry', context=ctx)
+    ckpt = next((p.split(':=', 1)[1] for p in node_params if p.startswith('checkpoint:=')),
+                str(default_checkpoint_path()))
+    node = start_node(ckpt, *[p for p in node_params if not p.startswith('checkpoint:=')],
+                      quiet=True)
+    harness_probe = Probe('bench_odometry')
+    probe, ex = harness_probe.node, harness_probe.ex
     diags: list[dict[str, str]] = []
     probe.create_subscription(DiagnosticArray, '/diagnostics', lambda m: diags.append(
         {kv.key: kv.value for kv in m.status[0].values}), 10)
@@ -51,15 +48,13 @@ def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str,
     C = MessageClasses.from_rclpy()
     sim = Simulation(preset('demo', frames=2), 7).render(1)
     cloud = array_to_pointcloud2(sim.cloud, C.header(0, 'lidar'), C)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(probe)
-    stop = threading.Event()
+    stop_event = threading.Event()
 
     def publish_odometry() -> None:
         period = 1.0 / rate_hz
         due = time.monotonic()
         x = 0.0
-        while not stop.is_set():
+        while not stop_event.is_set():
             msg = Odometry()
             msg.header.stamp = probe.get_clock().now().to_msg()
             msg.header.frame_id, msg.child_frame_id = 'odom', 'base_link'
@@ -71,7 +66,7 @@ def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str,
             time.sleep(max(0.0, due - time.monotonic()))
 
     def publish_clouds() -> None:
-        while not stop.is_set():
+        while not stop_event.is_set():
             cloud.header.stamp = probe.get_clock().now().to_msg()
             cloud_pub.publish(cloud)
             time.sleep(0.05)
@@ -88,7 +83,7 @@ def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str,
         end = time.monotonic() + seconds
         while time.monotonic() < end:
             ex.spin_once(timeout_sec=0.05)
-        stop.set()
+        stop_event.set()
         for t in threads:
             t.join()
         n = len(diags)
@@ -96,11 +91,8 @@ def one_run(rate_hz: float, seconds: float, node_params: list[str]) -> dict[str,
         while len(diags) < n + 2 and time.monotonic() < end:
             ex.spin_once(timeout_sec=0.05)
     finally:
-        ex.shutdown()
-        probe.destroy_node()
-        rclpy.try_shutdown(context=ctx)
-        node.terminate()
-        node.wait(10)
+        harness_probe.close()
+        stop(node)
     last = diags[-1]
     out = int(last['frames_out'])
     single = int(last['frames_single_frame'])

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import subprocess
 import sys
 import time
 
@@ -24,27 +23,18 @@ def main() -> int:
     parser.add_argument('--relief', type=float, default=60.0)
     args = parser.parse_args()
     from diagnostic_msgs.msg import DiagnosticArray
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import QoSProfile, QoSReliabilityPolicy
     from sensor_msgs.msg import PointCloud2
 
     from suit_ros.checkpoint import default_checkpoint_path
-    from suit_ros.data.sim import preset
-    from suit_ros.data.simulate_cli import write_bag
+    from suit_ros.harness import Probe, start_node, start_player, stop
+    from suit_ros.node_probe import demo_bag
     from suit_ros.rosenv import local_ros_env
-    env = local_ros_env()
-    os.environ.update(env)
-    bag = 'out/demo/demo-seed7-100f'
-    if not os.path.exists(bag):
-        write_bag(bag, preset('demo-real', frames=100), 7, 'mcap')
-    node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
-                             f'checkpoint:={default_checkpoint_path()}', '-p', 'threads:=2'],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    ctx = Context()
-    rclpy.init(context=ctx)
-    probe = rclpy.create_node('suit_ros_load_probe', context=ctx)
+    os.environ.update(local_ros_env())
+    bag = demo_bag('out/demo', 7, 100)
+    node = start_node(str(default_checkpoint_path()), 'threads:=2', quiet=True)
+    harness_probe = Probe('suit_ros_load_probe')
+    probe = harness_probe.node
     sent: dict[tuple[int, int], float] = {}
     events: list[tuple[float, float]] = []
     diags: list[tuple[float, dict[str, str]]] = []
@@ -64,30 +54,20 @@ def main() -> int:
     probe.create_subscription(PointCloud2, '/detector/detections', on_det, 50)
     probe.create_subscription(DiagnosticArray, '/diagnostics', lambda m: diags.append(
         (time.monotonic(), {kv.key: kv.value for kv in m.status[0].values})), 10)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(probe)
-    while not diags:
-        ex.spin_once(timeout_sec=0.1)
+    harness_probe.spin_until(lambda: bool(diags), 90, 0.1)
 
     def play(rate, seconds):
-        p = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', bag, '--loop',
-                              '--rate', str(rate), '--topics', '/points', '/odom',
-                              '--start-delay', '0.5', '--wait-subscribers', '20'],
-                             env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        p = start_player(bag, '--loop', '--rate', str(rate), '--topics', '/points', '/odom',
+                         '--start-delay', '0.5', '--wait-subscribers', '20')
         start = time.monotonic()
-        while time.monotonic() - start < seconds:
-            ex.spin_once(timeout_sec=0.02)
-        p.terminate()
-        p.wait(10)
+        harness_probe.spin_for(seconds, 0.02)
+        stop(p)
         return start
     t0 = play(args.rate, args.minutes * 60)
     t1 = play(0.5, args.relief)
     end = time.monotonic()
-    ex.shutdown()
-    probe.destroy_node()
-    rclpy.try_shutdown(context=ctx)
-    node.terminate()
-    node.wait(10)
+    harness_probe.close()
+    stop(node)
 
     def window(a, b, label):
         lat = [lt for t, lt in events if a <= t < b]

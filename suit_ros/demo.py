@@ -10,14 +10,10 @@ from __future__ import annotations
 import argparse
 import os
 from pathlib import Path
-import subprocess
 import sys
-import time
 from typing import Any
 
 import numpy as np
-
-from suit_ros.errors import SuitRosError
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -46,64 +42,16 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.checkpoint import default_checkpoint_path, read_metadata
     ckpt = args.checkpoint or str(default_checkpoint_path())
     read_metadata(ckpt)   # fail early with a clear message
-    env = os.environ.copy()
-    node = subprocess.Popen(
-        [sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p', f'checkpoint:={ckpt}'],
-        env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    try:
-        return _record(args, bag, node, env, out)
-    finally:
-        node.terminate()
-        try:
-            node.wait(10)
-        except subprocess.TimeoutExpired:
-            node.kill()
-
-
-def _record(args: argparse.Namespace, bag: Path, node: subprocess.Popen[str],
-            env: dict[str, str], out: Path) -> int:
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.utilities import try_shutdown
-
+    from suit_ros.harness import node_and_probe, play_into, wait_ready
     from suit_ros.node_probe import OutputRecorder
-    ctx = Context()
-    rclpy.init(context=ctx)
-    probe = rclpy.create_node('suit_ros_demo_recorder', context=ctx)
-    rec = OutputRecorder(probe)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(probe)
-    deadline = time.monotonic() + args.timeout
-    try:
+    with node_and_probe(ckpt, name='suit_ros_demo_recorder') as (node, probe):
+        rec = OutputRecorder(probe.node)
         print('[demo] waiting for the detector node ...', flush=True)
-        while not rec.diags:
-            ex.spin_once(timeout_sec=0.1)
-            if node.poll() is not None:
-                text = node.stdout.read() if node.stdout else ''
-                raise SuitRosError(f'the detector node exited:\n{text}')
-            if time.monotonic() > deadline:
-                raise SuitRosError('the detector node did not come up in time')
+        wait_ready(probe, node, lambda: bool(rec.diags), args.timeout)
         print(f'[demo] playing {bag} at rate {args.rate} ...', flush=True)
-        # the player sets the large-data Fast DDS profile for itself (suit_ros.dds)
-        player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', str(bag),
-                                   '--rate', str(args.rate), '--start-delay', '1.0',
-                                   '--wait-subscribers', '20'],
-                                  env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                                  text=True)
-        t_play = time.monotonic()
-        while player.poll() is None and time.monotonic() < deadline:
-            ex.spin_once(timeout_sec=0.05)
-        settle = time.monotonic() + 3.0
-        while time.monotonic() < settle:
-            ex.spin_once(timeout_sec=0.05)
-        play_s = time.monotonic() - t_play
-        if player.poll() is None:
-            player.kill()
-    finally:
-        ex.shutdown()
-        probe.destroy_node()
-        try_shutdown(context=ctx)
+        play_s = play_into(probe, str(bag), ['--rate', str(args.rate), '--start-delay', '1.0',
+                                             '--wait-subscribers', '20'], args.timeout,
+                           settle_s=3.0)
     return _report(bag, rec.clouds, rec.dets, rec.diags, play_s, out)
 
 

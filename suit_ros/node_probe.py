@@ -2,8 +2,6 @@
 from __future__ import annotations
 
 import os
-import subprocess
-import sys
 import time
 from typing import Any
 
@@ -20,53 +18,25 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     :param threads: the node's ``threads`` parameter (0: its default, all cores but one).
     :param precision: the node's ``precision`` parameter.
     """
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.utilities import try_shutdown
-
     from suit_ros.checkpoint import default_checkpoint_path
+    from suit_ros.harness import node_and_probe, play_into, wait_ready
     from suit_ros.rosenv import local_ros_env
-    env = local_ros_env()
-    os.environ.update(env)
+    os.environ.update(local_ros_env())
     bag = demo_bag(workdir, seed, frames, sensor)
     ckpt = checkpoint or str(default_checkpoint_path())
-    node = subprocess.Popen([sys.executable, '-m', 'suit_ros.node', '--ros-args', '-p',
-                             f'checkpoint:={ckpt}', '-p', f'threads:={threads}', '-p',
-                             f'precision:={precision}'],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    ctx = Context()
-    rclpy.init(context=ctx)
-    probe = rclpy.create_node('suit_ros_bench_probe', context=ctx)
-    rec = OutputRecorder(probe)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(probe)
-    try:
-        end = time.monotonic() + 90
-        while not rec.diags and time.monotonic() < end:
-            ex.spin_once(timeout_sec=0.1)
-        player = subprocess.Popen([sys.executable, '-m', 'suit_ros.cli', 'play', bag,
-                                   '--rate', str(rate), '--start-delay', '1.0',
-                                   '--wait-subscribers', '20',
-                                   '--topics', '/points', '/odom'],
-                                  env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        t0, cpu0 = time.monotonic(), process_cpu_s(node.pid)
-        while player.poll() is None and time.monotonic() < end + 120:
-            ex.spin_once(timeout_sec=0.02)
-        t_play = time.monotonic() - t0
-        cores = (process_cpu_s(node.pid) - cpu0) / max(t_play, 1e-9)
-        settle = time.monotonic() + 2.5
-        while time.monotonic() < settle:
-            ex.spin_once(timeout_sec=0.05)
-    finally:
-        ex.shutdown()
-        probe.destroy_node()
-        try_shutdown(context=ctx)
-        node.terminate()
-        node.wait(10)
+    with node_and_probe(ckpt, f'threads:={threads}', f'precision:={precision}',
+                        name='suit_ros_bench_probe', quiet=True) as (node, probe):
+        rec = OutputRecorder(probe.node)
+        wait_ready(probe, node, lambda: bool(rec.diags), 90)
+        cpu0, t0 = process_cpu_s(node.pid), time.monotonic()
+        t_play = play_into(probe, bag, ['--rate', str(rate), '--start-delay', '1.0',
+                                        '--wait-subscribers', '20', '--topics', '/points',
+                                        '/odom'], 120, settle_s=0.0)
+        cores = (process_cpu_s(node.pid) - cpu0) / max(time.monotonic() - t0, 1e-9)
+        probe.spin_for(2.5)
     return {'node_threads': threads, 'node_precision': precision, 'sensor': sensor,
             'cpu_cores': cores, **_summary(rec.clouds, {k: t for k, (t, _) in rec.dets.items()},
-                       rec.diags[-1] if rec.diags else {}, t_play)}
+                                           rec.diags[-1] if rec.diags else {}, t_play)}
 
 
 class OutputRecorder:
@@ -108,11 +78,9 @@ def demo_bag(workdir: str, seed: int, frames: int, sensor: str = 'sim32') -> str
     from suit_ros.data.sim import preset
     from suit_ros.data.simulate_cli import write_bag
     name = f'demo-seed{seed}-{frames}f' + ('' if sensor == 'sim32' else f'-{sensor}')
-    bag = os.path.join(workdir, name)
-    if not os.path.exists(bag):
-        os.makedirs(workdir, exist_ok=True)
-        write_bag(bag, preset('demo-real', frames=frames, sensor=sensor), seed, 'mcap')
-    return bag
+    from suit_ros.harness import bag_for
+    return bag_for(workdir, name, lambda path: write_bag(
+        path, preset('demo-real', frames=frames, sensor=sensor), seed, 'mcap'))
 
 
 def process_cpu_s(pid: int) -> float:

@@ -1,32 +1,16 @@
-"""Helpers for tests over real DDS: processes, a private rclpy context, bounded spinning."""
+"""Helpers for tests over real DDS: the library's harness (:mod:`suit_ros.harness`: the node's
+process, a probe in a private rclpy context, bounded spinning) and what only tests need."""
 from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 import contextlib
 from pathlib import Path
 import subprocess
-import sys
-import time
 from typing import Any
 
+from suit_ros.harness import Probe, ros_env, start_node, stop  # noqa: F401 - for the tests
+
 REPO = Path(__file__).resolve().parents[1]
-
-
-def ros_env() -> dict[str, str]:
-    """Environment for child processes: DDS on localhost, this run's domain."""
-    from suit_ros.rosenv import local_ros_env
-    return local_ros_env()
-
-
-def start_node(checkpoint: str, *params: str, cmd: list[str] | None = None
-               ) -> subprocess.Popen[str]:
-    """Start the detector node in its own process (every other parameter at its default)."""
-    args = (cmd or [sys.executable, '-m', 'suit_ros.node']) + [
-        '--ros-args', '-p', f'checkpoint:={checkpoint}']
-    for p in params:
-        args += ['-p', p]
-    return subprocess.Popen(args, env=ros_env(), stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
 
 
 @contextlib.contextmanager
@@ -42,51 +26,6 @@ def running_node(checkpoint: str, make_probe: Callable[[], Any], *params: str
     finally:
         probe.p.close()
         print(stop(proc)[-3000:])
-
-
-def stop(proc: subprocess.Popen[str]) -> str:
-    """Terminate a process and return its output."""
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-    return proc.stdout.read() if proc.stdout else ''
-
-
-class Probe:
-    """A node in the test process with its own Context; spins only against deadlines."""
-
-    def __init__(self, name: str = 'probe') -> None:
-        import rclpy
-        from rclpy.context import Context
-        from rclpy.executors import SingleThreadedExecutor
-        self.ctx = Context()
-        rclpy.init(context=self.ctx)
-        self.node = rclpy.create_node(name, context=self.ctx)
-        self.ex = SingleThreadedExecutor(context=self.ctx)
-        self.ex.add_node(self.node)
-
-    def spin_until(self, cond: Callable[[], bool], timeout: float) -> bool:
-        """Spin until ``cond()`` or the timeout; return ``cond()``."""
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            if cond():
-                return True
-            self.ex.spin_once(timeout_sec=0.05)
-        return cond()
-
-    def spin_for(self, seconds: float) -> None:
-        """Spin for a fixed time."""
-        self.spin_until(lambda: False, seconds)
-
-    def close(self) -> None:
-        """Shut the context down."""
-        import rclpy
-        self.ex.shutdown()
-        self.node.destroy_node()
-        rclpy.try_shutdown(context=self.ctx)
 
 
 def diag_values(msg: Any) -> dict[str, str]:
