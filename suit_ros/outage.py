@@ -145,6 +145,42 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
     return OutageCounts(objects, found, boxes, true)
 
 
+def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
+                    det_seqs: Sequence[Sequence[Detections]], thresholds: Sequence[float],
+                    max_gap: int = 10) -> OutageCounts:
+    """Recall of objects by frames since they were last visible (1..``max_gap``), on drives
+    as the sensor saw them (occlusion by other objects, no sector removed).
+
+    An object counts at a frame when it has no returns in it and had returns ``g`` frames
+    before (``g <= max_gap``), within 50 m; found: matched by a published box of its class
+    within 2 m. Column ``g - 1`` of the counts is gap ``g`` (the boxes columns stay 0).
+    """
+    from suit_ros.evaluate import match_frame
+    n = len(gt_seqs)
+    objects = np.zeros((n, max_gap), np.int64)
+    found = np.zeros((n, max_gap), np.int64)
+    thr = np.asarray(thresholds, np.float64)
+    for d, (frames, dets) in enumerate(zip(gt_seqs, det_seqs)):
+        last_seen: dict[int, int] = {}
+        for k, (f, det) in enumerate(zip(frames, dets)):
+            if f.gt is None or f.instance_ids is None or f.num_points is None:
+                continue
+            ids = f.instance_ids.astype(np.int64)
+            gap = np.array([k - last_seen[i] if c == 0 and i in last_seen else 0
+                            for i, c in zip(ids.tolist(), f.num_points.tolist())])
+            near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
+            pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
+            for g in np.unique(gap[near & (gap > 0) & (gap <= max_gap)]):
+                gt = f.gt.select(near & (gap == g))
+                objects[d, g - 1] += len(gt)
+                for c in range(len(thresholds)):
+                    found[d, g - 1] += int(match_frame(gt, pub, c, MATCH_DIST).tp.sum())
+            last_seen.update({i: k for i, c in zip(ids.tolist(), f.num_points.tolist())
+                              if c > 0})
+    zeros = np.zeros_like(objects)
+    return OutageCounts(objects, found, zeros, zeros.copy())
+
+
 def intervals(counts: OutageCounts, resamples: int = 200, seed: int = 0
               ) -> dict[str, list[list[float]]]:
     """Per outage frame ``[value, low, high]`` of recall and sector precision (per-drive
@@ -187,6 +223,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--width', type=float, default=120.0, help='sector (degrees)')
     parser.add_argument('--length', type=int, default=6, help='outage frames')
     parser.add_argument('--cache-dir', default='data_cache')
+    parser.add_argument('--no-occlusion', dest='occlusion', action='store_false',
+                        help='skip the natural-occlusion runs (drives as the sensor saw them)')
     parser.add_argument('--json-out', help='write the figures as JSON here')
 
 
@@ -194,35 +232,48 @@ def run(args: argparse.Namespace) -> int:
     """Run every model with and without the tracker; print and write the table."""
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, published_thresholds
     from suit_ros.data.sequences import synthetic_split
-    from suit_ros.evaluate import run_model
-    from suit_ros.tracking import FilterConfig
     shipped = default_checkpoint_path().parent
     models = dict(a.split('=', 1) for a in args.checkpoint) if args.checkpoint else {
         'SUIT': str(shipped / 'suit_default.safetensors'),
         'single frame': str(shipped / 'centerpoint_single.safetensors')}
-    seqs, outs = [], []
-    for i, seq in enumerate(synthetic_split('outage', args.drives, args.frames, args.cache_dir)):
-        o = outages_for(i, args.frames, args.width, args.length)
-        seqs.append(with_outages(seq, o))
-        outs.append(o)
+    plain = synthetic_split('outage', args.drives, args.frames, args.cache_dir)
+    outs = [outages_for(i, args.frames, args.width, args.length) for i in range(len(plain))]
+    seqs = [with_outages(seq, o) for seq, o in zip(plain, outs)]
     result: dict[str, Any] = {'drives': args.drives, 'frames': args.frames,
-                              'width_deg': args.width, 'length': args.length, 'runs': {}}
+                              'width_deg': args.width, 'length': args.length, 'runs': {},
+                              'occlusion': {}}
     for name, path in models.items():
         model, cfg, meta = load_checkpoint(path)
         thr = published_thresholds(meta, cfg.class_names)
         for tracked in (False, True):
-            r = run_model(model, seqs, velocity_filter=FilterConfig() if tracked else None)
-            starts = np.cumsum([0] + [len(s) for s in seqs])
-            dets = [r.det[starts[i]:starts[i + 1]] for i in range(len(seqs))]
-            counts = count_outage(seqs, dets, outs, thr, args.length)
             key = f'{name}, tracker' if tracked else name
-            result['runs'][key] = intervals(counts)
-            rec = result['runs'][key]['recall']
-            late = result['runs'][key]['recall_from_frame_3']
-            print(f'{key:<24} recall by outage frame ' + ' '.join(f'{v[0]:.2f}' for v in rec)
-                  + f' | frames 3+: {late[0]:.2f} [{late[1]:.2f}, {late[2]:.2f}] | sector '
-                  'precision ' + ' '.join(f'{v[0]:.2f}' for v in
-                                         result['runs'][key]['sector_precision']), flush=True)
+            counts = count_outage(seqs, _detections(model, seqs, tracked), outs, thr,
+                                  args.length)
+            result['runs'][key] = r = intervals(counts)
+            print(f'{key:<24} recall by outage frame ' + ' '.join(f'{v[0]:.2f}' for v in
+                                                                   r['recall'])
+                  + f' | frames 3+: {_band(r["recall_from_frame_3"])} | sector precision '
+                  + ' '.join(f'{v[0]:.2f}' for v in r['sector_precision']), flush=True)
+            if args.occlusion:
+                occ = count_occlusion(plain, _detections(model, plain, tracked), thr)
+                result['occlusion'][key] = o = intervals(occ)
+                print(f'{key:<24} occluded objects, recall by frames since last seen '
+                      + ' '.join(f'{v[0]:.2f}' for v in o['recall'])
+                      + f' | 3-10 frames: {_band(o["recall_from_frame_3"])}', flush=True)
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(result, indent=2), encoding='utf-8')
     return 0
+
+
+def _band(v: Any) -> str:
+    return f'{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]'
+
+
+def _detections(model: Any, seqs: Sequence[Sequence[Frame]], tracked: bool
+                ) -> list[list[Detections]]:
+    """Each drive's detections as the node decodes them (with or without its tracker)."""
+    from suit_ros.evaluate import run_model
+    from suit_ros.tracking import FilterConfig
+    r = run_model(model, seqs, velocity_filter=FilterConfig() if tracked else None)
+    starts = np.cumsum([0] + [len(s) for s in seqs])
+    return [r.det[starts[i]:starts[i + 1]] for i in range(len(seqs))]

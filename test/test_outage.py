@@ -4,7 +4,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from suit_ros.outage import Outage, count_outage, intervals, outages_for, with_outages
+from suit_ros.outage import (
+    Outage,
+    count_occlusion,
+    count_outage,
+    intervals,
+    outages_for,
+    with_outages,
+)
 from suit_ros.structures import Detections, Frame
 
 
@@ -60,6 +67,24 @@ def test_recall_and_sector_precision_count_what_the_memory_must_hold():
     assert j['objects'] == [1, 1, 1]
 
 
+def test_occluded_objects_are_counted_by_frames_since_last_seen():
+    """The car ahead loses its returns at frames 4-6 (occluded); at frame 5 it was last seen 2
+    frames before. A published box of its class within 2 m finds it; an object never seen is
+    not counted; one seen again counts at gap 0 (not at all)."""
+    frames = drive()
+    for k in (4, 5, 6):
+        frames[k] = Frame(frames[k].points, frames[k].pose, frames[k].stamp_ns, 'lidar',
+                          frames[k].gt, np.array([0, 50], np.uint32), frames[k].instance_ids)
+    car = Detections(np.array([box(10.5, 0)]), np.zeros((1, 2)), np.array([0.9]), [0])
+    empty = Detections.empty()
+    dets = [empty] * 4 + [car, empty, car] + [empty] * 5
+    c = count_occlusion([frames], [dets], [0.5] * 4, max_gap=5)
+    assert c.objects.tolist() == [[1, 1, 1, 0, 0]]
+    assert c.found.tolist() == [[1, 0, 1, 0, 0]]
+    j = intervals(c, resamples=20)
+    assert j['recall_from_frame_3'][0] == 1.0 and j['objects'] == [1, 1, 1, 0, 0]
+
+
 @pytest.mark.slow
 def test_outage_command_runs(tmp_path, capsys):
     from suit_ros.cli import main
@@ -68,3 +93,4 @@ def test_outage_command_runs(tmp_path, capsys):
                  str(tmp_path / 'cache'), '--json-out', str(out)]) == 0
     text = capsys.readouterr().out
     assert 'SUIT, tracker' in text and 'single frame' in text and out.is_file()
+    assert 'frames since last seen' in text
