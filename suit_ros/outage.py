@@ -226,6 +226,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--no-occlusion', dest='occlusion', action='store_false',
                         help='skip the natural-occlusion runs (drives as the sensor saw them)')
     parser.add_argument('--json-out', help='write the figures as JSON here')
+    parser.add_argument('--markdown', help='write the tables (markdown) here')
 
 
 def run(args: argparse.Namespace) -> int:
@@ -262,7 +263,45 @@ def run(args: argparse.Namespace) -> int:
                       + f' | 3-10 frames: {_band(o["recall_from_frame_3"])}', flush=True)
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(result, indent=2), encoding='utf-8')
+    if args.markdown:
+        Path(args.markdown).write_text(tables(result), encoding='utf-8')
     return 0
+
+
+def tables(result: dict[str, Any]) -> str:
+    """The figures of :func:`run` as markdown tables (value [95% per-drive interval])."""
+    n = result['length']
+    runs = result['runs']
+    lines = [f'Outage: a {result["width_deg"]:.0f}-degree sector lost for {n} frames '
+             f'({result["drives"]} drives x {result["frames"]} frames). Recall of the objects '
+             'in the lost sector that had returns before the outage:', '',
+             '| model | ' + ' | '.join(f'frame {k}' for k in range(1, n + 1))
+             + ' | frames 3+ | objects at frame 1 |', '|---' * (n + 3) + '|']
+    for key, r in runs.items():
+        lines.append(f'| {key} | ' + ' | '.join(_band(v) for v in r['recall'])
+                     + f' | {_band(r["recall_from_frame_3"])} | {r["objects"][0]} |')
+    lines += ['', 'Sector precision (published boxes in the lost sector that match an object), '
+              'per outage frame, and the boxes counted:', '',
+              '| model | ' + ' | '.join(f'frame {k}' for k in range(1, n + 1)) + ' | boxes |',
+              '|---' * (n + 2) + '|']
+    for key, r in runs.items():
+        lines.append(f'| {key} | ' + ' | '.join(f'{v[0]:.2f}' for v in r['sector_precision'])
+                     + f' | {sum(r["boxes"])} |')
+    occ = result.get('occlusion') or {}
+    if occ:
+        gaps = len(next(iter(occ.values()))['recall'])
+        lines += ['', 'Natural occlusion (the same drives as the sensor saw them): recall of '
+                  'objects without returns by frames since they were last seen:', '',
+                  '| model | ' + ' | '.join(str(g) for g in range(1, gaps + 1))
+                  + ' | 3-10 frames |', '|---' * (gaps + 2) + '|']
+        for key, r in occ.items():
+            lines.append(f'| {key} | ' + ' | '.join(f'{v[0]:.2f}' for v in r['recall'])
+                         + f' | {_band(r["recall_from_frame_3"])} |')
+        lines.append('| objects | ' + ' | '.join(str(c) for c in
+                                                   next(iter(occ.values()))['objects'])
+                     + ' | |')
+    return '\n'.join(lines) + '\n'
+
 
 
 def _band(v: Any) -> str:

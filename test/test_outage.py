@@ -83,6 +83,14 @@ def test_occluded_objects_are_counted_by_frames_since_last_seen():
     assert c.found.tolist() == [[1, 0, 1, 0, 0]]
     j = intervals(c, resamples=20)
     assert j['recall_from_frame_3'][0] == 1.0 and j['objects'] == [1, 1, 1, 0, 0]
+    from suit_ros.outage import tables
+    o = Outage(0.0, 120.0, 4, 3)
+    out = intervals(count_outage([with_outages(drive(), [o])], [dets], [[o]], [0.5] * 4, 3),
+                    resamples=20)
+    text = tables({'length': 3, 'width_deg': 120.0, 'drives': 1, 'frames': 12,
+                   'runs': {'m': out}, 'occlusion': {'m': j}})
+    assert '| m | 1.00 [1.00, 1.00] |' in text and '| 3-10 frames |' in text
+    assert '| objects | 1 | 1 | 1 | 0 | 0 | |' in text
 
 
 @pytest.mark.slow
