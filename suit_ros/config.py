@@ -18,6 +18,11 @@ TemporalMode = Literal['none', 'dense', 'sparse', 'sparse_velocity', 'suit']
 Relaxation = Literal['square', 'circle', 'rectangle']
 NmsKind = Literal['rotated', 'circle']
 TEMPORAL_MODES: tuple[str, ...] = get_args(TemporalMode)
+# where the memory's past term enters the fused map: everywhere (the paper), or only at head
+# cells whose neighbourhood has no return in the current input (the memory fills what the
+# sweeps do not see: occlusion, a lost sector; what is seen now is left as the sweep shows it)
+FusionGate = Literal['none', 'unobserved']
+FUSION_GATES: tuple[str, ...] = get_args(FusionGate)
 RELAXATIONS: tuple[str, ...] = get_args(Relaxation)
 
 
@@ -110,6 +115,8 @@ class ModelConfig:
     geonet: GeoNetConfig = field(default_factory=GeoNetConfig)
     geo_loss_weight: float = 1.0
     sweeps: int = 1               # LiDAR sweeps per input (current + previous), model frame
+    fusion_gate: FusionGate = 'none'
+    fusion_gate_radius: int = 1   # head cells around a return that count as observed
 
     def __post_init__(self) -> None:
         validate(self)
@@ -134,6 +141,9 @@ def validate(cfg: ModelConfig) -> None:
         return ConfigError(f'invalid model config: {msg}')
     if cfg.temporal not in TEMPORAL_MODES:
         raise bad(f'temporal must be one of {TEMPORAL_MODES}, got {cfg.temporal!r}')
+    if cfg.fusion_gate not in FUSION_GATES or not 0 <= cfg.fusion_gate_radius <= 8:
+        raise bad(f'fusion_gate must be one of {FUSION_GATES} and fusion_gate_radius within '
+                  f'0..8, got {cfg.fusion_gate!r} and {cfg.fusion_gate_radius}')
     if not cfg.class_names or len(set(cfg.class_names)) != len(cfg.class_names):
         raise bad('class_names must be a non-empty list of unique names')
     r = cfg.pillars.point_range

@@ -62,6 +62,7 @@ class TrainConfig:
     outage_width_deg: tuple[float, float] = (60.0, 180.0)
     distill_weight: float = 0.0      # ordinary frames kept near the starting model (distill)
     frozen_batchnorm: bool = False   # every batch norm keeps its statistics (small batches)
+    carry_gt: bool = False           # GT keeps objects seen earlier in the clip (ClipSampler)
     eval_at_end: bool = True
     checkpoint_every: int = 200
 
@@ -88,13 +89,20 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     return tc
 
 
-FREEZABLE = ('pillars', 'backbone', 'fusion', 'geonet', 'head')
+FREEZABLE = ('pillars', 'backbone', 'fusion', 'fusion.current', 'fusion.past', 'geonet',
+             'head')
 
 
 def freeze(module: Any, names: tuple[str, ...]) -> list[Any]:
-    """Stop the gradients of the named submodules; :return: those modules (kept in eval mode
-    while training, so batch-norm statistics stay)."""
-    frozen = [getattr(module, n) for n in names if getattr(module, n, None) is not None]
+    """Stop the gradients of the named submodules (dotted: ``fusion.current`` is the fusion's
+    current-frame conv W1); :return: those modules (kept in eval mode while training, so
+    batch-norm statistics stay)."""
+    frozen = []
+    for n in names:
+        try:
+            frozen.append(module.get_submodule(n))
+        except AttributeError:       # a module this temporal mode lacks
+            continue
     for m in frozen:
         m.requires_grad_(False)
     return frozen
@@ -353,7 +361,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps,
-                          tc.outage_probability, tc.outage_width_deg)
+                          tc.outage_probability, tc.outage_width_deg, tc.carry_gt)
     frozen = freeze(module, tc.freeze)
     distiller = None
     if tc.distill_weight > 0:

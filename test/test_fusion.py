@@ -1,6 +1,8 @@
 """The memory moved by ego motion and fused by equation (11)."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 from modelkit import GRID, frame, small_config
 import numpy as np
 import pytest
@@ -109,3 +111,29 @@ def test_memory_size_constant_over_frames_and_reset():
         d = dense.step(f.points, int(1e9 + t * 1e8), f.pose)
     assert d.memory_bytes > sizes[10]
 
+
+
+def test_the_unobserved_gate_adds_the_past_only_where_the_input_has_no_returns():
+    """``fusion_gate: unobserved``: the past term enters the head cells without returns within
+    ``fusion_gate_radius`` cells, nowhere else; without the gate the model is unchanged."""
+    from suit_ros.model.detector import gate_past
+    from suit_ros.model.fusion import PastTerm
+    torch.manual_seed(0)
+    cfg = replace(small_config('suit'), fusion_gate='unobserved', fusion_gate_radius=1)
+    model = SUITDetector(cfg).eval()
+    pts = torch.from_numpy(np.array([[0.1, 0.1, 0.5, 0.5, 0.0]] * 5, np.float32))
+    with torch.no_grad():
+        current, observed = model.encode_observed([pts])
+    H, W = observed.shape[1:]
+    assert observed.sum() == 9                     # the occupied cell and its 8 neighbours
+    r, c = (torch.nonzero(observed[0])[4]).tolist()
+    index = torch.tensor([r * W + c, 0])           # one observed cell, one far corner
+    term = PastTerm(index, torch.ones(2, current.shape[1]), (1, current.shape[1], H, W))
+    kept = gate_past(term, observed)
+    assert kept.index.tolist() == [0]
+    dense = gate_past(term.dense(), observed)
+    assert dense[0, :, r, c].abs().sum() == 0 and dense[0, :, 0, 0].sum() == current.shape[1]
+    plain = SUITDetector(small_config('suit'))
+    assert plain.encode_observed([pts])[1] is None
+    with pytest.raises(ValueError, match='fusion_gate'):
+        replace(cfg, fusion_gate='maybe')

@@ -206,3 +206,25 @@ def test_outage_clips_lose_a_sector_and_keep_the_objects_seen_before(tmp_path):
     assert carried > 0           # some seen objects lost their returns and stayed in the GT
     with pytest.raises(ValueError, match='outage_probability'):
         ClipSampler([seq], [6], 0, outage_probability=1.5)
+
+
+def test_carry_gt_keeps_objects_seen_earlier_in_the_clip(tmp_path):
+    """With ``carry_gt`` a frame's GT also holds the objects that had returns in an earlier
+    frame of the clip (occluded now); the first frame keeps only those with returns."""
+    from suit_ros.data.sequences import ClipSampler, synthetic_sequence
+    from suit_ros.outage import seen_ids
+    seq = synthetic_sequence('test', 3, 8, tmp_path)
+    sampler = ClipSampler([seq], [6], 2, sweeps=3, outage_probability=1.0, carry_gt=True)
+    kept_unseen = 0
+    for _ in range(3):
+        (clip,), _ = sampler.batch_with_outages(1)
+        earlier: set[int] = set()
+        for t, f in enumerate(clip):
+            ids = set(f.instance_ids.tolist())
+            now = {int(i) for i, c in zip(f.instance_ids, f.num_points) if c > 0}
+            assert now <= ids and ids - now <= earlier
+            if t == 0:
+                assert ids == now
+            kept_unseen += len(ids - now)
+            earlier |= seen_ids(f)
+    assert kept_unseen > 0

@@ -199,6 +199,7 @@ def test_frozen_base_and_distillation_train_only_the_temporal_part():
     torch.manual_seed(0)
     cfg = replace(load_model_config(REPO / 'params/model_cpu.yaml'), temporal='suit')
     model = SUITDetector(cfg)
+    assert freeze(SUITDetector(cfg), ('fusion.current',))[0].weight.requires_grad is False
     frozen = freeze(model, ('pillars', 'backbone'))
     assert frozen == [model.pillars, model.backbone]
     distiller = Distiller(model.head, model.fusion.current, 1.0)

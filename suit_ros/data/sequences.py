@@ -175,11 +175,14 @@ class ClipSampler:
         from the sensor sweeps from clip frame 1 or 2 to the clip's end, before the sweeps are
         accumulated; the GT of those frames keeps the objects that had returns just before
         the outage (they are still there), so the loss rewards carrying them.
+    :param carry_gt: every frame's GT keeps the objects that had returns in an earlier frame of
+        the clip (occluded now, still there), in every clip.
     """
 
     def __init__(self, sequences: Sequence[Sequence[Frame]], lengths: Sequence[int],
                  seed: int, sweeps: int = 1, outage_probability: float = 0.0,
-                 outage_width_deg: tuple[float, float] = (60.0, 180.0)) -> None:
+                 outage_width_deg: tuple[float, float] = (60.0, 180.0),
+                 carry_gt: bool = False) -> None:
         span = max(lengths)
         self.sequences = [s for s in sequences if len(s) >= span]
         if not self.sequences:
@@ -192,6 +195,7 @@ class ClipSampler:
         self.sweeps = sweeps
         self.outage_probability = outage_probability
         self.outage_width_deg = outage_width_deg
+        self.carry_gt = carry_gt
         self.rng = np.random.default_rng(seed)
 
     def batch(self, batch_size: int) -> list[list[Frame]]:
@@ -202,6 +206,7 @@ class ClipSampler:
                            ) -> tuple[list[list[Frame]], list[list[bool]]]:
         """Clips as :meth:`batch`, and per clip frame whether an outage is active in it."""
         from suit_ros.model.sweeps import model_frame
+        from suit_ros.outage import seen_ids
         L = int(self.rng.choice(self.lengths))
         clips, lost = [], []
         for _ in range(batch_size):
@@ -214,9 +219,12 @@ class ClipSampler:
             if L >= 3 and self.rng.random() < self.outage_probability:
                 window, active, seen = self._draw_outage(window, start - first, L)
             clip = []
+            earlier: set[int] = set()
             for t in range(L):
                 f = model_frame(window, start - first + t, self.sweeps)
-                clip.append(training_view(f, keep_ids=seen if active[t] else None))
+                keep = earlier if self.carry_gt else (seen if active[t] else None)
+                clip.append(training_view(f, keep_ids=keep))
+                earlier = earlier | seen_ids(window[start - first + t])
             clips.append(clip)
             lost.append(active)
         return clips, lost

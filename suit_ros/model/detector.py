@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 import torch
 from torch import Tensor, nn
+import torch.nn.functional as F
 
 from suit_ros.config import ModelConfig
 from suit_ros.model.backbone import BEVBackbone
@@ -68,6 +69,11 @@ class SUITDetector(nn.Module):
     # ------------------------------------------------------------------ per-frame pieces
     def encode(self, points: Sequence[Tensor]) -> Tensor:
         """Pillars + backbone for a batch of ``(N_i, 5)`` clouds -> ``(B, C, H, W)``."""
+        return self.encode_observed(points)[0]
+
+    def encode_observed(self, points: Sequence[Tensor]) -> tuple[Tensor, Tensor | None]:
+        """:meth:`encode`, and where the input has returns (``(B, H, W)`` bool at the head
+        grid, ``fusion_gate_radius`` cells around each occupied pillar; None without a gate)."""
         rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
                 for i, pts in enumerate(points)]
         # a frozen base (temporal fine-tuning) builds no graph: no backward through it
@@ -76,7 +82,16 @@ class SUITDetector(nn.Module):
         with torch.set_grad_enabled(torch.is_grad_enabled() and trainable):
             bev = self.pillars(torch.cat(rows, dim=0), len(points))
             out: Tensor = self.backbone(bev)
-        return out
+        if self.cfg.fusion_gate == 'none' or self.fusion is None:
+            return out, None
+        with torch.no_grad():
+            # an occupied pillar has a non-zero feature (max over its points after a ReLU)
+            occ = (bev != 0).any(dim=1, keepdim=True).float()
+            occ = F.max_pool2d(occ, self.cfg.out_stride, self.cfg.out_stride)
+            r = self.cfg.fusion_gate_radius
+            if r:
+                occ = F.max_pool2d(occ, 2 * r + 1, 1, r)
+        return out, occ[:, 0] > 0
 
     @staticmethod
     def usable(memory: Memory | None, stamps_ns: Sequence[int]
@@ -143,9 +158,16 @@ class SUITDetector(nn.Module):
                                 self.grid, B, prune)
         return term, aux
 
-    def fuse(self, current: Tensor, past: Tensor | PastTerm | None) -> Tensor:
-        """Concatenate-and-fuse (a no-op for the single-frame model)."""
-        return current if self.fusion is None else self.fusion(current, past)
+    def fuse(self, current: Tensor, past: Tensor | PastTerm | None,
+             observed: Tensor | None = None) -> Tensor:
+        """Concatenate-and-fuse (a no-op for the single-frame model). With ``observed``
+        (``fusion_gate: unobserved``) the past term enters only the cells without returns."""
+        if self.fusion is None:
+            return current
+        if observed is not None and past is not None:
+            past = gate_past(past, observed)
+        fused: Tensor = self.fusion(current, past)
+        return fused
 
     def sample_memory(self, fused: Tensor, preds: dict[str, Tensor],
                       poses: NDArray[np.float64], stamps_ns: Sequence[int]) -> Memory | None:
@@ -201,9 +223,9 @@ class SUITDetector(nn.Module):
             points = [frame_points(f, device) for f in step]
             poses = np.stack([f.pose for f in step])
             stamps = [f.stamp_ns for f in step]
-            current = self.encode(points)
+            current, observed = self.encode_observed(points)
             past, aux = self.past_term(memory, poses, stamps)
-            fused = self.fuse(current, past)
+            fused = self.fuse(current, past, observed)
             preds = self.head(fused)
             targets = self.head.build_targets(*gt_tensors(step, device))
             losses = self.head.loss(preds, targets)
@@ -236,6 +258,15 @@ class SUITDetector(nn.Module):
         if self.geonet is None:
             raise RuntimeError('geo_loss needs the suit variant (GeoNet)')
         return self.geonet.loss(aux['geo_logits'], vel, valid)
+
+
+def gate_past(past: Tensor | PastTerm, observed: Tensor) -> Tensor | PastTerm:
+    """The past term without its entries at ``observed`` cells (``(B, H, W)`` bool)."""
+    if isinstance(past, PastTerm):
+        keep = ~observed.reshape(-1)[past.index]
+        return PastTerm(past.index[keep], past.values[keep], past.shape)
+    gated: Tensor = past * (~observed)[:, None].to(past.dtype)
+    return gated
 
 
 def frame_points(frame: Frame, device: torch.device) -> Tensor:

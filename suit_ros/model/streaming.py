@@ -171,13 +171,13 @@ class StreamingDetector:
         model_points = self.sweeps.push(pts, T_ol, stamp_ns, T_bl)
         tensor = torch.from_numpy(model_points).to(self.device)
         t1 = self._sync()
-        current = m.encode([tensor])
+        current, observed = m.encode_observed([tensor])
         t2 = self._sync()
         poses = np.asarray(T_odom_base if T_odom_base is not None else np.eye(4),
                            np.float64)[None]
         past, _ = m.past_term(self.memory, poses, [stamp_ns])
         used = past is not None
-        fused = m.fuse(current, past)
+        fused = m.fuse(current, past, observed)
         if self.keep_terms:
             own = m.fusion.current(current) if m.fusion is not None else current
             self.last_terms = (own.float(),
