@@ -329,6 +329,27 @@ def _write_model(tc: TrainConfig, out: Path, module: Any, mcfg: Any, metrics: di
         save_checkpoint(out / 'model.safetensors', module, mcfg, metrics, extra)
 
 
+def _distiller(tc: TrainConfig, module: Any, dev: Any) -> Any:
+    """The frozen teacher of :mod:`suit_ros.model.distill` (None: no distillation)."""
+    if tc.distill_weight <= 0:
+        return None
+    from suit_ros.model.distill import Distiller
+    return Distiller(module.head, module.fusion.current if module.fusion else None,
+                     tc.distill_weight).to(dev)
+
+
+def _train_mode(model: Any, module: Any, frozen: list[Any], frozen_batchnorm: bool) -> None:
+    """Training mode, except the frozen modules (and every batch norm when asked)."""
+    import torch
+    model.train()
+    for m in frozen:
+        m.eval()
+    if frozen_batchnorm:
+        for m in module.modules():
+            if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
+                m.eval()
+
+
 def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
           resume: bool = False) -> dict[str, Any]:
     """Run one training stage; return the final metrics."""
@@ -363,15 +384,10 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps,
                           tc.outage_probability, tc.outage_width_deg, tc.carry_gt)
     frozen = freeze(module, tc.freeze)
-    distiller = None
-    if tc.distill_weight > 0:
-        from suit_ros.model.distill import Distiller
-        distiller = Distiller(module.head, module.fusion.current if module.fusion else None,
-                              tc.distill_weight).to(dev)
+    distiller = _distiller(tc, module, dev)
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)
     opt = _optimizer(module, tc)
-    step = 0
-    done_s = 0.0                     # wall time of earlier runs of a resumed training
+    step, done_s = 0, 0.0            # done_s: wall time of earlier runs of a resumed training
     last = out / 'last.pt'
     if resume and last.is_file():
         step, done_s = _resume(last, module, opt)
@@ -386,13 +402,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         return max(step / tc.steps, by_time)
     bar = tqdm(total=tc.steps, initial=step, disable=rank != 0, dynamic_ncols=True,
                desc=f'train[{mcfg.temporal}]')
-    model.train()
-    for m in frozen:
-        m.eval()
-    if tc.frozen_batchnorm:
-        for m in module.modules():
-            if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
-                m.eval()
+    _train_mode(model, module, frozen, tc.frozen_batchnorm)
     while True:                      # at least one step per call, then until the budget is spent
         lr = _schedule(opt, progress(), tc.lr)
         clips, lost = sampler.batch_with_outages(batch)
