@@ -232,10 +232,12 @@ class SUITDetector(nn.Module):
             totals['hm_loss'] = totals['hm_loss'] + losses['hm_loss']
             totals['loc_loss'] = totals['loc_loss'] + losses['loc_loss']
             if distiller is not None:
-                ordinary = torch.tensor([not (lost and lost[b][t]) for b in range(len(step))],
-                                        device=device)
+                # with the memory gate: every frame, on the cells with returns; else the
+                # frames without an outage
+                ordinary = torch.tensor([observed is not None or not (lost and lost[b][t])
+                                         for b in range(len(step))], device=device)
                 totals['distill_loss'] = (totals['distill_loss']
-                                          + distiller.loss(current, preds, ordinary))
+                                          + distiller.loss(current, preds, ordinary, observed))
             if 'geo_logits' in aux and prev_gt is not None and isinstance(memory, SparseMemory):
                 totals['geo_loss'] = totals['geo_loss'] + self.geo_loss(memory, aux, prev_gt)
                 geo_terms += 1

@@ -34,8 +34,11 @@ class Distiller(nn.Module):
         """The teacher stays in eval mode."""
         return super().train(False)
 
-    def loss(self, features: Tensor, preds: dict[str, Tensor], ordinary: Tensor) -> Tensor:
-        """Distillation loss over the frames of the batch flagged ``ordinary`` ``(B,)``.
+    def loss(self, features: Tensor, preds: dict[str, Tensor], ordinary: Tensor,
+             cells: Tensor | None = None) -> Tensor:
+        """Distillation loss over the frames of the batch flagged ``ordinary`` ``(B,)``, and
+        within them over ``cells`` ``(B, H, W)`` bool when given (with the memory gate: the
+        cells with returns, where the memory adds nothing and the output must stay).
 
         Heatmap: squared difference of the probabilities summed over cells, divided by the
         number of cells where the teacher sees an object (max probability over ``floor``).
@@ -49,9 +52,11 @@ class Distiller(nn.Module):
                 x = self.current(x)
             teacher = self.head(x)
             t_prob = torch.sigmoid(teacher['heatmap'].float())
-            w = t_prob.amax(dim=1, keepdim=True)                               # (b, 1, H, W)
+            keep = (torch.ones_like(t_prob[:, :1]) if cells is None
+                    else cells[ordinary][:, None].to(t_prob.dtype))           # (b, 1, H, W)
+            w = t_prob.amax(dim=1, keepdim=True) * keep
         s_prob = torch.sigmoid(preds['heatmap'][ordinary].float())
-        hm = ((s_prob - t_prob) ** 2).sum() / (w > self.floor).sum().clamp(min=1)
+        hm = (((s_prob - t_prob) ** 2) * keep).sum() / (w > self.floor).sum().clamp(min=1)
         s_reg = torch.cat([preds[n][ordinary] for n in REG_SLICES], dim=1).float()
         t_reg = torch.cat([teacher[n] for n in REG_SLICES], dim=1).float()
         reg = ((s_reg - t_reg).abs() * w).sum() / (w.sum() * s_reg.shape[1]).clamp(min=1e-6)
