@@ -69,8 +69,8 @@ def main() -> None:
         'openvino float32': lambda x: list(ov_f32(x.numpy()).values()),
         'openvino bfloat16': lambda x: list(ov_bf16(x.numpy()).values()),
     }
-    times = {k: [] for k in runners}
-    diff = {k: 0.0 for k in runners}
+    times: dict[str, list[float]] = {k: [] for k in runners}
+    diff = dict.fromkeys(runners, 0.0)
     with torch.no_grad():
         for i, x in enumerate(images):
             ref = runners['torch float32'](x)
