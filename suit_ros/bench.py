@@ -46,18 +46,13 @@ def pct(values: list[float], q: float) -> float:
 def _model(args: argparse.Namespace, temporal: TemporalMode) -> Any:
     from dataclasses import replace
 
-    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.checkpoint import default_checkpoint_path, load_model_as
     from suit_ros.config import load_model_config
     from suit_ros.model.detector import SUITDetector
     if args.config:
         cfg = replace(load_model_config(args.config), temporal=temporal)
         return SUITDetector(cfg).eval()
-    model, cfg, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
-    if cfg.temporal == temporal:
-        return model
-    other = SUITDetector(replace(cfg, temporal=temporal))
-    other.load_state_dict(model.state_dict(), strict=False)
-    return other.eval()
+    return load_model_as(args.checkpoint or default_checkpoint_path(), temporal)
 
 
 def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C: Any

@@ -15,7 +15,7 @@ from typing import Any
 import torch
 
 from suit_ros import __version__
-from suit_ros.config import ModelConfig, model_config_from_dict
+from suit_ros.config import ModelConfig, TemporalMode, model_config_from_dict
 from suit_ros.errors import CheckpointError, ConfigError
 
 FORMAT = 'suit_ros/1'
@@ -179,6 +179,22 @@ def load_checkpoint(path: str | os.PathLike[str], device: torch.device | str | N
     if device is not None:
         model = model.to(device)
     return model.eval(), cfg, meta
+
+
+def load_model_as(path: str | os.PathLike[str], temporal: TemporalMode | None = None,
+                  device: torch.device | str | None = None) -> Any:
+    """A checkpoint's model (eval mode), or its weights in another temporal mode (the
+    modules that mode lacks are left out: the single-frame or zero-displacement baselines of
+    a SUIT checkpoint)."""
+    from dataclasses import replace
+
+    from suit_ros.model.detector import SUITDetector
+    model, cfg, _ = load_checkpoint(path, device)
+    if temporal is None or temporal == cfg.temporal:
+        return model
+    other = SUITDetector(replace(cfg, temporal=temporal))
+    other.load_state_dict(model.state_dict(), strict=False)
+    return other.to(model.device).eval()
 
 
 def _check_keys(model: torch.nn.Module, state: dict[str, torch.Tensor]

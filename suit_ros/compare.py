@@ -51,16 +51,9 @@ def no_intensity(frame: Frame) -> Frame:
 
 
 def load_as(path: str, temporal: TemporalMode | None = None) -> Any:
-    """A checkpoint's model, or its weights in another temporal mode (strict=False: the
-    modules that mode lacks are left out)."""
-    from suit_ros.checkpoint import load_checkpoint
-    from suit_ros.model.detector import SUITDetector
-    model, cfg, _ = load_checkpoint(path, 'cpu')
-    if temporal is None or temporal == cfg.temporal:
-        return model
-    other = SUITDetector(replace(cfg, temporal=temporal))
-    other.load_state_dict(model.state_dict(), strict=False)
-    return other.eval()
+    """:func:`~suit_ros.checkpoint.load_model_as` on the CPU."""
+    from suit_ros.checkpoint import load_model_as
+    return load_model_as(path, temporal, 'cpu')
 
 
 def variant_run(path: str, model: Any, variant: str, sequences: Any,

@@ -33,12 +33,8 @@ def run(args: argparse.Namespace) -> int:
     os.environ.update(local_ros_env())
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    bag = out / f'demo-seed{args.seed}-{args.frames}f'
-    if not bag.exists():
-        from suit_ros.data.sim import preset
-        from suit_ros.data.simulate_cli import write_bag
-        print(f'[demo] simulating {args.frames} frames into {bag} ...', flush=True)
-        write_bag(bag, preset('demo-real', frames=args.frames), args.seed, 'mcap', progress=True)
+    from suit_ros.node_probe import demo_bag
+    bag = Path(demo_bag(str(out), args.seed, args.frames, progress=True))
     from suit_ros.checkpoint import default_checkpoint_path, read_metadata
     ckpt = args.checkpoint or str(default_checkpoint_path())
     read_metadata(ckpt)   # fail early with a clear message

@@ -11,7 +11,6 @@ import contextlib
 import subprocess
 import sys
 import time
-from typing import Any
 
 from suit_ros.errors import SuitRosError
 
@@ -146,12 +145,3 @@ def play_into(probe: Probe, bag: str, options: Sequence[str], timeout: float,
         stop(player)
     return played
 
-
-def bag_for(workdir: str, name: str, make: Callable[[str], Any]) -> str:
-    """``workdir/name``, written by ``make(path)`` once and reused."""
-    import os
-    path = os.path.join(workdir, name)
-    if not os.path.exists(path):
-        os.makedirs(workdir, exist_ok=True)
-        make(path)
-    return path

@@ -73,20 +73,27 @@ class OutputRecorder:
         self.diags.append({kv.key: kv.value for kv in m.status[0].values})
 
 
-def demo_bag(workdir: str, seed: int, frames: int, sensor: str = 'sim32') -> str:
+def demo_bag(workdir: str, seed: int, frames: int, sensor: str = 'sim32',
+             progress: bool = False) -> str:
     """The demo drive's bag as ``sensor`` sees it (written once, then reused)."""
     from suit_ros.data.sim import preset
     from suit_ros.data.simulate_cli import write_bag
-    name = f'demo-seed{seed}-{frames}f' + ('' if sensor == 'sim32' else f'-{sensor}')
-    from suit_ros.harness import bag_for
-    return bag_for(workdir, name, lambda path: write_bag(
-        path, preset('demo-real', frames=frames, sensor=sensor), seed, 'mcap'))
+    bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f'
+                       + ('' if sensor == 'sim32' else f'-{sensor}'))
+    if not os.path.exists(bag):
+        os.makedirs(workdir, exist_ok=True)
+        if progress:
+            print(f'[demo] simulating {frames} frames into {bag} ...', flush=True)
+        write_bag(bag, preset('demo-real', frames=frames, sensor=sensor), seed, 'mcap',
+                  progress=progress)
+    return bag
 
 
 def process_cpu_s(pid: int) -> float:
     """User + system CPU seconds a process has used (Linux ``/proc``; nan elsewhere)."""
     try:
-        fields = open(f'/proc/{pid}/stat', encoding='ascii').read().rsplit(')', 1)[1].split()
+        with open(f'/proc/{pid}/stat', encoding='ascii') as f:
+            fields = f.read().rsplit(')', 1)[1].split()
     except OSError:
         return float('nan')
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')

@@ -303,7 +303,6 @@ def tables(result: dict[str, Any]) -> str:
     return '\n'.join(lines) + '\n'
 
 
-
 def _band(v: Any) -> str:
     return f'{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]'
 
@@ -311,8 +310,8 @@ def _band(v: Any) -> str:
 def _detections(model: Any, seqs: Sequence[Sequence[Frame]], tracked: bool
                 ) -> list[list[Detections]]:
     """Each drive's detections as the node decodes them (with or without its tracker)."""
+    from suit_ros.accuracy import drive_frames
     from suit_ros.evaluate import run_model
     from suit_ros.tracking import FilterConfig
     r = run_model(model, seqs, velocity_filter=FilterConfig() if tracked else None)
-    starts = np.cumsum([0] + [len(s) for s in seqs])
-    return [r.det[starts[i]:starts[i + 1]] for i in range(len(seqs))]
+    return [[r.det[i] for i in frames] for frames in drive_frames(r)]

@@ -224,7 +224,8 @@ class ClipSampler:
                 f = model_frame(window, start - first + t, self.sweeps)
                 keep = earlier if self.carry_gt else (seen if active[t] else None)
                 clip.append(training_view(f, keep_ids=keep))
-                earlier = earlier | seen_ids(window[start - first + t])
+                if self.carry_gt:
+                    earlier = earlier | seen_ids(window[start - first + t])
             clips.append(clip)
             lost.append(active)
         return clips, lost

@@ -77,9 +77,9 @@ class SUITDetector(nn.Module):
         rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
                 for i, pts in enumerate(points)]
         # a frozen base (temporal fine-tuning) builds no graph: no backward through it
-        trainable = any(p.requires_grad for m in (self.pillars, self.backbone)
-                        for p in m.parameters())
-        with torch.set_grad_enabled(torch.is_grad_enabled() and trainable):
+        grad = torch.is_grad_enabled() and any(
+            p.requires_grad for m in (self.pillars, self.backbone) for p in m.parameters())
+        with torch.set_grad_enabled(grad):
             bev = self.pillars(torch.cat(rows, dim=0), len(points))
             out: Tensor = self.backbone(bev)
         if self.cfg.fusion_gate == 'none' or self.fusion is None:
