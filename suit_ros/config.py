@@ -85,6 +85,7 @@ class SamplingConfig:
     relaxation: Relaxation = 'square'
     window: int = 3               # Hs = Ws for square; window bound for circle / rectangle
     radius: float = 1.5           # rho in cells, for circle
+    carry_frames: int = 0         # frames a sample outlives its object's returns (0: off)
 
 
 @dataclass(frozen=True)
@@ -144,6 +145,12 @@ def validate(cfg: ModelConfig) -> None:
     if cfg.fusion_gate not in FUSION_GATES or not 0 <= cfg.fusion_gate_radius <= 8:
         raise bad(f'fusion_gate must be one of {FUSION_GATES} and fusion_gate_radius within '
                   f'0..8, got {cfg.fusion_gate!r} and {cfg.fusion_gate_radius}')
+    if not 0 <= cfg.sampling.carry_frames <= 20:
+        raise bad(f'sampling.carry_frames must be within 0..20, got {cfg.sampling.carry_frames}')
+    if cfg.sampling.carry_frames and (cfg.fusion_gate == 'none' or cfg.temporal
+                                      not in ('sparse', 'sparse_velocity', 'suit')):
+        raise bad('sampling.carry_frames needs a sparse memory and fusion_gate: unobserved '
+                  '(a sample is carried only where the current input has no returns)')
     if not cfg.class_names or len(set(cfg.class_names)) != len(cfg.class_names):
         raise bad('class_names must be a non-empty list of unique names')
     r = cfg.pillars.point_range

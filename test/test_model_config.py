@@ -17,6 +17,15 @@ def test_config_validation():
         replace(ModelConfig(), sampling=SamplingConfig(alpha=1.5))
     with pytest.raises(ConfigError, match='time_scale'):
         replace(ModelConfig(), pillars=PillarConfig(time_scale=0.0))
+    # the carry needs the gate (it keeps samples only where the input has no returns)
+    with pytest.raises(ConfigError, match='carry_frames needs'):
+        replace(ModelConfig(), sampling=SamplingConfig(carry_frames=4))
+    gated = replace(ModelConfig(), fusion_gate='unobserved')
+    assert replace(gated, sampling=SamplingConfig(carry_frames=4)).sampling.carry_frames == 4
+    with pytest.raises(ConfigError, match='carry_frames must be within'):
+        replace(gated, sampling=SamplingConfig(carry_frames=21))
+    with pytest.raises(ConfigError, match='carry_frames needs'):
+        replace(gated, temporal='dense', sampling=SamplingConfig(carry_frames=4))
     # retired experiment settings: accepted at their 'off' value (older checkpoints carry
     # them), refused otherwise with where to find the experiment
     from suit_ros.config import model_config_from_dict

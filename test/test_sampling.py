@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from modelkit import GRID, peaks_heatmap
+import numpy as np
 import pytest
 import torch
 
@@ -44,3 +45,53 @@ def test_relaxation_windows(relax, cell, count):
     if relax == 'rectangle':
         assert chosen == {(cell[0] - 1, cell[1]), cell, (cell[0] + 1, cell[1])}
 
+
+
+def _memory(xy, probs, ages=None, P=9):
+    """A sparse memory of one frame: samples at metric centres ``xy`` (window of ``P`` cells
+    around each, 1 m boxes), centre probability ``probs``."""
+    from suit_ros.model.memory import SparseMemory
+    xy = torch.tensor(xy, dtype=torch.float32)
+    M = len(xy)
+    offsets = torch.linspace(-0.4, 0.4, P)[None, :, None].expand(M, P, 2)
+    p = torch.tensor(probs, dtype=torch.float32)[:, None].expand(M, P).clone()
+    boxes = torch.cat([xy, torch.zeros(M, 1), torch.ones(M, 3), torch.zeros(M, 1)], 1)
+    return SparseMemory(torch.zeros(M, dtype=torch.long), xy[:, None] + offsets,
+                        torch.randn(M, P, 4), p, torch.ones(M, P, dtype=torch.bool), boxes,
+                        torch.zeros(M, 2), [0], np.eye(4)[None], 3,
+                        None if ages is None else torch.tensor(ages))
+
+
+def test_keep_carried_keeps_unseen_objects_until_their_age_runs_out():
+    """A carried sample survives where the input has no returns and no seen detection covers
+    it, up to ``carry_frames``; a seen detection replaces it; a place seen empty drops it; a
+    detection at an unseen place is not carried further (it cannot keep itself alive)."""
+    from suit_ros.model.sampling import keep_carried
+    cfg = SamplingConfig(carry_frames=3)
+    observed = torch.zeros(1, GRID.H, GRID.W, dtype=torch.bool)
+    seen_xy = (4.1, 4.1)
+    c, r = torch.floor(GRID.xy_to_cell(torch.tensor(seen_xy))).long().tolist()
+    observed[0, r - 3:r + 4, c - 3:c + 4] = True                     # returns around (4, 4)
+    empty_xy = (-10.1, 10.1)                                         # seen, nothing there
+    c, r = torch.floor(GRID.xy_to_cell(torch.tensor(empty_xy))).long().tolist()
+    observed[0, r - 2:r + 3, c - 2:c + 3] = True
+    new = _memory([seen_xy, (-5.0, -5.0)], [0.3, 0.9])               # seen; made by the memory
+    carried = _memory([(4.3, 4.2), (-5.2, -5.1), (12.0, -8.0), (15.0, 3.0), empty_xy,
+                       (40.0, 0.0)],
+                      [0.9, 0.2, 0.5, 0.5, 0.8, 0.8], ages=[1, 1, 3, 4, 1, 1])
+    out = keep_carried(new, carried, observed, cfg, GRID)
+    centres = {tuple(round(v, 1) for v in b[:2].tolist()): int(a)
+               for b, a in zip(out.boxes, out.age())}
+    assert centres == {seen_xy: 0,          # seen now: the new sample, age 0
+                       (-5.2, -5.1): 1,     # the carried one wins over the memory's own
+                       (12.0, -8.0): 3}     # unseen, age within the limit
+    # (15, 3): too old; the seen-empty place and the one off the map (40, 0): dropped
+    assert out.features.shape[1:] == new.features.shape[1:]
+
+
+def test_cell_flags_outside_the_map_are_false():
+    from suit_ros.model.sampling import cell_flags
+    flags = torch.ones(1, GRID.H, GRID.W, dtype=torch.bool)
+    xy = torch.tensor([[0.0, 0.0], [GRID.W * GRID.cell, 0.0], [0.0, -30.0]])
+    assert cell_flags(flags, torch.zeros(3, dtype=torch.long), xy, GRID).tolist() == [
+        True, False, False]

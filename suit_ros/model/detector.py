@@ -29,11 +29,17 @@ from suit_ros.model.memory import (
     DenseMemory,
     SparseMemory,
     ego_transforms,
+    moved_memory,
     rotate_velocities,
     transform_sample_positions,
 )
 from suit_ros.model.pillars import PillarEncoder
-from suit_ros.model.sampling import gather_window, relaxation_window, significant_sampling
+from suit_ros.model.sampling import (
+    gather_window,
+    keep_carried,
+    relaxation_window,
+    significant_sampling,
+)
 from suit_ros.ops.geometry import se3_inverse
 from suit_ros.structures import Frame
 
@@ -114,7 +120,8 @@ class SUITDetector(nn.Module):
 
         :return: the term (``(B, C, H, W)`` for a dense memory, a sparse :class:`PastTerm` for
             a sparse one) and aux outputs (``geo_logits``, ``sample_index``,
-            ``T_now_prev``) for the GeoNet loss.
+            ``T_now_prev``) for the GeoNet loss; with a carry (``sampling.carry_frames``) also
+            ``carry_index``, ``carry_positions`` and ``carry_shift`` for :meth:`carried`.
         """
         aux: dict[str, Tensor] = {}
         if self.fusion is None or memory is None:
@@ -154,6 +161,10 @@ class SUITDetector(nn.Module):
         else:   # sparse: zero displacement
             disp, q, prune = feats.new_zeros(M, 1, 2), feats.new_ones(M, 1), 0.0
         aux['T_now_prev'] = torch.from_numpy(T_now_prev)
+        if self.cfg.sampling.carry_frames:
+            # the object's own expected displacement since the memory's frame
+            shift = disp[:, 0] if q.shape[1] == 1 else (q[:, :, None] * disp).sum(dim=1)
+            aux.update(carry_index=sel, carry_positions=positions, carry_shift=shift)
         term = sparse_past_term(feats, probs, mask, positions, bi, disp, q, self.fusion.past,
                                 self.grid, B, prune)
         return term, aux
@@ -169,9 +180,23 @@ class SUITDetector(nn.Module):
         fused: Tensor = self.fusion(current, past)
         return fused
 
+    def carried(self, memory: Memory | None, aux: dict[str, Tensor],
+                poses: NDArray[np.float64], stamps_ns: Sequence[int]) -> SparseMemory | None:
+        """The previous memory's samples moved into the current frame, one frame older, for the
+        carry of :meth:`sample_memory` (None without a carry or a usable memory)."""
+        if not isinstance(memory, SparseMemory) or 'carry_index' not in aux:
+            return None
+        return moved_memory(memory.select(aux['carry_index']), aux['carry_positions'],
+                            aux['carry_shift'], aux['T_now_prev'].numpy(), poses,
+                            list(stamps_ns))
+
     def sample_memory(self, fused: Tensor, preds: dict[str, Tensor],
-                      poses: NDArray[np.float64], stamps_ns: Sequence[int]) -> Memory | None:
-        """The state handed to the next frame (None for the single-frame model)."""
+                      poses: NDArray[np.float64], stamps_ns: Sequence[int],
+                      carried: SparseMemory | None = None,
+                      observed: Tensor | None = None) -> Memory | None:
+        """The state handed to the next frame (None for the single-frame model); with
+        ``carried`` (:meth:`carried`) and ``observed`` (:meth:`encode_observed`), the carried
+        samples the current input does not see are kept (``sampling.carry_frames``)."""
         poses = np.asarray(poses, np.float64).copy()
         if self.cfg.temporal == 'none':
             return None
@@ -185,9 +210,12 @@ class SUITDetector(nn.Module):
         cells, mask = relaxation_window(samples, self.cfg.sampling, self.grid)
         feats, probs = gather_window(fused, prob, samples.batch_index, cells, mask)
         feats = feats.float()           # float32 memory, also from a bfloat16 inference copy
-        return SparseMemory(samples.batch_index, self.grid.cell_to_xy(cells), feats, probs,
-                            mask, samples.boxes, samples.velocities, list(stamps_ns), poses,
-                            self.cfg.sampling.window)
+        new = SparseMemory(samples.batch_index, self.grid.cell_to_xy(cells), feats, probs,
+                           mask, samples.boxes, samples.velocities, list(stamps_ns), poses,
+                           self.cfg.sampling.window)
+        if carried is None or observed is None or not self.cfg.sampling.carry_frames:
+            return new
+        return keep_carried(new, carried, observed, self.cfg.sampling, self.grid)
 
     # ------------------------------------------------------------------ training
     def forward(self, frames: Sequence[Sequence[Frame]],
@@ -241,7 +269,8 @@ class SUITDetector(nn.Module):
             if 'geo_logits' in aux and prev_gt is not None and isinstance(memory, SparseMemory):
                 totals['geo_loss'] = totals['geo_loss'] + self.geo_loss(memory, aux, prev_gt)
                 geo_terms += 1
-            memory = self.sample_memory(fused, preds, poses, stamps)
+            memory = self.sample_memory(fused, preds, poses, stamps,
+                                        self.carried(memory, aux, poses, stamps), observed)
             prev_gt = step
         out = {k: v / (max(geo_terms, 1) if k == 'geo_loss' else T) for k, v in totals.items()}
         out['loss'] = (out['hm_loss'] + self.cfg.head.loc_weight * out['loc_loss']

@@ -29,6 +29,8 @@ class SparseMemory:
     :param boxes: ``(M, 7)`` box decoded at the sample's centre cell.
     :param velocities: ``(M, 2)`` velocity decoded at the sample's centre cell.
     :param poses: ``(B, 4, 4)`` float64 ``T_odom_base`` of each frame (the model frame's pose).
+    :param ages: ``(M,)`` frames since each sample's object last had returns under it (None:
+        all 0; only the carry of :func:`suit_ros.model.sampling.keep_carried` makes them grow).
     """
 
     batch_index: Tensor
@@ -41,6 +43,7 @@ class SparseMemory:
     stamps_ns: list[int]
     poses: NDArray[np.float64]
     window: int
+    ages: Tensor | None = None
 
     @property
     def num_samples(self) -> int:
@@ -51,7 +54,7 @@ class SparseMemory:
     def nbytes(self) -> int:
         """Bytes held by the memory (tensors, poses, stamps)."""
         tensors = (self.batch_index, self.cell_xy, self.features, self.probs, self.mask,
-                   self.boxes, self.velocities)
+                   self.boxes, self.velocities) + (() if self.ages is None else (self.ages,))
         return (sum(t.numel() * t.element_size() for t in tensors) + self.poses.nbytes
                 + 8 * len(self.stamps_ns))
 
@@ -60,7 +63,20 @@ class SparseMemory:
         return SparseMemory(self.batch_index, self.cell_xy.detach(), self.features.detach(),
                             self.probs.detach(), self.mask, self.boxes.detach(),
                             self.velocities.detach(), list(self.stamps_ns),
-                            self.poses.copy(), self.window)
+                            self.poses.copy(), self.window, self.ages)
+
+    def age(self) -> Tensor:
+        """``(M,)`` long: :attr:`ages`, zeros when not set."""
+        if self.ages is None:
+            return torch.zeros_like(self.batch_index)
+        return self.ages
+
+    def select(self, index: Tensor) -> SparseMemory:
+        """The samples ``index`` (frame stamps and poses unchanged)."""
+        return SparseMemory(self.batch_index[index], self.cell_xy[index], self.features[index],
+                            self.probs[index], self.mask[index], self.boxes[index],
+                            self.velocities[index], self.stamps_ns, self.poses, self.window,
+                            None if self.ages is None else self.ages[index])
 
 
 @dataclass
@@ -115,3 +131,33 @@ def rotate_velocities(velocities: Tensor, batch_index: Tensor,
     R = torch.from_numpy(np.ascontiguousarray(T_now_prev[:, :2, :2])).to(velocities.device)
     R = R[batch_index].to(velocities.dtype)
     return torch.einsum('mij,mj->mi', R, velocities)
+
+
+def moved_memory(memory: SparseMemory, positions: Tensor, shift: Tensor,
+                 T_now_prev: NDArray[np.float64], poses: NDArray[np.float64],
+                 stamps_ns: list[int]) -> SparseMemory:
+    """The samples of ``memory`` carried into the current frame, one frame older.
+
+    :param memory: the samples to carry (in their frame of capture).
+    :param positions: ``(M, P, 2)`` their cells already moved by the ego transform
+        (:func:`transform_sample_positions`); :param shift: ``(M, 2)`` the object's own
+        displacement since then (GeoNet's expected displacement, metres), added to cells and
+        box centre.
+    :param T_now_prev: ``(B, 4, 4)`` per frame of the batch; ``poses``/``stamps_ns``: the
+        current frames'.
+    """
+    M = memory.num_samples
+    T = torch.from_numpy(np.ascontiguousarray(T_now_prev)).to(memory.boxes.device)
+    T = T[memory.batch_index]                                               # (M, 4, 4) f64
+    boxes = memory.boxes.clone()
+    if M:
+        centre = torch.einsum('mij,mj->mi', T[:, :3, :3], memory.boxes[:, :3].double()) \
+            + T[:, :3, 3]
+        boxes[:, :3] = centre.to(boxes.dtype)
+        boxes[:, :2] += shift.to(boxes.dtype)
+        boxes[:, 6] += torch.atan2(T[:, 1, 0], T[:, 0, 0]).to(boxes.dtype)
+    return SparseMemory(memory.batch_index, positions + shift[:, None, :].to(positions.dtype),
+                        memory.features, memory.probs, memory.mask, boxes,
+                        rotate_velocities(memory.velocities, memory.batch_index, T_now_prev),
+                        list(stamps_ns), np.asarray(poses, np.float64).copy(), memory.window,
+                        memory.age() + 1)

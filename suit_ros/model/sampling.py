@@ -5,6 +5,13 @@ cells whose max-class score is at least ``alpha`` (coarse), the ``K`` best of th
 per object after NMS on the boxes decoded there (refined), and a neighbourhood around each
 (relaxation: a square ``Hs x Ws`` window, a circle of radius ``rho`` cells, or the decoded box's
 rectangle). The features at these cells, their positions and probabilities form the memory.
+
+Carry (``carry_frames > 0``, with the unobserved-cell fusion gate): a sample whose object the
+current input no longer sees (no return at its centre cell) is kept as it was last stored,
+moved by ego motion and GeoNet, for up to ``carry_frames`` frames (:func:`keep_carried`), so an
+object held through a sensor outage or an occlusion keeps the features it had when seen instead
+of fading through re-sampling. Where the input sees the place again the carried sample goes:
+either the object is detected there anew or it is gone.
 """
 from __future__ import annotations
 
@@ -16,6 +23,7 @@ from torch import Tensor
 
 from suit_ros.config import SamplingConfig
 from suit_ros.model.grid import BEVGrid
+from suit_ros.model.memory import SparseMemory
 from suit_ros.ops.nms import greedy_suppression, rotated_suppression
 
 
@@ -132,3 +140,59 @@ def gather_window(features: Tensor, prob: Tensor, batch_index: Tensor, cells: Te
     feat = feat.view(M, P, C) * mask[..., None].to(feat.dtype)
     p = prob.reshape(-1)[flat.reshape(-1)].view(M, P) * mask.to(prob.dtype)
     return feat, p
+
+
+def cell_flags(flags: Tensor, batch_index: Tensor, xy: Tensor, grid: BEVGrid) -> Tensor:
+    """``flags[b, row, col]`` (``(B, H, W)`` bool) at metric positions ``xy`` ``(M, 2)``;
+    False outside the map."""
+    cr = torch.floor(grid.xy_to_cell(xy)).long()
+    inside = (cr[:, 0] >= 0) & (cr[:, 0] < grid.W) & (cr[:, 1] >= 0) & (cr[:, 1] < grid.H)
+    col, row = cr[:, 0].clamp(0, grid.W - 1), cr[:, 1].clamp(0, grid.H - 1)
+    out: Tensor = flags[batch_index, row, col] & inside
+    return out
+
+
+def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
+                 cfg: SamplingConfig, grid: BEVGrid) -> SparseMemory:
+    """The next memory: this frame's samples and the carried ones, one per object.
+
+    :param new: this frame's significant samples (ages unset).
+    :param carried: the previous memory moved into this frame (:func:`moved_memory`, ages
+        already one frame older).
+    :param observed: ``(B, H, W)`` cells with returns in the current input.
+
+    Priority, then the refined NMS of :func:`significant_sampling`: a new sample at an observed
+    centre (the object is seen now; age 0) wins over a carried one of age <= ``carry_frames``
+    at an unobserved centre inside the map, which wins over a new sample at an unobserved
+    centre (a detection the memory made; it is not carried further, so nothing the memory
+    invents can keep itself alive).
+    """
+    P = new.cell_xy.shape[1]
+    seen_new = cell_flags(observed, new.batch_index, new.cell_xy[:, P // 2], grid)
+    c_centre = carried.cell_xy[:, P // 2]
+    inside = cell_flags(torch.ones_like(observed), carried.batch_index, c_centre, grid)
+    seen_old = cell_flags(observed, carried.batch_index, c_centre, grid)
+    carried = carried.select(torch.nonzero(inside & ~seen_old
+                                           & (carried.age() <= cfg.carry_frames))[:, 0])
+    ages = torch.where(seen_new, 0, cfg.carry_frames)
+    new = SparseMemory(new.batch_index, new.cell_xy, new.features, new.probs, new.mask,
+                       new.boxes, new.velocities, new.stamps_ns, new.poses, new.window, ages)
+    both = concat_memories(new, carried)
+    centre_p = both.probs[:, P // 2].detach().float()
+    tier = torch.cat([torch.where(seen_new, 2.0, 0.0),
+                      centre_p.new_ones(carried.num_samples)])
+    keep = refined_nms(both.boxes.detach(), tier + centre_p, both.batch_index,
+                       cfg.nms_iou_threshold, grid.cell)
+    return both.select(keep)
+
+
+def concat_memories(a: SparseMemory, b: SparseMemory) -> SparseMemory:
+    """``a``'s samples then ``b``'s (``a``'s frame stamps and poses)."""
+    return SparseMemory(torch.cat([a.batch_index, b.batch_index]),
+                        torch.cat([a.cell_xy, b.cell_xy]),
+                        torch.cat([a.features, b.features.to(a.features.dtype)]),
+                        torch.cat([a.probs, b.probs.to(a.probs.dtype)]),
+                        torch.cat([a.mask, b.mask]),
+                        torch.cat([a.boxes, b.boxes.to(a.boxes.dtype)]),
+                        torch.cat([a.velocities, b.velocities.to(a.velocities.dtype)]),
+                        a.stamps_ns, a.poses, a.window, torch.cat([a.age(), b.age()]))

@@ -175,7 +175,7 @@ class StreamingDetector:
         t2 = self._sync()
         poses = np.asarray(T_odom_base if T_odom_base is not None else np.eye(4),
                            np.float64)[None]
-        past, _ = m.past_term(self.memory, poses, [stamp_ns])
+        past, aux = m.past_term(self.memory, poses, [stamp_ns])
         used = past is not None
         fused = m.fuse(current, past, observed)
         if self.keep_terms:
@@ -190,7 +190,8 @@ class StreamingDetector:
                             self.nms_iou_threshold, radius, self.max_detections)[0]
         t4 = self._sync()
         if T_odom_base is not None:
-            memory = m.sample_memory(fused, preds, poses, [stamp_ns])
+            memory = m.sample_memory(fused, preds, poses, [stamp_ns],
+                                     m.carried(self.memory, aux, poses, [stamp_ns]), observed)
             if memory is not None:
                 self._memory = memory
         t5 = self._sync()
