@@ -4,7 +4,7 @@ The PointCloud2 has one point per box with fields (FLOAT32) ``x y z length width
 vy score`` and ``label`` (UINT8, index into the class names); GT adds ``num_points`` and
 ``instance_id`` (UINT32); the node's detections add ``num_points`` (UINT32: the current
 cloud's returns inside the box; 0 for a box the memory carries through missing returns) and,
-from the velocity filter, ``track_id`` (UINT32, the same object keeps its id across frames; 0:
+from the tracker, ``track_id`` (UINT32, the same object keeps its id across frames; 0:
 not tracked).
 """
 from __future__ import annotations

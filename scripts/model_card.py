@@ -172,7 +172,7 @@ def main() -> int:
     filt = diffs.get('suit, tracking - suit')
     if filt:
         f, g = runs['suit, tracking'], runs.get('single, tracking', {})
-        lines += ['', "**Tracking** (the node's defaults `velocity_filter: true`, "
+        lines += ['', "**Tracking** (the node's defaults `tracking: true`, "
                   '`track_score_mix: 0.7`; `suit_ros/tracking.py`: constant-velocity Kalman '
                   "tracks over the detections in the odometry frame, fed with the head's "
                   'velocity and the velocity read from the sweeps, scores smoothed over each '

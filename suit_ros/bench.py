@@ -120,7 +120,7 @@ def _sensor_sizes(model_args: argparse.Namespace, n: int) -> dict[str, Any]:
     from suit_ros.data.sequences import synthetic_sequence
     from suit_ros.evaluate import step_inputs
     from suit_ros.model.streaming import StreamingDetector
-    from suit_ros.tracking import FilterConfig
+    from suit_ros.tracking import TrackerConfig
     rng = np.random.default_rng(0)
     drives = {}
     for name, sensor, factor in SENSOR_SIZES:
@@ -136,7 +136,7 @@ def _sensor_sizes(model_args: argparse.Namespace, n: int) -> dict[str, Any]:
         drives[name] = frames
     model = _model(model_args, 'suit')
     runners = {k: StreamingDetector(model, model_args.device, precision=model_args.precision,
-                                    velocity_filter=FilterConfig()) for k in drives}
+                                    tracker=TrackerConfig()) for k in drives}
     keys = ('sweeps', 'encode', 'fusion', 'head_decode', 'sampling', 'tracking', 'total')
     times: dict[str, dict[str, list[float]]] = {k: {s: [] for s in keys} for k in drives}
     for i in range(max(n, 8)):
@@ -187,7 +187,7 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.model.streaming import StreamingDetector
     from suit_ros.msg_adapters.classes import MessageClasses
     from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2
-    from suit_ros.tracking import FilterConfig
+    from suit_ros.tracking import TrackerConfig
     torch.set_num_threads(args.threads)
     n = args.frames
     sim = Simulation(preset('demo-real', frames=max(n, 12)), 7)
@@ -201,9 +201,9 @@ def run(args: argparse.Namespace) -> int:
                            'precision': resolve_precision(args.precision, args.device),
                            'points_per_frame': int(np.mean([len(f.cloud) for f in simframes]))}
     temporals: tuple[TemporalMode, ...] = ('none', 'suit', 'dense')
-    # as the node runs them by default: velocity filter on
+    # as the node runs them by default: tracker on
     runners = {t: StreamingDetector(_model(args, t), args.device, precision=args.precision,
-                                    velocity_filter=FilterConfig())
+                                    tracker=TrackerConfig())
                for t in temporals}
     res.update(_per_stage(runners, frames, clouds, C))
     runner = runners['suit']

@@ -60,7 +60,7 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
                 precision: PrecisionChoice) -> Any:
     """One variant's run (None when it does not apply to the model)."""
     from suit_ros.evaluate import run_model
-    from suit_ros.tracking import FilterConfig
+    from suit_ros.tracking import TrackerConfig
     temporal = model.cfg.temporal
     kwargs: dict[str, Any] = {'precision': precision}
     if variant == 'memory dropped':
@@ -75,7 +75,7 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
     if variant == 'bfloat16':
         return run_model(model, sequences, precision='bfloat16')
     if variant == 'tracking':
-        return run_model(model, sequences, velocity_filter=FilterConfig(), **kwargs)
+        return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
     raise ValueError(f'unknown variant {variant!r}; choose from {", ".join(VARIANTS)}')
 
 
@@ -162,7 +162,7 @@ def extras(result: Comparison, checkpoints: list[tuple[str, str]], runs: dict[st
     from suit_ros.data.sequences import split_drives, synthetic_split
     from suit_ros.data.sim.clutter import clutter_fp, clutter_frames
     from suit_ros.evaluate import run_model
-    from suit_ros.tracking import FilterConfig
+    from suit_ros.tracking import TrackerConfig
     frames = result.meta['frames_per_drive']
     base = {n: runs[n] for n, _ in checkpoints}
     result.clutter = clutter_fp(base, clutter_frames(split_drives('val', len(val)), frames), 0.3)
@@ -174,7 +174,7 @@ def extras(result: Comparison, checkpoints: list[tuple[str, str]], runs: dict[st
         for name, path in checkpoints:
             model = load_as(path)
             hruns[name] = run_model(model, hv)
-            hruns[f'{name}, tracking'] = run_model(model, hv, velocity_filter=FilterConfig())
+            hruns[f'{name}, tracking'] = run_model(model, hv, tracker=TrackerConfig())
         result.heldout, _ = bootstrap(hruns, result.class_names, (), result.meta['resamples'])
         result.meta['heldout_drives'] = [list(d) for d in split_drives('heldout',
                                                                        heldout_drives)]

@@ -22,7 +22,7 @@ from suit_ros.structures import Detections, Frame
 
 if TYPE_CHECKING:
     from suit_ros.model.inference import PrecisionChoice
-    from suit_ros.tracking import FilterConfig
+    from suit_ros.tracking import TrackerConfig
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
 TP_DIST = 2.0
@@ -364,7 +364,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               history: int | None = None, drop_memory: bool = False,
               transform: Callable[[Frame], Frame] | None = None,
               precision: PrecisionChoice = 'float32',
-              velocity_filter: FilterConfig | None = None) -> ModelRun:
+              tracker: TrackerConfig | None = None) -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -374,13 +374,13 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         what the temporal path is worth.
     :param transform: applied to every input frame (e.g. intensity removed).
     :param precision: of the streaming detector (:mod:`suit_ros.model.inference`).
-    :param velocity_filter: the streaming detector's (:mod:`suit_ros.tracking`); None: the
+    :param tracker: the streaming detector's (:mod:`suit_ros.tracking`); None: the
         head's velocities.
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
     runner = StreamingDetector(model, device, precision=precision,
-                               velocity_filter=velocity_filter)
+                               tracker=tracker)
     out = ModelRun([], [], [], [], [], {})
     for drive, seq in enumerate(sequences):
         runner.reset('new sequence')

@@ -36,7 +36,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--gt-topic', default='/gt/objects')
     parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
     parser.add_argument('--history', type=int, help='frames of history (default: all)')
-    parser.add_argument('--velocity-filter', action='store_true',
+    parser.add_argument('--tracker', action='store_true',
                         help='track the detections as the node does by default (velocities '
                         "filtered, scores smoothed: suit_ros/tracking.py); default: the model's "
                         'own output')
@@ -78,7 +78,7 @@ def _from_kitti(args: argparse.Namespace) -> Any:
     from suit_ros.data.kitti import camera_fov_run
     from suit_ros.data.sequences import kitti_sequences
     from suit_ros.evaluate import run_model
-    filt = _velocity_filter(args)
+    filt = _tracker(args)
     model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
     ids = None
     if args.kitti_ids:
@@ -88,19 +88,19 @@ def _from_kitti(args: argparse.Namespace) -> Any:
         except OSError as exc:
             raise DatasetError(f'cannot read --kitti-ids {args.kitti_ids}: {exc}') from exc
     seqs = kitti_sequences(args.kitti, args.kitti_intensity_scale, ids=ids)
-    run = camera_fov_run(run_model(model, seqs, history=args.history, velocity_filter=filt),
+    run = camera_fov_run(run_model(model, seqs, history=args.history, tracker=filt),
                          seqs, args.image_width)
     result = run.evaluate(model.cfg.class_names)
     result.extra['scored_region'] = f'camera field of view ({args.image_width:g} px)'
     return result
 
 
-def _velocity_filter(args: argparse.Namespace) -> Any:
-    from suit_ros.tracking import FilterConfig
-    if args.velocity_filter and args.history is not None:
-        raise ConfigError('--velocity-filter needs the whole history (tracks over frames); '
+def _tracker(args: argparse.Namespace) -> Any:
+    from suit_ros.tracking import TrackerConfig
+    if args.tracker and args.history is not None:
+        raise ConfigError('--tracker needs the whole history (tracks over frames); '
                            'drop --history')
-    return FilterConfig() if args.velocity_filter else None
+    return TrackerConfig() if args.tracker else None
 
 
 def synthetic_sequences(which: str, cache_dir: str) -> list[Any]:
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
         from suit_ros.evaluate import run_model
-        filt = _velocity_filter(args)
+        filt = _tracker(args)
         model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
         seqs: Any
         if args.nuscenes:
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         if not seqs or not seqs[0]:
             raise DatasetError('the synthetic split is empty')
         result = run_model(model, seqs, history=args.history,
-                           velocity_filter=filt).evaluate(model.cfg.class_names)
+                           tracker=filt).evaluate(model.cfg.class_names)
     print(result.table())
     if args.json_out:
         from suit_ros.evaluate import dump_json

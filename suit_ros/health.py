@@ -124,7 +124,7 @@ def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
         'has_intensity': str(last.has_intensity), 'detections': str(len(last.detections)),
         'memory_samples': str(last.memory_samples), 'memory_bytes': str(last.memory_bytes),
         'used_memory': str(last.used_memory),
-        'velocity_filter_tracks': 'off' if last.track_ids is None else str(last.tracks),
+        'tracks': 'off' if last.track_ids is None else str(last.tracks),
         'pose_source': last.pose_source, 'pose_age_s': f'{last.pose_age_s:.3f}',
         'input_warnings': ','.join(last.warnings) or 'none',
         'last_warning': last.warning or 'none'})

@@ -312,6 +312,6 @@ def _detections(model: Any, seqs: Sequence[Sequence[Frame]], tracked: bool
     """Each drive's detections as the node decodes them (with or without its tracker)."""
     from suit_ros.accuracy import drive_frames
     from suit_ros.evaluate import run_model
-    from suit_ros.tracking import FilterConfig
-    r = run_model(model, seqs, velocity_filter=FilterConfig() if tracked else None)
+    from suit_ros.tracking import TrackerConfig
+    r = run_model(model, seqs, tracker=TrackerConfig() if tracked else None)
     return [[r.det[i] for i in frames] for frames in drive_frames(r)]

@@ -32,6 +32,10 @@ def _spec(description: str, *, read_only: bool = False, lo: float | None = None,
             'choices': choices, 'length': length}
 
 
+# parameters renamed in a release: old name -> new name (an old YAML fails with a pointer)
+RENAMED = {'velocity_filter': 'tracking'}
+
+
 @dataclass(frozen=True)
 class DetectorParams:
     """Every setting of the detector node and ``detect-bag`` (defaults are the node's)."""
@@ -65,11 +69,12 @@ class DetectorParams:
     candidates: int = field(default=500, metadata=_spec(
         'heatmap peaks kept before the score threshold and NMS (busy scenes need hundreds)',
         lo=1, hi=10000))
-    velocity_filter: bool = field(default=True, metadata=_spec(
-        "filter each detection's velocity over frames with a constant-velocity Kalman track "
-        "(odometry frame) and publish its track id; false: the head's one-frame velocity"))
+    tracking: bool = field(default=True, metadata=_spec(
+        "track detections over frames (constant-velocity Kalman tracks, odometry frame): "
+        "velocities filtered, scores smoothed, vehicle headings settled, track ids "
+        "published (renamed from velocity_filter); false: the model's one-frame output"))
     track_score_mix: float = field(default=0.7, metadata=_spec(
-        "with velocity_filter: a tracked detection's score is (1 - mix) x its own + mix x its "
+        "with tracking: a tracked detection's score is (1 - mix) x its own + mix x its "
         "track's running score; 0: the model's scores", lo=0.0, hi=1.0))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
@@ -165,7 +170,9 @@ class DetectorParams:
         known = {f.name: f for f in fields(self)}
         unknown = sorted(set(values) - set(known))
         if unknown:
-            raise ConfigError(f'unknown detector parameter(s) {unknown}; known: '
+            renamed = ''.join(f'; {old} is now {RENAMED[old]}' for old in unknown
+                              if old in RENAMED)
+            raise ConfigError(f'unknown detector parameter(s) {unknown}{renamed}; known: '
                               f'{sorted(known)}')
         changes = {}
         for name, value in values.items():

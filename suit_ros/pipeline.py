@@ -25,7 +25,7 @@ from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
 from suit_ros.ops.geometry import pose_from_xyz_rpy
 from suit_ros.params import DetectorParams
 from suit_ros.structures import Detections
-from suit_ros.tracking import FilterConfig
+from suit_ros.tracking import TrackerConfig
 
 # the pipeline's settings are the node's: one owner (suit_ros.params)
 PipelineParams = DetectorParams
@@ -72,10 +72,10 @@ class PipelineOutput:
     pose_source: str = 'none'
     single_frame: SingleFrameReason | None = None          # None: the frame had a pose
     pose_age_s: float = float('nan')
-    track_ids: NDArray[np.int64] | None = None          # None: the velocity filter is off
+    track_ids: NDArray[np.int64] | None = None          # None: the tracker is off
     num_points: NDArray[np.uint32] = field(                # current returns in each box
         default_factory=lambda: np.zeros(0, np.uint32))
-    tracks: int = 0                                      # the velocity filter's live tracks
+    tracks: int = 0                                      # the tracker's live tracks
     used_memory: bool = False
     memory_samples: int = 0
     memory_bytes: int = 0
@@ -128,9 +128,9 @@ class DetectionPipeline:
                                      or self.detector.published_thresholds,
                                      params.nms_iou_threshold, params.max_detections,
                                      params.candidates)
-        self.detector.set_velocity_filter(
-            FilterConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix)
-            if params.velocity_filter else None)
+        self.detector.set_tracker(
+            TrackerConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix)
+            if params.tracking else None)
         self.detector.sweeps.max_age_s = params.max_gap_s     # one staleness threshold
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)

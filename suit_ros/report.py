@@ -301,16 +301,16 @@ def run(args: argparse.Namespace) -> int:
     """Run the model, write the report and pictures."""
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     from suit_ros.evaluate import run_model
-    from suit_ros.tracking import FilterConfig
+    from suit_ros.tracking import TrackerConfig
     model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
     names = tuple(cfg.class_names)
     thresholds = report_thresholds(meta, names, args.score_thresholds)
     seqs, source = _sequences(args, names)
     if not seqs or not any(len(s) for s in seqs):
         raise DatasetError('the dataset holds no frame')
-    filt = None if args.no_tracking else FilterConfig()
-    result = run_model(model, seqs, velocity_filter=filt)
-    notes = ['as the node by default: 3 sweeps, tracker on (velocity filter and score '
+    filt = None if args.no_tracking else TrackerConfig()
+    result = run_model(model, seqs, tracker=filt)
+    notes = ['as the node by default: 3 sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.kitti:
         from suit_ros.data.kitti import camera_fov_run

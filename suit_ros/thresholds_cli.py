@@ -46,12 +46,12 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.data.sequences import synthetic_split
     from suit_ros.evaluate import run_model
     from suit_ros.report import class_counts
-    from suit_ros.tracking import FilterConfig
+    from suit_ros.tracking import TrackerConfig
     path = args.checkpoint or default_checkpoint_path()
     model, cfg, _ = load_checkpoint(path)
     names = tuple(cfg.class_names)
     seqs = synthetic_split('tune', args.drives, TUNE_FRAMES, args.cache_dir)
-    run_ = run_model(model, seqs, velocity_filter=FilterConfig())
+    run_ = run_model(model, seqs, tracker=TrackerConfig())
     counts = class_counts(run_.gt, run_.det, names, run_.num_points)
     chosen: dict[str, float] = {}
     print(f'{path}: tune split, {args.drives} drives x {TUNE_FRAMES} frames, node defaults')

@@ -1,10 +1,10 @@
-"""Velocity filter: constant-velocity Kalman tracks over the detections, in the odometry frame.
+"""Tracker: constant-velocity Kalman tracks over the detections, in the odometry frame.
 
 The head reads an object's velocity from one model frame (a few sweeps, 0.2 s at 10 Hz), and on
 CPU-scale training that reading is coarse (docs/results.md). Over several frames the box centres
 say more: a car at 10 m/s moves a metre a frame, against centre errors of a few decimetres.
 
-:class:`VelocityFilter` keeps one track per object. Each frame it predicts the tracks to the
+:class:`Tracker` keeps one track per object. Each frame it predicts the tracks to the
 frame's stamp and associates the detections to them: same class only, greedy by the
 Mahalanobis distance of the centre within a chi-square gate, the confident detections (score >=
 ``birth_score``) first and the faint ones for the tracks left, and only a confident detection
@@ -31,8 +31,8 @@ Tracks live in the odometry frame, so ego motion does not move them; they are fo
 same rules as the sweeps (no pose, a time jump, a new sequence, a reset). Every detection gets
 a track id (``0``: none).
 
-The settings (:class:`FilterConfig` defaults) were chosen on the ``tune`` split (seeds 8000+,
-never trained or validated on) with ``scripts/tune_velocity_filter.py``:
+The settings (:class:`TrackerConfig` defaults) were chosen on the ``tune`` split (seeds 8000+,
+never trained or validated on) with ``scripts/tune_tracker.py``:
 docs/experiments/velocity_filter.
 """
 from __future__ import annotations
@@ -49,8 +49,8 @@ from suit_ros.structures import Detections
 
 
 @dataclass(frozen=True)
-class FilterConfig:
-    """Noise model and track bookkeeping of :class:`VelocityFilter`.
+class TrackerConfig:
+    """Noise model and track bookkeeping of :class:`Tracker`.
 
     :param pos_sigma: box-centre measurement noise (m, per axis).
     :param vel_sigma: the head's velocity measurement noise (m/s, per axis).
@@ -90,17 +90,17 @@ class FilterConfig:
         for name in ('pos_sigma', 'vel_sigma', 'accel_sigma', 'gate', 'max_gap_s'):
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
-                raise ValueError(f'FilterConfig.{name} must be finite and > 0, got {value}')
+                raise ValueError(f'TrackerConfig.{name} must be finite and > 0, got {value}')
         if self.sweep_sigma is not None and not (np.isfinite(self.sweep_sigma)
                                                   and self.sweep_sigma > 0):
-            raise ValueError(f'FilterConfig.sweep_sigma must be finite and > 0 (or None), got '
+            raise ValueError(f'TrackerConfig.sweep_sigma must be finite and > 0 (or None), got '
                              f'{self.sweep_sigma}')
         for name in ('birth_score', 'score_mix', 'sweep_min_score'):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
-                raise ValueError(f'FilterConfig.{name} must be within 0..1, got {value}')
+                raise ValueError(f'TrackerConfig.{name} must be within 0..1, got {value}')
         if self.max_misses < 0:
-            raise ValueError(f'FilterConfig.max_misses must be >= 0, got {self.max_misses}')
+            raise ValueError(f'TrackerConfig.max_misses must be >= 0, got {self.max_misses}')
 
     def sweep_targets(self, det: Detections, class_names: Sequence[str]) -> NDArray[np.bool_]:
         """The detections whose velocity is read from the sweeps: ``sweep_classes`` scoring at
@@ -109,7 +109,7 @@ class FilterConfig:
         return np.isin(det.labels, wanted) & (det.scores >= self.sweep_min_score)
 
 
-class VelocityFilter:
+class Tracker:
     """Tracks over frames; :meth:`update` returns the detections with filtered velocities.
 
     The two horizontal axes have the same noise and are measured together, so their
@@ -117,10 +117,10 @@ class VelocityFilter:
     track (:attr:`P`) serves both, and every inverse is a 2 x 2 one in closed form.
     """
 
-    def __init__(self, config: FilterConfig | None = None,
+    def __init__(self, config: TrackerConfig | None = None,
                  class_names: Sequence[str] | None = None) -> None:
         from suit_ros import CLASS_NAMES
-        self.config = config or FilterConfig()
+        self.config = config or TrackerConfig()
         names = tuple(class_names or CLASS_NAMES)
         self.class_names = names
         # the classes that move along their heading (the sweep reading's, too)
@@ -286,7 +286,7 @@ class VelocityFilter:
         return boxes
 
 
-def track_step(tracks: VelocityFilter, det: Detections, stamp_ns: int,
+def track_step(tracks: Tracker, det: Detections, stamp_ns: int,
                T_odom_base: NDArray[np.float64], model_points: NDArray[np.floating[Any]] | None,
                swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None
                ) -> tuple[Detections, NDArray[np.int64]]:

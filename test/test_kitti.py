@@ -384,9 +384,9 @@ def test_eval_cli_on_kitti_format(object_root, tmp_path, capsys):
     assert 'suit-ros eval: error:' in err and 'does not exist' in err
     assert main(['eval', '--kitti', str(object_root), '--kitti-ids', 'nope.txt']) == 1
     assert 'cannot read --kitti-ids nope.txt' in capsys.readouterr().err
-    assert main(['eval', '--kitti', str(object_root), '--velocity-filter', '--json-out',
+    assert main(['eval', '--kitti', str(object_root), '--tracker', '--json-out',
                  str(tmp_path / 'f.json')]) == 0
     assert json.loads((tmp_path / 'f.json').read_text())['summary']['frames'] == 2
-    assert main(['eval', '--kitti', str(object_root), '--velocity-filter',
+    assert main(['eval', '--kitti', str(object_root), '--tracker',
                  '--history', '2']) == 1
     assert 'drop --history' in capsys.readouterr().err

@@ -31,6 +31,11 @@ def test_readme_links_point_at_files():
     assert links and all((REPO / link).exists() for link in links), links
 
 
+def test_a_renamed_parameter_fails_with_its_new_name():
+    with pytest.raises(ConfigError, match='velocity_filter is now tracking'):
+        DetectorParams().updated({'velocity_filter': True})
+
+
 def test_yaml_values_override_defaults_and_unknown_keys_fail(tmp_path):
     path = tmp_path / 'p.yaml'
     path.write_text('detector:\n  ros__parameters:\n    intensity_scale: 1\n'

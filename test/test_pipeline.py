@@ -76,7 +76,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
-                       'intensity_field', 'velocity_filter', 'track_score_mix',
+                       'intensity_field', 'tracking', 'track_score_mix',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -174,7 +174,7 @@ def test_nms_iou_threshold_reaches_the_decoder(model, classes, scene):
     import torch
 
     from suit_ros.ops.iou import bev_iou
-    pipe = make_pipeline(model, classes, score_thresholds=(0.02,), velocity_filter=False)
+    pipe = make_pipeline(model, classes, score_thresholds=(0.02,), tracking=False)
 
     def overlaps(threshold, k):
         pipe.configure(replace(pipe.params, nms_iou_threshold=threshold))
@@ -190,10 +190,10 @@ def test_nms_iou_threshold_reaches_the_decoder(model, classes, scene):
     assert n_loose > n_strict and worst_loose > 0.05
 
 
-def test_velocity_filter_tracks_and_can_be_turned_off(model, classes, scene):
+def test_tracks_and_can_be_turned_off(model, classes, scene):
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
     pipe = make_pipeline(model, classes, score_thresholds=(0.05,))
-    assert pipe.params.velocity_filter and pipe.detector.tracks is not None
+    assert pipe.params.tracking and pipe.detector.tracks is not None
     feed_odometry(pipe, T0, T0 + S, speed=0.0)
     outs = [pipe.process(cloud(classes, T0 + k * S // 10, scene)) for k in range(3)]
     first, last = outs[0], outs[-1]
@@ -206,12 +206,12 @@ def test_velocity_filter_tracks_and_can_be_turned_off(model, classes, scene):
     began = first.track_ids[first.detections.scores >= birth]
     assert len(began) >= 3 and 0 not in set(sure) and set(began) <= set(sure)
     assert last.tracks == len(pipe.detector.tracks) >= len(sure)
-    pipe.configure(replace(pipe.params, velocity_filter=False))
+    pipe.configure(replace(pipe.params, tracking=False))
     off = pipe.process(cloud(classes, T0 + 3 * S // 10, scene))
     assert pipe.detector.tracks is None and off.track_ids is None
     assert 'track_id' not in pointcloud2_to_detections(off.detections_msg)
     # the filter's gap is the pipeline's one staleness threshold
-    pipe.configure(replace(pipe.params, velocity_filter=True, max_gap_s=2.0))
+    pipe.configure(replace(pipe.params, tracking=True, max_gap_s=2.0))
     assert pipe.detector.tracks is not None and pipe.detector.tracks.config.max_gap_s == 2.0
 
 

@@ -9,13 +9,13 @@ from suit_ros.model.detector import SUITDetector
 from suit_ros.model.streaming import StreamingDetector
 
 
-def test_velocity_filter_in_the_stream_follows_the_reset_rules():
-    from suit_ros.tracking import FilterConfig
+def test_tracker_in_the_stream_follows_the_reset_rules():
+    from suit_ros.tracking import TrackerConfig
     torch.manual_seed(0)
     model = SUITDetector(small_config('suit'))
     K = len(model.cfg.class_names)
-    filt = FilterConfig(birth_score=0.0)         # an untrained head is never confident
-    runner = StreamingDetector(model, score_thresholds=[0.0] * K, velocity_filter=filt)
+    filt = TrackerConfig(birth_score=0.0)         # an untrained head is never confident
+    runner = StreamingDetector(model, score_thresholds=[0.0] * K, tracker=filt)
     f = frame(0)
     r1 = runner.step(f.points, int(1e9), f.pose)
     assert len(r1.detections) > 0 and (r1.track_ids > 0).all()
@@ -26,13 +26,13 @@ def test_velocity_filter_in_the_stream_follows_the_reset_rules():
     tracks = runner.tracks
     runner.reset('drop memory', sweeps=False)     # the feature memory only: tracks stay
     assert len(tracks) > 0
-    runner.set_velocity_filter(filt)              # unchanged settings keep the tracks
+    runner.set_tracker(filt)              # unchanged settings keep the tracks
     assert runner.tracks is tracks
     runner.reset('test')
     assert len(tracks) == 0
     r3 = runner.step(f.points, int(1.2e9), None)  # no pose: no odometry frame to track in
     assert len(r3.detections) and not r3.track_ids.any()
-    runner.set_velocity_filter(None)
+    runner.set_tracker(None)
     r4 = runner.step(f.points, int(1.3e9), f.pose)
     assert runner.tracks is None and not r4.track_ids.any()
 

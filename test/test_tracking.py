@@ -1,4 +1,4 @@
-"""The velocity filter (suit_ros.tracking): tracks in the odometry frame, filtered velocities."""
+"""The tracker (suit_ros.tracking): tracks in the odometry frame, filtered velocities."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -8,7 +8,7 @@ import pytest
 
 from suit_ros.ops.geometry import pose_from_xyz_rpy
 from suit_ros.structures import Detections
-from suit_ros.tracking import FilterConfig, VelocityFilter
+from suit_ros.tracking import Tracker, TrackerConfig
 
 DT_NS = 100_000_000          # 10 Hz
 
@@ -43,7 +43,7 @@ def test_a_moving_car_seen_from_a_turning_ego_gets_its_velocity():
     """Centres with 0.2 m noise and a head that says 'standing still': after a second the
     filtered velocity (in the detections' frame) is the car's, and the track id holds."""
     rng = np.random.default_rng(0)
-    vf = VelocityFilter()
+    vf = Tracker()
     v_true = np.array([9.0, -3.0])
     errs, ids = [], set()
     for k in range(20):
@@ -61,7 +61,7 @@ def test_a_moving_car_seen_from_a_turning_ego_gets_its_velocity():
 
 
 def test_static_objects_stay_static_under_ego_motion():
-    vf = VelocityFilter()
+    vf = Tracker()
     walls = np.array([[15.0, 4.0], [30.0, -6.0], [8.0, 10.0]])
     for k in range(15):
         T = ego_pose(k * 0.1)
@@ -72,7 +72,7 @@ def test_static_objects_stay_static_under_ego_motion():
 
 
 def test_classes_never_share_a_track_and_new_objects_get_new_ids():
-    vf = VelocityFilter()
+    vf = Tracker()
     T = np.eye(4)
     _, ids0 = vf.update(frame([[10, 0]], [[0, 0]], labels=[0]), 0, T)
     _, ids1 = vf.update(frame([[10, 0], [10.1, 0]], [[0, 0], [0, 0]], labels=[2, 0]), DT_NS, T)
@@ -82,8 +82,8 @@ def test_classes_never_share_a_track_and_new_objects_get_new_ids():
 
 
 def test_tracks_end_after_misses_and_on_time_jumps():
-    cfg = FilterConfig(max_misses=2)
-    vf = VelocityFilter(cfg)
+    cfg = TrackerConfig(max_misses=2)
+    vf = Tracker(cfg)
     T = np.eye(4)
     vf.update(frame([[10, 0]], [[0, 0]]), 0, T)
     for k in (1, 2):                                   # two empty frames: still alive
@@ -99,7 +99,7 @@ def test_tracks_end_after_misses_and_on_time_jumps():
 
 
 def test_nearest_pairs_win_and_each_track_takes_one_detection():
-    vf = VelocityFilter()
+    vf = Tracker()
     T = np.eye(4)
     vf.update(frame([[10, 0], [13, 0]], np.zeros((2, 2))), 0, T)
     _, ids = vf.update(frame([[12.9, 0], [10.1, 0], [11.5, 0]], np.zeros((3, 2))), DT_NS, T)
@@ -107,7 +107,7 @@ def test_nearest_pairs_win_and_each_track_takes_one_detection():
 
 
 def test_only_confident_detections_start_tracks_and_they_are_matched_first():
-    vf = VelocityFilter(FilterConfig(birth_score=0.3))
+    vf = Tracker(TrackerConfig(birth_score=0.3))
     T = np.eye(4)
     out, ids = vf.update(frame([[10, 0], [20, 0]], [[1, 0], [2, 0]], scores=[0.8, 0.1]), 0, T)
     assert ids.tolist() == [1, 0] and len(vf) == 1
@@ -128,11 +128,11 @@ def test_only_confident_detections_start_tracks_and_they_are_matched_first():
                                          ('sweep_sigma', 0.0)])
 def test_config_is_validated(field, value):
     with pytest.raises(ValueError, match=field):
-        FilterConfig(**{field: value})
+        TrackerConfig(**{field: value})
 
 
 def test_scores_are_smoothed_over_the_track():
-    vf = VelocityFilter(FilterConfig(score_mix=0.5))
+    vf = Tracker(TrackerConfig(score_mix=0.5))
     T = np.eye(4)
     out, _ = vf.update(frame([[10, 0]], [[0, 0]], scores=[0.8]), 0, T)
     assert out.scores.tolist() == pytest.approx([0.8])        # a new track: its own score
@@ -186,14 +186,14 @@ def test_sweep_velocities_read_motion_along_the_heading():
 
 
 def test_swept_velocity_is_fused_with_the_heads():
-    cfg = FilterConfig(vel_sigma=4.0, sweep_sigma=2.0)
-    vf = VelocityFilter(cfg)
+    cfg = TrackerConfig(vel_sigma=4.0, sweep_sigma=2.0)
+    vf = Tracker(cfg)
     det = frame([[10, 0], [20, 0]], [[0, 0], [5, 0]])
     swept = (np.array([[10.0, 0.0], [9.0, 0.0]]), np.array([True, False]))
     out, _ = vf.update(det, 0, np.eye(4), swept)
     # inverse-variance weights 1/16 and 1/4: (0 * 1 + 10 * 4) / 5 = 8
     np.testing.assert_allclose(out.velocities, [[8.0, 0.0], [5.0, 0.0]])
-    plain, _ = VelocityFilter(replace(cfg, sweep_sigma=None)).update(det, 0, np.eye(4), swept)
+    plain, _ = Tracker(replace(cfg, sweep_sigma=None)).update(det, 0, np.eye(4), swept)
     np.testing.assert_allclose(plain.velocities, [[0.0, 0.0], [5.0, 0.0]])
 
 
@@ -201,12 +201,12 @@ def test_a_vehicle_driving_backwards_by_a_confident_velocity_is_turned_round():
     """A car at 10 m/s along +x whose box says it faces -x: once the track's velocity is sure,
     the box is turned round; a slow car, a pedestrian, or the setting off leave it."""
     def drive(cfg, speed, label, frames=10):
-        vf = VelocityFilter(cfg)
+        vf = Tracker(cfg)
         for k in range(frames):
             out, _ = vf.update(frame([[10.0 + speed * 0.1 * k, 3.0]], [speed, 0.0], [label],
                                      yaw=np.pi - 0.2), k * DT_NS, np.eye(4))
         return float(out.boxes[0, 6])
-    cfg = FilterConfig()
+    cfg = TrackerConfig()
     assert drive(cfg, 10.0, 0) == pytest.approx(-0.2, abs=1e-5)            # turned round
     assert drive(cfg, 1.0, 0) == pytest.approx(np.pi - 0.2, abs=1e-5)      # too slow to tell
     assert drive(cfg, 10.0, 2) == pytest.approx(np.pi - 0.2, abs=1e-5)     # a pedestrian

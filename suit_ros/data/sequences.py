@@ -6,7 +6,7 @@ order. Training samples clips of 1-4 consecutive frames from them.
 
 The synthetic splits use disjoint seed ranges: ``train`` seeds 1000+, ``val`` seeds 9000+,
 ``heldout`` (a sensor no training drive uses) 9500+, ``tune`` 8000+ (for choosing
-post-processing settings such as the velocity filter's; never trained or validated on),
+post-processing settings such as the tracker's; never trained or validated on),
 ``outage`` 8500+ (the sensor-outage benchmark, :mod:`suit_ros.outage`). Drive
 ``i`` of a split uses the sensor ``SPLIT_SENSORS[split][i % len]``. The fixed validation set of
 docs/results.md is ``val`` seeds 9000..9015 (16 drives of 40 frames at 10 Hz, four sensor

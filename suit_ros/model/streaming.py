@@ -19,7 +19,7 @@ from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_pr
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.ops.geometry import count_points_in_boxes
 from suit_ros.structures import Detections
-from suit_ros.tracking import FilterConfig, VelocityFilter, track_step
+from suit_ros.tracking import Tracker, TrackerConfig, track_step
 
 
 @dataclass
@@ -29,7 +29,7 @@ class StepResult:
     :param model_points: points in the model input (all accumulated sweeps).
     :param timings: seconds per stage: ``sweeps`` (accumulation), ``encode`` (pillars +
         backbone), ``fusion`` (GeoNet + fusion), ``head_decode``, ``sampling``, ``tracking``
-        (detections to numpy, the velocity filter, the published cut, the returns in each box,
+        (detections to numpy, the tracker, the published cut, the returns in each box,
         boxes into the LiDAR frame), ``total``.
     :param track_ids: per detection, its velocity-filter track (0: no filter, or no pose).
     :param num_points: per detection, the current sweep's returns inside its box (0: a box
@@ -57,7 +57,7 @@ class StreamingDetector:
     :param precision: the inference copy's precision (:mod:`suit_ros.model.inference`):
         ``float32`` (default), ``bfloat16``, or ``auto`` (bfloat16 on a CPU with bfloat16
         units); the one chosen is :attr:`precision`.
-    :param velocity_filter: when given, the detections' velocities are filtered over frames
+    :param tracker: when given, the detections' velocities are filtered over frames
         (:mod:`suit_ros.tracking`) and each gets a track id; None: the head's velocities.
     """
 
@@ -65,7 +65,7 @@ class StreamingDetector:
                  score_thresholds: list[float] | None = None,
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
                  candidates: int | None = None, precision: PrecisionChoice = 'float32',
-                 velocity_filter: FilterConfig | None = None) -> None:
+                 tracker: TrackerConfig | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
         self.precision = resolve_precision(precision, self.device)
         # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
@@ -75,8 +75,8 @@ class StreamingDetector:
         # the memory sampled at the last frame: the next frame fuses it
         self._memory: Memory | None = None
         self.sweeps = SweepBuffer(self.cfg.sweeps)
-        self.tracks = (None if velocity_filter is None
-                       else VelocityFilter(velocity_filter, self.cfg.class_names))
+        self.tracks = (None if tracker is None
+                       else Tracker(tracker, self.cfg.class_names))
         self.last_reset_reason = 'start'
         # the checkpoint's published thresholds (set by whoever loaded it; None: not known)
         self.published_thresholds: list[float] | None = None
@@ -113,17 +113,17 @@ class StreamingDetector:
         if self.candidates < 1:
             raise ValueError(f'candidates must be >= 1, got {self.candidates}')
 
-    def set_velocity_filter(self, config: FilterConfig | None) -> None:
-        """Turn the velocity filter on (with ``config``; tracks kept when it is unchanged) or
+    def set_tracker(self, config: TrackerConfig | None) -> None:
+        """Turn the tracker on (with ``config``; tracks kept when it is unchanged) or
         off (None)."""
         if config is None:
             self.tracks = None
         elif self.tracks is None or self.tracks.config != config:
-            self.tracks = VelocityFilter(config, self.cfg.class_names)
+            self.tracks = Tracker(config, self.cfg.class_names)
 
     def reset(self, reason: str = 'reset', sweeps: bool = True) -> None:
         """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps and
-        the velocity filter's tracks: the next frame runs single-frame."""
+        the tracker's tracks: the next frame runs single-frame."""
         self._memory = None
         if sweeps:
             self.sweeps.clear()

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Choose the tracking settings on the ``tune`` split (never trained or validated on).
 
-The checkpoint runs once with its own output; then the velocity filter (``suit_ros/tracking.py``)
+The checkpoint runs once with its own output; then the tracker (``suit_ros/tracking.py``)
 replays over the stored detections for every setting of a grid, in base_link with the vehicle
 pose and the velocities read from each frame's accumulated sweeps, as the streaming detector
 runs it. Prints mAP, NDS, mAVE, per-class AVE and moving-car velocity error per setting and
@@ -13,7 +13,7 @@ settings the earlier ones chose):
 - ``scores``: ``score_mix`` (no sweep reading); the choice: the highest NDS;
 - ``sweeps``: ``sweep_sigma``; the choice: the least mAVE + moving-car velocity error.
 
-Usage: scripts/tune_velocity_filter.py --grid velocity|scores|sweeps [--out tune.json]
+Usage: scripts/tune_tracker.py --grid velocity|scores|sweeps [--out tune.json]
 """
 from __future__ import annotations
 
@@ -46,7 +46,7 @@ def main() -> int:
     from suit_ros.model.sweeps import boxes_to_lidar, model_frame
     from suit_ros.ops.geometry import transform_boxes
     from suit_ros.structures import Detections
-    from suit_ros.tracking import FilterConfig, VelocityFilter, sweep_velocities, track_step
+    from suit_ros.tracking import Tracker, TrackerConfig, sweep_velocities, track_step
 
     t0 = time.monotonic()
     seqs = synthetic_split('tune', args.drives, args.frames, args.cache_dir)
@@ -67,13 +67,13 @@ def main() -> int:
             base_det = Detections(boxes, d.velocities if vel is None else vel, d.scores,
                                   d.labels)
             swept = sweep_velocities(model_frame(seq, t, cfg.sweeps).points, boxes,
-                                     FilterConfig().sweep_targets(d, names))
+                                     TrackerConfig().sweep_targets(d, names))
             replay.append((base_det, T_ob, T_bl, swept))
 
-    def score(filt: FilterConfig | None) -> dict[str, float]:
+    def score(filt: TrackerConfig | None) -> dict[str, float]:
         dets = run.det
         if filt is not None:
-            dets, vf, drive = [], VelocityFilter(filt, names), -1
+            dets, vf, drive = [], Tracker(filt, names), -1
             for (d, T_ob, T_bl, swept), f, k in zip(replay, frames, run.drive):
                 if k != drive:
                     vf.reset()
@@ -92,14 +92,14 @@ def main() -> int:
 
     grid: dict[str, tuple[Any, ...]]
     if args.grid == 'velocity':
-        base = FilterConfig(score_mix=0.0, sweep_sigma=None)
+        base = TrackerConfig(score_mix=0.0, sweep_sigma=None)
         grid = {'pos_sigma': (0.2, 0.3), 'vel_sigma': (3.0, 4.5), 'accel_sigma': (1.0, 2.0),
                 'birth_score': (0.4, 0.5), 'max_misses': (4, 6)}
     elif args.grid == 'scores':
-        base = FilterConfig(sweep_sigma=None)
+        base = TrackerConfig(sweep_sigma=None)
         grid = {'score_mix': (0.0, 0.3, 0.5, 0.7)}
     else:
-        base = FilterConfig()
+        base = TrackerConfig()
         grid = {'sweep_sigma': (None, 1.0, 1.5, 2.5, 4.0)}
     rows: list[dict[str, Any]] = [{'setting': 'head velocities', **score(None)}]
     print(rows[0])
