@@ -10,7 +10,9 @@ checkpoint changed in one way:
 - ``zero displacement``: GeoNet replaced by a zero displacement (SUIT checkpoints);
 - ``no intensity``: the clouds without their intensity channel;
 - ``bfloat16``: the backbone and head convolutions in bfloat16;
-- ``tracking``: the node's tracker over the detections (velocities, scores, ids).
+- ``tracking``: the node's tracker over the detections (velocities, scores, ids);
+- ``overhead``: the drives with canopies and awnings over their objects
+  (:func:`suit_ros.data.overhead.overhead_drives`, fixed draws).
 
 Paired differences (same drive resamples): every checkpoint against the first, each variant
 against its checkpoint (``memory dropped`` and ``zero displacement`` as checkpoint minus
@@ -36,7 +38,8 @@ from suit_ros.config import TemporalMode
 from suit_ros.model.inference import PrecisionChoice
 from suit_ros.structures import Frame
 
-VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking')
+VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking',
+            'overhead')
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
@@ -76,6 +79,9 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         return run_model(model, sequences, precision='bfloat16')
     if variant == 'tracking':
         return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
+    if variant == 'overhead':
+        from suit_ros.data.overhead import overhead_drives
+        return run_model(model, overhead_drives(sequences), **kwargs)
     raise ValueError(f'unknown variant {variant!r}; choose from {", ".join(VARIANTS)}')
 
 

@@ -22,6 +22,7 @@ import numpy as np
 import yaml
 
 from suit_ros.errors import ConfigError
+from suit_ros.structures import Frame
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,7 @@ class TrainConfig:
     tilt_deg: float = 0.0            # ground tilt: roll and pitch std (deg) per clip
     lift_m: float = 0.0              # ground height offset, uniform +-lift_m per clip
     point_dropout: float = 0.0       # half the clips lose up to this fraction of points
+    overhead_probability: float = 0.0   # clips with canopies/awnings over objects (overhead)
     preset: str = ''                 # synthetic world of the training drives ('': train-real)
     freeze: tuple[str, ...] = ()     # modules kept as loaded (pillars, backbone, fusion, ...)
     outage_probability: float = 0.0  # clips with a sensor sector lost (ClipSampler)
@@ -83,6 +85,9 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     if unknown:
         raise ConfigError(f'{path}: freeze names modules {sorted(unknown)}; choose from '
                           f'{", ".join(FREEZABLE)}')
+    if not 0.0 <= tc.overhead_probability <= 1.0:
+        raise ConfigError(f'{path}: overhead_probability must be in [0, 1], not '
+                          f'{tc.overhead_probability}')
     if not 0.0 <= tc.outage_probability <= 1.0 or tc.distill_weight < 0:
         raise ConfigError(f'{path}: outage_probability must be in [0, 1] and distill_weight '
                           f'>= 0, not {tc.outage_probability} and {tc.distill_weight}')
@@ -253,6 +258,15 @@ def _optimizer(module: Any, tc: TrainConfig) -> Any:
     return torch.optim.AdamW(groups, lr=tc.lr, weight_decay=tc.weight_decay, betas=(0.95, 0.99))
 
 
+def _overhead(clip: list[Frame], tc: TrainConfig, rng: np.random.Generator) -> list[Frame]:
+    """The clip with overhead slabs in ``overhead_probability`` of the clips (no draw at 0,
+    so older recipes replay the same augmentations)."""
+    if tc.overhead_probability <= 0 or rng.random() >= tc.overhead_probability:
+        return clip
+    from suit_ros.data.overhead import with_overhead
+    return with_overhead(clip, rng)
+
+
 def _draw(tc: TrainConfig, rng: np.random.Generator) -> Any:
     """One clip's augmentation as the config asks."""
     from suit_ros.data import augment
@@ -407,7 +421,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         lr = _schedule(opt, progress(), tc.lr)
         clips, lost = sampler.batch_with_outages(batch)
         if tc.augment:
-            clips = [augment.apply_clip(c, _draw(tc, aug_rng)) for c in clips]
+            clips = [augment.apply_clip(_overhead(c, tc, aug_rng), _draw(tc, aug_rng))
+                     for c in clips]
         vals = _optimise(model, module, opt, clips, tc.grad_clip, lost, distiller)
         step += 1
         if not math.isfinite(vals['loss']):

@@ -78,6 +78,21 @@ def test_train_config_strict(tmp_path):
     (tmp_path / 'neg.yaml').write_text('train_first_sequence: -1\n')
     with pytest.raises(ConfigError, match='train_first_sequence'):
         load_train_config(tmp_path / 'neg.yaml')
+    (tmp_path / 'ovh.yaml').write_text('overhead_probability: 1.5\n')
+    with pytest.raises(ConfigError, match='overhead_probability'):
+        load_train_config(tmp_path / 'ovh.yaml')
+
+
+def test_overhead_clips_draw_only_when_asked():
+    from modelkit import frame
+
+    from suit_ros.train import _overhead
+    clip = [frame(t) for t in range(2)]
+    rng = np.random.default_rng(0)
+    assert _overhead(clip, TrainConfig(), rng) is clip
+    assert rng.random() == np.random.default_rng(0).random()      # nothing drawn at 0
+    out = _overhead(clip, TrainConfig(overhead_probability=1.0), np.random.default_rng(0))
+    assert all(len(o.points) > len(c.points) for o, c in zip(out, clip))
 
 
 def test_fresh_window_of_training_drives_follows_the_first_ones():
