@@ -16,6 +16,13 @@ per outage frame 1..N the report gives:
 
 Frames 1-2 are carried by the previous sweeps in the input (3 sweeps); from frame 3 on only a
 memory can hold an object.
+
+On the drives as the sensor saw them (natural occlusion: objects behind others), recall by
+frames since an object was last visible, and the **occlusion AP**: AP where the objects are
+those without returns now that had returns within the last 10 frames, and detections on the
+visible objects count as neither true nor false (:func:`occlusion_run`); each model also
+runs with its memory dropped before every frame, and the paired difference is what the
+memory is worth there.
 """
 from __future__ import annotations
 
@@ -29,6 +36,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.evaluate import ModelRun
 from suit_ros.structures import Detections, Frame
 
 MATCH_DIST = 2.0
@@ -181,6 +189,53 @@ def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
     return OutageCounts(objects, found, zeros, zeros.copy())
 
 
+def occlusion_run(run: ModelRun, drives: Sequence[Sequence[Frame]], max_gap: int = 10
+                  ) -> ModelRun:
+    """``run`` (over ``drives``, in order) scored on occluded objects only: per frame the GT
+    is the objects without returns that had returns 1..``max_gap`` frames before, within
+    50 m; every other GT box is ignored (a detection there is neither true nor false)."""
+    gt: list[Detections] = []
+    ignore: list[NDArray[np.float32] | None] = []
+    num: list[Any] = []
+    for frames in drives:
+        last_seen: dict[int, int] = {}
+        for k, f in enumerate(frames):
+            if f.gt is None or f.instance_ids is None or f.num_points is None:
+                raise ValueError('occlusion_run needs GT with instance ids and point counts')
+            ids, counts = f.instance_ids.tolist(), f.num_points.tolist()
+            gap = np.array([k - last_seen[i] if c == 0 and i in last_seen else 0
+                            for i, c in zip(ids, counts)], np.int64)
+            near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
+            occluded = near & (gap > 0) & (gap <= max_gap)
+            gt.append(f.gt.select(occluded))
+            ignore.append(f.gt.boxes[~occluded].astype(np.float32))
+            num.append(np.ones(int(occluded.sum()), np.uint32))
+            last_seen.update({i: k for i, c in zip(ids, counts) if c > 0})
+    if len(gt) != len(run.det):
+        raise ValueError(f'the run has {len(run.det)} frames, the drives {len(gt)}')
+    return replace(run, gt=gt, num_points=num, ignore=ignore)
+
+
+def occlusion_ap(model: Any, drives: Sequence[Sequence[Frame]], plain: ModelRun,
+                 class_names: Sequence[str]) -> dict[str, list[float]]:
+    """Occlusion mAP ``[value, low, high]`` of a model's run, of the same model with its
+    memory dropped, and their paired difference (per-drive bootstrap)."""
+    from suit_ros.accuracy import bootstrap
+    from suit_ros.evaluate import run_model
+    runs = {'model': occlusion_run(plain, drives)}
+    if model.cfg.temporal != 'none':
+        runs['memory dropped'] = occlusion_run(run_model(model, drives, drop_memory=True),
+                                               drives)
+    out, diffs = bootstrap(runs, class_names,
+                           [('model', 'memory dropped')] if len(runs) > 1 else [])
+    def listed(i: Any) -> list[float]:
+        return [round(i.value, 3), round(i.low, 3), round(i.high, 3)]
+    result = {k: listed(v['mAP']) for k, v in out.items()}
+    for v in diffs.values():
+        result['difference'] = listed(v['mAP'])
+    return result
+
+
 def intervals(counts: OutageCounts, resamples: int = 200, seed: int = 0
               ) -> dict[str, list[list[float]]]:
     """Per outage frame ``[value, low, high]`` of recall and sector precision (per-drive
@@ -242,13 +297,13 @@ def run(args: argparse.Namespace) -> int:
     seqs = [with_outages(seq, o) for seq, o in zip(plain, outs)]
     result: dict[str, Any] = {'drives': args.drives, 'frames': args.frames,
                               'width_deg': args.width, 'length': args.length, 'runs': {},
-                              'occlusion': {}}
+                              'occlusion': {}, 'occlusion_ap': {}}
     for name, path in models.items():
         model, cfg, meta = load_checkpoint(path)
         thr = published_thresholds(meta, cfg.class_names)
         for tracked in (False, True):
             key = f'{name}, tracker' if tracked else name
-            counts = count_outage(seqs, _detections(model, seqs, tracked), outs, thr,
+            counts = count_outage(seqs, _by_drive(_run(model, seqs, tracked)), outs, thr,
                                   args.length)
             result['runs'][key] = r = intervals(counts)
             print(f'{key:<24} recall by outage frame ' + ' '.join(f'{v[0]:.2f}' for v in
@@ -256,11 +311,19 @@ def run(args: argparse.Namespace) -> int:
                   + f' | frames 3+: {_band(r["recall_from_frame_3"])} | sector precision '
                   + ' '.join(f'{v[0]:.2f}' for v in r['sector_precision']), flush=True)
             if args.occlusion:
-                occ = count_occlusion(plain, _detections(model, plain, tracked), thr)
+                run_ = _run(model, plain, tracked)
+                occ = count_occlusion(plain, _by_drive(run_), thr)
                 result['occlusion'][key] = o = intervals(occ)
                 print(f'{key:<24} occluded objects, recall by frames since last seen '
                       + ' '.join(f'{v[0]:.2f}' for v in o['recall'])
                       + f' | 3-10 frames: {_band(o["recall_from_frame_3"])}', flush=True)
+                if not tracked:
+                    result['occlusion_ap'][name] = a = occlusion_ap(model, plain, run_,
+                                                                    cfg.class_names)
+                    print(f'{name:<24} occlusion mAP {_band(a["model"])}'
+                          + (f' | memory dropped {_band(a["memory dropped"])} | difference '
+                             f'{_band(a["difference"])}' if 'difference' in a else ''),
+                          flush=True)
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(result, indent=2), encoding='utf-8')
     if args.markdown:
@@ -300,6 +363,16 @@ def tables(result: dict[str, Any]) -> str:
         lines.append('| objects | ' + ' | '.join(str(c) for c in
                                                    next(iter(occ.values()))['objects'])
                      + ' | |')
+    occ_ap = result.get('occlusion_ap') or {}
+    if occ_ap:
+        lines += ['', 'Occlusion AP (objects without returns now that had returns within 10 '
+                  'frames; detections on visible objects ignored), with the memory dropped '
+                  'before every frame, and the paired difference (what the memory is worth):',
+                  '', '| model | mAP | memory dropped | difference |', '|---|---|---|---|']
+        for key, a in occ_ap.items():
+            lines.append(f'| {key} | {_band(a["model"])} | '
+                         + (f'{_band(a["memory dropped"])} | {_band(a["difference"])} |'
+                            if 'difference' in a else '| |'))
     return '\n'.join(lines) + '\n'
 
 
@@ -307,11 +380,14 @@ def _band(v: Any) -> str:
     return f'{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]'
 
 
-def _detections(model: Any, seqs: Sequence[Sequence[Frame]], tracked: bool
-                ) -> list[list[Detections]]:
-    """Each drive's detections as the node decodes them (with or without its tracker)."""
-    from suit_ros.accuracy import drive_frames
+def _run(model: Any, seqs: Sequence[Sequence[Frame]], tracked: bool) -> ModelRun:
+    """The drives as the node decodes them (with or without its tracker)."""
     from suit_ros.evaluate import run_model
     from suit_ros.tracking import TrackerConfig
-    r = run_model(model, seqs, tracker=TrackerConfig() if tracked else None)
-    return [[r.det[i] for i in frames] for frames in drive_frames(r)]
+    return run_model(model, seqs, tracker=TrackerConfig() if tracked else None)
+
+
+def _by_drive(run: ModelRun) -> list[list[Detections]]:
+    """Each drive's detections."""
+    from suit_ros.accuracy import drive_frames
+    return [[run.det[i] for i in frames] for frames in drive_frames(run)]

@@ -1,6 +1,8 @@
 """The outage benchmark (suit_ros.outage): sectors removed, objects counted where they vanish."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -93,6 +95,37 @@ def test_occluded_objects_are_counted_by_frames_since_last_seen():
     assert '| objects | 1 | 1 | 1 | 0 | 0 | |' in text
 
 
+def test_occlusion_ap_scores_only_the_occluded_objects():
+    """The car ahead is occluded at frames 4-6: the occlusion run's GT holds it there and
+    nowhere else; a box on the visible car behind counts as neither true nor false, a box
+    where nothing is counts as false."""
+    from suit_ros.evaluate import ModelRun
+    from suit_ros.outage import occlusion_run
+    frames = drive()
+    for k in (4, 5, 6):
+        frames[k] = Frame(frames[k].points, frames[k].pose, frames[k].stamp_ns, 'lidar',
+                          frames[k].gt, np.array([0, 50], np.uint32), frames[k].instance_ids)
+    ahead = Detections(np.array([box(10.5, 0)]), np.zeros((1, 2)), np.array([0.9]), [0])
+    behind = Detections(np.array([box(-10.2, 0)]), np.zeros((1, 2)), np.array([0.8]), [0])
+    ghost = Detections(np.array([box(0, 20)]), np.zeros((1, 2)), np.array([0.95]), [0])
+    dets = [behind] * 4 + [ahead, behind, ahead] + [behind] * 5
+    plain = ModelRun([f.gt for f in frames], dets, [f.num_points for f in frames], [0.0] * 12,
+                     [0] * 12, {}, [0] * 12)
+    occ = occlusion_run(plain, [frames])
+    assert [len(g) for g in occ.gt] == [0] * 4 + [1, 1, 1] + [0] * 5
+    result = occ.evaluate(('car', 'truck', 'pedestrian', 'cyclist'))
+    assert result.num_gt['car'] == 3 and result.class_ap['car'] > 0
+    # the boxes on the visible car change nothing: the same AP as without them
+    only = [d if d is ahead else Detections.empty() for d in dets]
+    alone = occlusion_run(replace(plain, det=only), [frames]).evaluate(
+        ('car', 'truck', 'pedestrian', 'cyclist'))
+    assert alone.class_ap['car'] == result.class_ap['car']
+    dets[0] = ghost
+    worse = occlusion_run(replace(plain, det=dets), [frames]).evaluate(
+        ('car', 'truck', 'pedestrian', 'cyclist'))
+    assert worse.class_ap['car'] < result.class_ap['car']
+
+
 @pytest.mark.slow
 def test_outage_command_runs(tmp_path, capsys):
     from suit_ros.cli import main
@@ -101,4 +134,4 @@ def test_outage_command_runs(tmp_path, capsys):
                  str(tmp_path / 'cache'), '--json-out', str(out)]) == 0
     text = capsys.readouterr().out
     assert 'SUIT, tracker' in text and 'single frame' in text and out.is_file()
-    assert 'frames since last seen' in text
+    assert 'frames since last seen' in text and 'occlusion mAP' in text
