@@ -2,6 +2,13 @@
 from __future__ import annotations
 
 import os
+import sys
+
+# Byte-code caches on, here and in every process a test starts: with PYTHONDONTWRITEBYTECODE
+# set (as on this project's machines) every run compiled the package and re-rewrote every
+# test module (collection 5.6 s -> 2.9 s; each node process a test starts imports faster).
+sys.dont_write_bytecode = False
+os.environ.pop('PYTHONDONTWRITEBYTECODE', None)
 
 # Set before any test imports rclpy (and inherited by every process a test starts).
 from suit_ros.rosenv import local_ros_env  # noqa: E402
