@@ -9,7 +9,7 @@ its sidewalks, so the model never learned to look under one.
 
 :func:`draw_slabs` places flat slabs of returns (a footprint of 1.5-5 m, 2.2-4 m above the
 ground, 0.1-1.2 m thick) over about half the small objects of a clip (pedestrians, cyclists),
-over a few large ones, and over as many empty places (so that a roof is no cue for an object);
+over a quarter of the large ones (cars parked under street trees), and over as many empty places (so that a roof is no cue for an object);
 :func:`add_slabs` adds their returns to a frame. Slabs are fixed in the odometry frame, so they
 stay put across the frames of a clip while the ego moves; each frame draws fresh returns,
 denser near the sensor, with the time lags of the frame's own sweeps.
@@ -42,7 +42,7 @@ class Slab:
 
 
 def draw_slabs(frame: Frame, rng: np.random.Generator, small_probability: float = 0.5,
-               large_probability: float = 0.1, extra: int = 2, reach_m: float = 40.0
+               large_probability: float = 0.25, extra: int = 2, reach_m: float = 40.0
                ) -> list[Slab]:
     """Slabs over some of ``frame``'s GT objects and over empty places (model frame: points
     and boxes in base_link, ``pose`` = ``T_odom_base``)."""
