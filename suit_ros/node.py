@@ -27,7 +27,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from rclpy.qos_overriding_options import QoSOverridingOptions
-from rclpy.utilities import try_shutdown
+from rclpy.utilities import ok, try_shutdown
 from sensor_msgs.msg import PointCloud2
 from std_srvs.srv import Trigger
 from visualization_msgs.msg import MarkerArray
@@ -173,9 +173,13 @@ def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run suit_ros detector`` (sets no discovery variable).
 
     rclpy's own SIGINT handler shuts the context down at once, while the worker may be
-    publishing a frame; here Ctrl-C raises KeyboardInterrupt in the executor instead, and the
-    worker is stopped (:meth:`DetectorNode.destroy_node`) before the context goes.
+    publishing a frame; a KeyboardInterrupt raised anywhere inside the executor can leave its
+    locks held (seen as a hang on Ctrl-C under load). Here SIGINT and SIGTERM only set a flag;
+    the executor spins in steps of at most 0.1 s and, once the flag is up, the worker is
+    stopped (:meth:`DetectorNode.destroy_node`) before the context goes.
     """
+    import signal
+
     from rclpy.signals import SignalHandlerOptions
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
@@ -184,14 +188,18 @@ def main(args: list[str] | None = None) -> int:
         print(f'[detector] cannot start: {exc}', file=sys.stderr)
         try_shutdown()
         return 1
+    stop = threading.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(sig, lambda *_: stop.set())
     # One executor thread: every callback only queues its message, and the model runs in the
     # worker thread. rclpy's MultiThreadedExecutor (tried: 3 threads, one callback group per
     # input) kept two cores busy spinning and lost 13-69 of 100 reliable clouds in the reader.
     executor = SingleThreadedExecutor()
     executor.add_node(node)
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
+        while not stop.is_set() and ok():
+            executor.spin_once(timeout_sec=0.1)
+    except ExternalShutdownException:
         pass
     finally:
         executor.shutdown()

@@ -112,7 +112,10 @@ def test_a_frame_id_change_stays_visible_in_diagnostics(node_and_watcher):
     assert proc.poll() is None
 
 
-def test_ctrl_c_while_clouds_flow_stops_cleanly(checkpoint):
+@pytest.mark.parametrize('sig', [signal.SIGINT, signal.SIGTERM])
+def test_ctrl_c_while_clouds_flow_stops_cleanly(checkpoint, sig):
+    """Ctrl-C (or a launch's SIGTERM) while clouds flow: the worker stops before the
+    context goes, the process exits 0 without an error."""
     proc = start_node(checkpoint, 'diagnostics_period_s:=0.2')
     w = Watcher()
     try:
@@ -122,7 +125,7 @@ def test_ctrl_c_while_clouds_flow_stops_cleanly(checkpoint):
             w.pub.publish(cloud(base + k * S // 20, n=20000))
             w.p.spin_for(0.05)
         assert w.dets, 'the node published nothing'
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(sig)
         for k in range(10):                               # clouds keep coming meanwhile
             w.pub.publish(cloud(base + (40 + k) * S // 20, n=20000))
             w.p.spin_for(0.05)
