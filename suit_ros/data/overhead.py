@@ -10,9 +10,10 @@ its sidewalks, so the model never learned to look under one.
 :func:`draw_slabs` places flat slabs of returns (a footprint of 1.5-5 m, 2.2-4 m above the
 ground, 0.1-1.2 m thick) over about half the small objects of a clip (pedestrians, cyclists),
 over a quarter of the large ones (cars parked under street trees) and over as many empty
-places (so that a roof is no cue for an object); :func:`add_slabs` adds their returns to a frame. Slabs are fixed in the odometry frame, so they
-stay put across the frames of a clip while the ego moves; each frame draws fresh returns,
-denser near the sensor, with the time lags of the frame's own sweeps.
+places (so that a roof is no cue for an object); :func:`add_slabs` adds their returns to a
+frame. Slabs are fixed in the odometry frame, so they stay put across the frames of a clip
+while the ego moves; each frame draws fresh returns, denser near the sensor, with the time
+lags of the frame's own sweeps.
 """
 from __future__ import annotations
 
