@@ -18,11 +18,10 @@ Frames 1-2 are carried by the previous sweeps in the input (3 sweeps); from fram
 memory can hold an object.
 
 On the drives as the sensor saw them (natural occlusion: objects behind others), recall by
-frames since an object was last visible, and the **occlusion AP**: AP where the objects are
-those without returns now that had returns within the last 10 frames, and detections on the
-visible objects count as neither true nor false (:func:`occlusion_run`); each model also
-runs with its memory dropped before every frame, and the paired difference is what the
-memory is worth there.
+frames since an object was last visible, and the **occlusion mAP**: mAP over the frames with
+an object occluded for 1-10 frames, whose GT keeps those objects (they are still there;
+:func:`occlusion_run`); each model also runs with its memory dropped before every frame, and
+the paired difference is what the memory is worth there.
 """
 from __future__ import annotations
 
@@ -191,29 +190,39 @@ def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
 
 def occlusion_run(run: ModelRun, drives: Sequence[Sequence[Frame]], max_gap: int = 10
                   ) -> ModelRun:
-    """``run`` (over ``drives``, in order) scored on occluded objects only: per frame the GT
-    is the objects without returns that had returns 1..``max_gap`` frames before, within
-    50 m; every other GT box is ignored (a detection there is neither true nor false)."""
+    """``run`` (over ``drives``, in order) on its occlusion frames: the frames with an object
+    within 50 m that has no returns now and had returns 1..``max_gap`` frames before; their
+    GT is every object with returns plus those occluded ones (still there); an object unseen
+    for longer, or never seen, is ignored (a detection on it is neither true nor false)."""
+    keep_frames: list[int] = []
     gt: list[Detections] = []
     ignore: list[NDArray[np.float32] | None] = []
     num: list[Any] = []
+    i = 0
     for frames in drives:
         last_seen: dict[int, int] = {}
         for k, f in enumerate(frames):
             if f.gt is None or f.instance_ids is None or f.num_points is None:
                 raise ValueError('occlusion_run needs GT with instance ids and point counts')
             ids, counts = f.instance_ids.tolist(), f.num_points.tolist()
-            gap = np.array([k - last_seen[i] if c == 0 and i in last_seen else 0
-                            for i, c in zip(ids, counts)], np.int64)
+            gap = np.array([k - last_seen[j] if c == 0 and j in last_seen else 0
+                            for j, c in zip(ids, counts)], np.int64)
             near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
-            occluded = near & (gap > 0) & (gap <= max_gap)
-            gt.append(f.gt.select(occluded))
-            ignore.append(f.gt.boxes[~occluded].astype(np.float32))
-            num.append(np.ones(int(occluded.sum()), np.uint32))
-            last_seen.update({i: k for i, c in zip(ids, counts) if c > 0})
-    if len(gt) != len(run.det):
-        raise ValueError(f'the run has {len(run.det)} frames, the drives {len(gt)}')
-    return replace(run, gt=gt, num_points=num, ignore=ignore)
+            occluded = (gap > 0) & (gap <= max_gap)
+            if (occluded & near).any():
+                kept = (f.num_points > 0) | occluded
+                keep_frames.append(i)
+                gt.append(f.gt.select(kept))
+                ignore.append(f.gt.boxes[~kept].astype(np.float32))
+                num.append(np.maximum(f.num_points[kept], 1))
+            last_seen.update({j: k for j, c in zip(ids, counts) if c > 0})
+            i += 1
+    if i != len(run.det):
+        raise ValueError(f'the run has {len(run.det)} frames, the drives {i}')
+    return replace(run, gt=gt, det=[run.det[j] for j in keep_frames], num_points=num,
+                   ignore=ignore, latency_s=[run.latency_s[j] for j in keep_frames],
+                   memory_bytes=[run.memory_bytes[j] for j in keep_frames],
+                   drive=[run.drive[j] for j in keep_frames])
 
 
 def occlusion_ap(model: Any, drives: Sequence[Sequence[Frame]], plain: ModelRun,
@@ -365,9 +374,9 @@ def tables(result: dict[str, Any]) -> str:
                      + ' | |')
     occ_ap = result.get('occlusion_ap') or {}
     if occ_ap:
-        lines += ['', 'Occlusion AP (objects without returns now that had returns within 10 '
-                  'frames; detections on visible objects ignored), with the memory dropped '
-                  'before every frame, and the paired difference (what the memory is worth):',
+        lines += ['', 'Occlusion mAP (the frames with an object occluded for 1-10 frames, '
+                  'its GT kept), with the memory dropped before every frame, and the paired '
+                  'difference (what the memory is worth):',
                   '', '| model | mAP | memory dropped | difference |', '|---|---|---|---|']
         for key, a in occ_ap.items():
             lines.append(f'| {key} | {_band(a["model"])} | '

@@ -95,35 +95,37 @@ def test_occluded_objects_are_counted_by_frames_since_last_seen():
     assert '| objects | 1 | 1 | 1 | 0 | 0 | |' in text
 
 
-def test_occlusion_ap_scores_only_the_occluded_objects():
-    """The car ahead is occluded at frames 4-6: the occlusion run's GT holds it there and
-    nowhere else; a box on the visible car behind counts as neither true nor false, a box
-    where nothing is counts as false."""
+def test_occlusion_run_keeps_the_occluded_objects_on_the_occlusion_frames():
+    """The car ahead is occluded at frames 4-6: only those frames are scored, their GT keeps
+    it with the visible car behind; a detector that holds it scores higher than one that
+    drops it, and a box where nothing is costs."""
     from suit_ros.evaluate import ModelRun
     from suit_ros.outage import occlusion_run
     frames = drive()
     for k in (4, 5, 6):
         frames[k] = Frame(frames[k].points, frames[k].pose, frames[k].stamp_ns, 'lidar',
                           frames[k].gt, np.array([0, 50], np.uint32), frames[k].instance_ids)
-    ahead = Detections(np.array([box(10.5, 0)]), np.zeros((1, 2)), np.array([0.9]), [0])
-    behind = Detections(np.array([box(-10.2, 0)]), np.zeros((1, 2)), np.array([0.8]), [0])
-    ghost = Detections(np.array([box(0, 20)]), np.zeros((1, 2)), np.array([0.95]), [0])
-    dets = [behind] * 4 + [ahead, behind, ahead] + [behind] * 5
-    plain = ModelRun([f.gt for f in frames], dets, [f.num_points for f in frames], [0.0] * 12,
-                     [0] * 12, {}, [0] * 12)
-    occ = occlusion_run(plain, [frames])
-    assert [len(g) for g in occ.gt] == [0] * 4 + [1, 1, 1] + [0] * 5
-    result = occ.evaluate(('car', 'truck', 'pedestrian', 'cyclist'))
-    assert result.num_gt['car'] == 3 and result.class_ap['car'] > 0
-    # the boxes on the visible car change nothing: the same AP as without them
-    only = [d if d is ahead else Detections.empty() for d in dets]
-    alone = occlusion_run(replace(plain, det=only), [frames]).evaluate(
-        ('car', 'truck', 'pedestrian', 'cyclist'))
-    assert alone.class_ap['car'] == result.class_ap['car']
-    dets[0] = ghost
-    worse = occlusion_run(replace(plain, det=dets), [frames]).evaluate(
-        ('car', 'truck', 'pedestrian', 'cyclist'))
-    assert worse.class_ap['car'] < result.class_ap['car']
+    both = Detections(np.array([box(10.5, 0), box(-10.2, 0)]), np.zeros((2, 2)),
+                      np.array([0.9, 0.8]), [0, 0])
+    behind = both.select(np.array([False, True]))
+    with_ghost = Detections(np.array([box(10.5, 0), box(-10.2, 0), box(0, 20)]),
+                            np.zeros((3, 2)), np.array([0.9, 0.8, 0.95]), [0, 0, 0])
+    names = ('car', 'truck', 'pedestrian', 'cyclist')
+
+    def scored(dets):
+        run = ModelRun([f.gt for f in frames], dets, [f.num_points for f in frames],
+                       [0.0] * 12, [0] * 12, {}, [0] * 12)
+        return occlusion_run(run, [frames])
+    held = scored([both] * 12)
+    assert len(held.gt) == 3 and all(len(g) == 2 for g in held.gt)
+    assert held.num_points[0].tolist() == [1, 50]
+    dropped = scored([behind] * 12)
+    haunted = scored([both] * 4 + [with_ghost] * 3 + [both] * 5)
+    ap = {k: r.evaluate(names).class_ap['car'] for k, r in
+          (('held', held), ('dropped', dropped), ('haunted', haunted))}
+    assert ap['held'] > ap['haunted'] and ap['held'] > ap['dropped'], ap
+    with pytest.raises(ValueError, match='frames'):
+        occlusion_run(replace(held, det=held.det[:2]), [frames])      # not the drives' run
 
 
 @pytest.mark.slow
