@@ -21,7 +21,10 @@ TEMPORAL_MODES: tuple[str, ...] = get_args(TemporalMode)
 # where the memory's past term enters the fused map: everywhere (the paper), or only at head
 # cells whose neighbourhood has no return in the current input (the memory fills what the
 # sweeps do not see: occlusion, a lost sector; what is seen now is left as the sweep shows it)
-FusionGate = Literal['none', 'unobserved']
+# unobserved: the memory's past term enters only the head cells without returns;
+# unobserved_output: also the head's outputs at cells with returns are the current frame's
+# alone (the head run again without the past term), so the memory cannot move them
+FusionGate = Literal['none', 'unobserved', 'unobserved_output']
 FUSION_GATES: tuple[str, ...] = get_args(FusionGate)
 RELAXATIONS: tuple[str, ...] = get_args(Relaxation)
 

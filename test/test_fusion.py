@@ -193,3 +193,32 @@ def test_the_carry_holds_an_object_through_empty_frames_then_lets_it_go():
     losses = model.forward_sequence([[frame(t) for t in range(3)]])
     losses['loss'].backward()
     assert model.fusion.past.weight.grad is not None
+
+
+def test_the_output_gate_keeps_the_observed_cells_as_the_current_frame_alone():
+    """``fusion_gate: unobserved_output``: a past term next to observed cells reaches their
+    outputs through the head's receptive field with the input gate only; with the output gate
+    those cells decode exactly as without a memory, the unobserved ones still see the past."""
+    from suit_ros.model.fusion import PastTerm
+    torch.manual_seed(0)
+    pts = torch.from_numpy(np.array([[0.1, 0.1, 0.5, 0.5, 0.0]] * 5, np.float32))
+    outs = {}
+    for gate in ('unobserved', 'unobserved_output'):
+        torch.manual_seed(0)
+        model = SUITDetector(replace(small_config('suit'), fusion_gate=gate)).eval()
+        with torch.no_grad():
+            current, observed = model.encode_observed([pts])
+            H, W = observed.shape[1:]
+            r, c = torch.nonzero(observed[0])[0].tolist()
+            near = torch.tensor([(r - 1) * W + c, (r - 2) * W + c])   # unobserved, next to it
+            past = PastTerm(near, torch.full((2, current.shape[1]), 5.0),
+                            (1, current.shape[1], H, W))
+            fused = model.fuse(current, past, observed)
+            preds = model.predict(current, past, fused, observed)
+            alone = model.head(model.fusion(current, None))
+        outs[gate] = (preds['heatmap'], alone['heatmap'], observed)
+    hm, alone, obs = outs['unobserved']
+    assert not torch.allclose(hm[0, :, obs[0]], alone[0, :, obs[0]])        # leaks in
+    hm, alone, obs = outs['unobserved_output']
+    assert torch.equal(hm[0, :, obs[0]], alone[0, :, obs[0]])
+    assert not torch.allclose(hm[0, :, ~obs[0]], alone[0, :, ~obs[0]])

@@ -190,6 +190,19 @@ class SUITDetector(nn.Module):
                             aux['carry_shift'], aux['T_now_prev'].numpy(), poses,
                             list(stamps_ns))
 
+    def predict(self, current: Tensor, past: Tensor | PastTerm | None, fused: Tensor,
+                observed: Tensor | None) -> dict[str, Tensor]:
+        """The head on the fused map; with ``fusion_gate: unobserved_output`` its outputs at
+        the observed cells are those of the current frame alone (the head's receptive field
+        would otherwise carry the past term from the unobserved cells next to them)."""
+        preds: dict[str, Tensor] = self.head(fused)
+        if (self.cfg.fusion_gate != 'unobserved_output' or past is None or observed is None
+                or self.fusion is None):
+            return preds
+        own: dict[str, Tensor] = self.head(self.fusion(current, None))
+        seen = observed[:, None]
+        return {k: torch.where(seen, own[k], v) for k, v in preds.items()}
+
     def sample_memory(self, fused: Tensor, preds: dict[str, Tensor],
                       poses: NDArray[np.float64], stamps_ns: Sequence[int],
                       carried: SparseMemory | None = None,
@@ -254,7 +267,7 @@ class SUITDetector(nn.Module):
             current, observed = self.encode_observed(points)
             past, aux = self.past_term(memory, poses, stamps)
             fused = self.fuse(current, past, observed)
-            preds = self.head(fused)
+            preds = self.predict(current, past, fused, observed)
             targets = self.head.build_targets(*gt_tensors(step, device))
             losses = self.head.loss(preds, targets)
             totals['hm_loss'] = totals['hm_loss'] + losses['hm_loss']

@@ -183,7 +183,7 @@ class StreamingDetector:
             self.last_terms = (own.float(),
                                past.dense() if isinstance(past, PastTerm) else past)
         t3 = self._sync()
-        preds = m.head(fused)
+        preds = m.predict(current, past, fused, observed)
         h = self.cfg.head
         radius = torch.tensor(h.circle_nms_radius, device=self.device)
         out = m.head.decode(preds, self.candidates, self.decode_thresholds, h.nms,
