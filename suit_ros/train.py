@@ -258,6 +258,15 @@ def _optimizer(module: Any, tc: TrainConfig) -> Any:
     return torch.optim.AdamW(groups, lr=tc.lr, weight_decay=tc.weight_decay, betas=(0.95, 0.99))
 
 
+def _augmented(clips: list[list[Frame]], tc: TrainConfig, rng: np.random.Generator
+               ) -> list[list[Frame]]:
+    """A batch's clips augmented as the config asks."""
+    if not tc.augment:
+        return clips
+    from suit_ros.data import augment
+    return [augment.apply_clip(_overhead(c, tc, rng), _draw(tc, rng)) for c in clips]
+
+
 def _overhead(clip: list[Frame], tc: TrainConfig, rng: np.random.Generator) -> list[Frame]:
     """The clip with overhead slabs in ``overhead_probability`` of the clips (no draw at 0,
     so older recipes replay the same augmentations)."""
@@ -372,7 +381,6 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
 
     from suit_ros.checkpoint import load_weights_into
     from suit_ros.config import load_model_config
-    from suit_ros.data import augment
     from suit_ros.data.sequences import ClipSampler
     from suit_ros.model.detector import SUITDetector
 
@@ -420,9 +428,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     while True:                      # at least one step per call, then until the budget is spent
         lr = _schedule(opt, progress(), tc.lr)
         clips, lost = sampler.batch_with_outages(batch)
-        if tc.augment:
-            clips = [augment.apply_clip(_overhead(c, tc, aug_rng), _draw(tc, aug_rng))
-                     for c in clips]
+        clips = _augmented(clips, tc, aug_rng)
         vals = _optimise(model, module, opt, clips, tc.grad_clip, lost, distiller)
         step += 1
         if not math.isfinite(vals['loss']):
