@@ -152,8 +152,9 @@ def validate(cfg: ModelConfig) -> None:
         raise bad(f'sampling.carry_frames must be within 0..20, got {cfg.sampling.carry_frames}')
     if cfg.sampling.carry_frames and (cfg.fusion_gate == 'none' or cfg.temporal
                                       not in ('sparse', 'sparse_velocity', 'suit')):
-        raise bad('sampling.carry_frames needs a sparse memory and fusion_gate: unobserved '
-                  '(a sample is carried only where the current input has no returns)')
+        raise bad('sampling.carry_frames needs a sparse memory and a fusion_gate (unobserved '
+                  'or unobserved_output): a sample is carried only where the current input '
+                  'has no returns')
     if not cfg.class_names or len(set(cfg.class_names)) != len(cfg.class_names):
         raise bad('class_names must be a non-empty list of unique names')
     r = cfg.pillars.point_range

@@ -26,7 +26,7 @@ the paired difference is what the memory is worth there.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass, replace
 import json
 from pathlib import Path
@@ -152,6 +152,21 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
     return OutageCounts(objects, found, boxes, true)
 
 
+def frames_since_seen(frames: Sequence[Frame]
+                      ) -> Iterator[tuple[Frame, NDArray[np.int64] | None]]:
+    """Each frame of a drive with, per GT object, the frames since it last had returns (0:
+    it has returns now, or it never had); None for a frame without GT ids and point counts."""
+    last_seen: dict[int, int] = {}
+    for k, f in enumerate(frames):
+        if f.gt is None or f.instance_ids is None or f.num_points is None:
+            yield f, None
+            continue
+        ids, counts = f.instance_ids.tolist(), f.num_points.tolist()
+        yield f, np.array([k - last_seen[i] if c == 0 and i in last_seen else 0
+                           for i, c in zip(ids, counts)], np.int64)
+        last_seen.update({i: k for i, c in zip(ids, counts) if c > 0})
+
+
 def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
                     det_seqs: Sequence[Sequence[Detections]], thresholds: Sequence[float],
                     max_gap: int = 10) -> OutageCounts:
@@ -168,13 +183,9 @@ def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
     found = np.zeros((n, max_gap), np.int64)
     thr = np.asarray(thresholds, np.float64)
     for d, (frames, dets) in enumerate(zip(gt_seqs, det_seqs)):
-        last_seen: dict[int, int] = {}
-        for k, (f, det) in enumerate(zip(frames, dets)):
-            if f.gt is None or f.instance_ids is None or f.num_points is None:
+        for (f, gap), det in zip(frames_since_seen(frames), dets):
+            if gap is None or f.gt is None:
                 continue
-            ids = f.instance_ids.astype(np.int64)
-            gap = np.array([k - last_seen[i] if c == 0 and i in last_seen else 0
-                            for i, c in zip(ids.tolist(), f.num_points.tolist())])
             near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
             pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
             for g in np.unique(gap[near & (gap > 0) & (gap <= max_gap)]):
@@ -182,8 +193,6 @@ def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
                 objects[d, g - 1] += len(gt)
                 for c in range(len(thresholds)):
                     found[d, g - 1] += int(match_frame(gt, pub, c, MATCH_DIST).tp.sum())
-            last_seen.update({i: k for i, c in zip(ids.tolist(), f.num_points.tolist())
-                              if c > 0})
     zeros = np.zeros_like(objects)
     return OutageCounts(objects, found, zeros, zeros.copy())
 
@@ -200,13 +209,9 @@ def occlusion_run(run: ModelRun, drives: Sequence[Sequence[Frame]], max_gap: int
     num: list[Any] = []
     i = 0
     for frames in drives:
-        last_seen: dict[int, int] = {}
-        for k, f in enumerate(frames):
-            if f.gt is None or f.instance_ids is None or f.num_points is None:
+        for f, gap in frames_since_seen(frames):
+            if gap is None or f.gt is None or f.num_points is None:
                 raise ValueError('occlusion_run needs GT with instance ids and point counts')
-            ids, counts = f.instance_ids.tolist(), f.num_points.tolist()
-            gap = np.array([k - last_seen[j] if c == 0 and j in last_seen else 0
-                            for j, c in zip(ids, counts)], np.int64)
             near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
             occluded = (gap > 0) & (gap <= max_gap)
             if (occluded & near).any():
@@ -215,7 +220,6 @@ def occlusion_run(run: ModelRun, drives: Sequence[Sequence[Frame]], max_gap: int
                 gt.append(f.gt.select(kept))
                 ignore.append(f.gt.boxes[~kept].astype(np.float32))
                 num.append(np.maximum(f.num_points[kept], 1))
-            last_seen.update({j: k for j, c in zip(ids, counts) if c > 0})
             i += 1
     if i != len(run.det):
         raise ValueError(f'the run has {len(run.det)} frames, the drives {i}')

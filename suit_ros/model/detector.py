@@ -138,11 +138,8 @@ class SUITDetector(nn.Module):
             return self.fusion.past_dense(warped), aux
         okt = torch.from_numpy(ok).to(memory.batch_index.device)
         sel = torch.nonzero(okt[memory.batch_index], as_tuple=True)[0]
-        bi = memory.batch_index[sel]
-        feats, probs, mask = memory.features[sel], memory.probs[sel], memory.mask[sel]
-        sub = SparseMemory(bi, memory.cell_xy[sel], feats, probs, mask, memory.boxes[sel],
-                           memory.velocities[sel], memory.stamps_ns, memory.poses,
-                           memory.window)
+        sub = memory.select(sel)
+        bi, feats, probs, mask = sub.batch_index, sub.features, sub.probs, sub.mask
         positions = transform_sample_positions(sub, T_now_prev)
         dts = torch.from_numpy(dt).to(feats)[bi]                               # (M,)
         M = feats.shape[0]

@@ -16,7 +16,7 @@ either the object is detected there anew or it is gone.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from torch import Tensor
@@ -169,14 +169,10 @@ def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
     """
     P = new.cell_xy.shape[1]
     seen_new = cell_flags(observed, new.batch_index, new.cell_xy[:, P // 2], grid)
-    c_centre = carried.cell_xy[:, P // 2]
-    inside = cell_flags(torch.ones_like(observed), carried.batch_index, c_centre, grid)
-    seen_old = cell_flags(observed, carried.batch_index, c_centre, grid)
-    carried = carried.select(torch.nonzero(inside & ~seen_old
+    unseen_old = cell_flags(~observed, carried.batch_index, carried.cell_xy[:, P // 2], grid)
+    carried = carried.select(torch.nonzero(unseen_old
                                            & (carried.age() <= cfg.carry_frames))[:, 0])
-    ages = torch.where(seen_new, 0, cfg.carry_frames)
-    new = SparseMemory(new.batch_index, new.cell_xy, new.features, new.probs, new.mask,
-                       new.boxes, new.velocities, new.stamps_ns, new.poses, new.window, ages)
+    new = replace(new, ages=torch.where(seen_new, 0, cfg.carry_frames))
     both = concat_memories(new, carried)
     centre_p = both.probs[:, P // 2].detach().float()
     tier = torch.cat([torch.where(seen_new, 2.0, 0.0),
