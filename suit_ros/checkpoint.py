@@ -221,6 +221,13 @@ def load_weights_into(model: torch.nn.Module, path: str | os.PathLike[str]) -> l
     if not shared:
         raise CheckpointError(f'{path} shares no tensors with this model')
     model.load_state_dict(shared, strict=False)
+    carry_head = getattr(getattr(model, 'carry', None), 'head', None)
+    head = getattr(model, 'head', None)
+    if (isinstance(carry_head, torch.nn.Module) and isinstance(head, torch.nn.Module)
+            and not any(k.startswith('carry.head.') for k in shared)):
+        # a carry branch's head starts as the model's own (fusion_gate: carry_branch)
+        carry_head.load_state_dict(head.state_dict())
+        shared.update({f'carry.head.{k}': v for k, v in head.state_dict().items()})
     pillars = getattr(model, 'pillars', None)
     if isinstance(pillars, PillarEncoder) and 'pillars.linear.weight' in shared:
         config = meta.get('config')

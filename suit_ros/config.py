@@ -23,8 +23,11 @@ TEMPORAL_MODES: tuple[str, ...] = get_args(TemporalMode)
 # sweeps do not see: occlusion, a lost sector; what is seen now is left as the sweep shows it)
 # unobserved: the memory's past term enters only the head cells without returns;
 # unobserved_output: also the head's outputs at cells with returns are the current frame's
-# alone (the head run again without the past term), so the memory cannot move them
-FusionGate = Literal['none', 'unobserved', 'unobserved_output']
+# alone (the head run again without the past term), so the memory cannot move them;
+# carry_branch: the observed cells decode exactly as without a gate (the model's own past
+# term, everywhere, and its head), the unobserved cells through a second past projection and
+# head of their own (``carry.past``, ``carry.head``), trained to read what the memory carries
+FusionGate = Literal['none', 'unobserved', 'unobserved_output', 'carry_branch']
 FUSION_GATES: tuple[str, ...] = get_args(FusionGate)
 RELAXATIONS: tuple[str, ...] = get_args(Relaxation)
 
@@ -152,9 +155,13 @@ def validate(cfg: ModelConfig) -> None:
         raise bad(f'sampling.carry_frames must be within 0..20, got {cfg.sampling.carry_frames}')
     if cfg.sampling.carry_frames and (cfg.fusion_gate == 'none' or cfg.temporal
                                       not in ('sparse', 'sparse_velocity', 'suit')):
-        raise bad('sampling.carry_frames needs a sparse memory and a fusion_gate (unobserved '
-                  'or unobserved_output): a sample is carried only where the current input '
-                  'has no returns')
+        raise bad('sampling.carry_frames needs a sparse memory and a fusion_gate (unobserved, '
+                  'unobserved_output or carry_branch): a sample is carried only where the '
+                  'current input has no returns')
+    if cfg.fusion_gate == 'carry_branch' and cfg.temporal not in ('sparse', 'sparse_velocity',
+                                                                  'suit'):
+        raise bad(f'fusion_gate carry_branch needs a sparse memory, not temporal '
+                  f'{cfg.temporal!r}')
     if not cfg.class_names or len(set(cfg.class_names)) != len(cfg.class_names):
         raise bad('class_names must be a non-empty list of unique names')
     r = cfg.pillars.point_range

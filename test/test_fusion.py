@@ -222,3 +222,51 @@ def test_the_output_gate_keeps_the_observed_cells_as_the_current_frame_alone():
     hm, alone, obs = outs['unobserved_output']
     assert torch.equal(hm[0, :, obs[0]], alone[0, :, obs[0]])
     assert not torch.allclose(hm[0, :, ~obs[0]], alone[0, :, ~obs[0]])
+
+
+def test_the_carry_branch_decodes_observed_cells_as_the_ungated_model(tmp_path):
+    """``fusion_gate: carry_branch``: with the same memory, the observed cells' outputs equal
+    those of the model without a gate whatever the carry branch's weights are; the unobserved
+    cells are the carry head's on the current features plus the carry W2's term there; a
+    checkpoint without a carry branch starts its head as the model's own."""
+    from suit_ros.checkpoint import load_weights_into, save_checkpoint
+    from suit_ros.model.detector import gate_past
+    from suit_ros.model.fusion import BranchTerms
+    torch.manual_seed(0)
+    plain = SUITDetector(small_config('suit')).eval()
+    with torch.no_grad():
+        plain.fusion.past.weight.normal_(0, 0.2)
+    branch = SUITDetector(replace(small_config('suit'), fusion_gate='carry_branch')).eval()
+    path = save_checkpoint(tmp_path / 'plain.safetensors', plain, plain.cfg)
+    assert load_weights_into(branch, path) == ['carry.past.weight']
+    assert torch.equal(branch.carry.head.heatmap[-1].weight, plain.head.heatmap[-1].weight)
+    with torch.no_grad():
+        branch.carry.past.weight.normal_(0, 0.2)
+        for p in branch.carry.head.parameters():
+            p.add_(torch.randn_like(p) * 0.05)
+    sd = StreamingDetector(plain)
+    f0, f1 = frame(0), frame(1)
+    sd.step(f0.points[:, :4], f0.stamp_ns, f0.pose)
+    pts = torch.from_numpy(f1.points[np.abs(f1.points[:, 0]) < 15])    # part of it unseen
+    poses, stamps = f1.pose[None], [f1.stamp_ns]
+    with torch.no_grad():
+        current, observed = branch.encode_observed([pts])
+        past, _ = branch.past_term(sd.memory, poses, stamps)
+        ref_past, _ = plain.past_term(sd.memory, poses, stamps)
+        assert isinstance(past, BranchTerms) and ref_past is not None
+        preds = branch.predict(current, past, branch.fuse(current, past, observed), observed)
+        ref = plain.predict(current, ref_past, plain.fuse(current, ref_past), None)
+        carried = branch.carry.head(branch.fusion(current, gate_past(past.carry, observed)))
+    seen, unseen = observed[0], ~observed[0]
+    assert seen.any() and unseen.any() and past.carry.index.numel() > 0
+    assert set(preds) == set(ref)
+    for key in preds:
+        assert torch.equal(preds[key][0, :, seen], ref[key][0, :, seen])
+        assert torch.equal(preds[key][0, :, unseen], carried[key][0, :, unseen])
+        assert not torch.allclose(preds[key][0, :, unseen], ref[key][0, :, unseen])
+    # the carry branch trains; the rest can stay frozen
+    branch.train()
+    losses = branch.forward_sequence([[frame(t) for t in range(3)]])
+    losses['loss'].backward()
+    assert branch.carry.past.weight.grad is not None
+    assert branch.carry.head.heatmap[-1].weight.grad is not None

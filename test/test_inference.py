@@ -82,6 +82,23 @@ def test_bfloat16_inference_copy_wraps_the_convolutions_and_keeps_float32_output
         inference_copy(model, precision='float16')
 
 
+def test_bfloat16_inference_copy_wraps_the_carry_head_too():
+    from dataclasses import replace
+
+    from suit_ros.model.inference import Cast, inference_copy
+    torch.manual_seed(0)
+    model = SUITDetector(replace(small_config(), fusion_gate='carry_branch')).eval()
+    fast = inference_copy(model, precision='bfloat16')
+    assert isinstance(fast.head.shared, Cast) and isinstance(fast.carry.head.shared, Cast)
+    assert fast.carry.head.heatmap[-1].weight.dtype == torch.float32
+    assert fast.carry.past.weight.dtype == torch.float32
+    with torch.no_grad():
+        b = fast.encode([torch.from_numpy(cloud_in_grid(1))])
+        pa, pb = model.carry.head(model.fuse(b.float(), None)), fast.carry.head(fast.fuse(b, None))
+    for k in pa:
+        assert (pa[k] - pb[k]).abs().max() <= 0.05 * pa[k].abs().max() + 1e-3, k
+
+
 def test_precision_auto_follows_the_cpu_flags(tmp_path, monkeypatch):
     from suit_ros.model import inference
     amx = tmp_path / 'amx'

@@ -10,6 +10,7 @@ memory, zero displacement), ``sparse_velocity`` (shifted by predicted velocity) 
 from __future__ import annotations
 
 from collections.abc import Sequence
+import copy
 import typing
 
 import numpy as np
@@ -21,7 +22,13 @@ import torch.nn.functional as F
 from suit_ros.config import ModelConfig
 from suit_ros.model.backbone import BEVBackbone
 from suit_ros.model.distill import Distiller
-from suit_ros.model.fusion import PastTerm, TemporalFusion, sparse_past_term, warp_dense
+from suit_ros.model.fusion import (
+    BranchTerms,
+    PastTerm,
+    TemporalFusion,
+    sparse_past_terms,
+    warp_dense,
+)
 from suit_ros.model.geonet import GeoNet
 from suit_ros.model.grid import BEVGrid
 from suit_ros.model.head import CenterHead
@@ -44,6 +51,20 @@ from suit_ros.ops.geometry import se3_inverse
 from suit_ros.structures import Frame
 
 Memory = SparseMemory | DenseMemory
+Past = Tensor | PastTerm | BranchTerms
+
+
+class CarryBranch(nn.Module):
+    """``fusion_gate: carry_branch``: the unobserved cells' own past projection (W2, zero at
+    the start) and head (a copy of the model's head until trained), so that what the memory
+    carries is read there without changing how the observed cells decode."""
+
+    def __init__(self, channels: int, head: CenterHead) -> None:
+        super().__init__()
+        self.past = nn.Linear(channels, channels, bias=False)
+        with torch.no_grad():
+            self.past.weight.zero_()
+        self.head = copy.deepcopy(head)
 
 
 class SUITDetector(nn.Module):
@@ -66,6 +87,8 @@ class SUITDetector(nn.Module):
         self.head = CenterHead(C, len(cfg.class_names), self.grid, h.head_channels,
                                h.code_weights, h.loc_weight, h.min_overlap, h.min_radius,
                                h.max_objects, h.yaw_velocity_min_speed)
+        self.carry = (CarryBranch(C, self.head)
+                      if cfg.fusion_gate == 'carry_branch' and self.fusion is not None else None)
 
     @property
     def device(self) -> torch.device:
@@ -114,14 +137,14 @@ class SUITDetector(nn.Module):
         return dt > 0, dt
 
     def past_term(self, memory: Memory | None, poses: NDArray[np.float64],
-                  stamps_ns: Sequence[int]
-                  ) -> tuple[Tensor | PastTerm | None, dict[str, Tensor]]:
+                  stamps_ns: Sequence[int]) -> tuple[Past | None, dict[str, Tensor]]:
         """The W2-projected past features in the current grid, or None when nothing is fused.
 
         :return: the term (``(B, C, H, W)`` for a dense memory, a sparse :class:`PastTerm` for
-            a sparse one) and aux outputs (``geo_logits``, ``sample_index``,
-            ``T_now_prev``) for the GeoNet loss; with a carry (``sampling.carry_frames``) also
-            ``carry_index``, ``carry_positions`` and ``carry_shift`` for :meth:`carried`.
+            a sparse one, two of them as :class:`BranchTerms` with a carry branch) and aux
+            outputs (``geo_logits``, ``sample_index``, ``T_now_prev``) for the GeoNet loss;
+            with a carry (``sampling.carry_frames``) also ``carry_index``,
+            ``carry_positions`` and ``carry_shift`` for :meth:`carried`.
         """
         aux: dict[str, Tensor] = {}
         if self.fusion is None or memory is None:
@@ -162,17 +185,21 @@ class SUITDetector(nn.Module):
             # the object's own expected displacement since the memory's frame
             shift = disp[:, 0] if q.shape[1] == 1 else (q[:, :, None] * disp).sum(dim=1)
             aux.update(carry_index=sel, carry_positions=positions, carry_shift=shift)
-        term = sparse_past_term(feats, probs, mask, positions, bi, disp, q, self.fusion.past,
-                                self.grid, B, prune)
-        return term, aux
+        projections = [self.fusion.past] + ([self.carry.past] if self.carry is not None else [])
+        terms = sparse_past_terms(feats, probs, mask, positions, bi, disp, q, projections,
+                                  self.grid, B, prune)
+        return (BranchTerms(*terms) if self.carry is not None else terms[0]), aux
 
-    def fuse(self, current: Tensor, past: Tensor | PastTerm | None,
+    def fuse(self, current: Tensor, past: Past | None,
              observed: Tensor | None = None) -> Tensor:
         """Concatenate-and-fuse (a no-op for the single-frame model). With ``observed``
-        (``fusion_gate: unobserved``) the past term enters only the cells without returns."""
+        (``fusion_gate: unobserved``) the past term enters only the cells without returns;
+        with a carry branch this is the model's own fused map, as without a gate."""
         if self.fusion is None:
             return current
-        if observed is not None and past is not None:
+        if isinstance(past, BranchTerms):
+            past = past.own
+        elif observed is not None and past is not None:
             past = gate_past(past, observed)
         fused: Tensor = self.fusion(current, past)
         return fused
@@ -187,17 +214,24 @@ class SUITDetector(nn.Module):
                             aux['carry_shift'], aux['T_now_prev'].numpy(), poses,
                             list(stamps_ns))
 
-    def predict(self, current: Tensor, past: Tensor | PastTerm | None, fused: Tensor,
+    def predict(self, current: Tensor, past: Past | None, fused: Tensor,
                 observed: Tensor | None) -> dict[str, Tensor]:
         """The head on the fused map; with ``fusion_gate: unobserved_output`` its outputs at
         the observed cells are those of the current frame alone (the head's receptive field
-        would otherwise carry the past term from the unobserved cells next to them)."""
+        would otherwise carry the past term from the unobserved cells next to them); with
+        ``carry_branch`` the unobserved cells' outputs are the carry head's on the current
+        features plus the carry projection's past term there."""
         preds: dict[str, Tensor] = self.head(fused)
-        if (self.cfg.fusion_gate != 'unobserved_output' or past is None or observed is None
-                or self.fusion is None):
+        if past is None or observed is None or self.fusion is None:
+            return preds
+        seen = observed[:, None]
+        if isinstance(past, BranchTerms) and self.carry is not None:
+            carried: dict[str, Tensor] = self.carry.head(
+                self.fusion(current, gate_past(past.carry, observed)))
+            return {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
+        if self.cfg.fusion_gate != 'unobserved_output':
             return preds
         own: dict[str, Tensor] = self.head(self.fusion(current, None))
-        seen = observed[:, None]
         return {k: torch.where(seen, own[k], v) for k, v in preds.items()}
 
     def sample_memory(self, fused: Tensor, preds: dict[str, Tensor],

@@ -147,16 +147,17 @@ def _low_precision(model: nn.Module, dtype: torch.dtype) -> int:
         # takes it as it is; the memory's features are gathered from it as float32
         fusion.current = Cast(fusion.current, dtype, dtype)
         wrapped += 1
-    head = getattr(model, 'head', None)
-    if head is not None and isinstance(getattr(head, 'shared', None), nn.Sequential):
-        head.shared = Cast(head.shared, dtype, dtype)
-        wrapped += 1
-        for name in ('heatmap', 'regression'):
-            branch = getattr(head, name)
-            # the 3x3 conv (+ folded norm, ReLU) in low precision, the final 1x1 in float32
-            setattr(head, name, nn.Sequential(Cast(branch[:-1], dtype, torch.float32),
-                                              branch[-1]))
+    carry = getattr(model, 'carry', None)
+    for head in (getattr(model, 'head', None), getattr(carry, 'head', None)):
+        if head is not None and isinstance(getattr(head, 'shared', None), nn.Sequential):
+            head.shared = Cast(head.shared, dtype, dtype)
             wrapped += 1
+            for name in ('heatmap', 'regression'):
+                branch = getattr(head, name)
+                # the 3x3 conv (+ folded norm, ReLU) in low precision, the final 1x1 in float32
+                setattr(head, name, nn.Sequential(Cast(branch[:-1], dtype, torch.float32),
+                                                  branch[-1]))
+                wrapped += 1
     return wrapped
 
 

@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 import torch
 
 from suit_ros.model.detector import Memory, SUITDetector
-from suit_ros.model.fusion import PastTerm
+from suit_ros.model.fusion import BranchTerms, PastTerm
 from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.ops.geometry import count_points_in_boxes
@@ -180,8 +180,9 @@ class StreamingDetector:
         fused = m.fuse(current, past, observed)
         if self.keep_terms:
             own = m.fusion.current(current) if m.fusion is not None else current
+            shown = past.own if isinstance(past, BranchTerms) else past
             self.last_terms = (own.float(),
-                               past.dense() if isinstance(past, PastTerm) else past)
+                               shown.dense() if isinstance(shown, PastTerm) else shown)
         t3 = self._sync()
         preds = m.predict(current, past, fused, observed)
         h = self.cfg.head
