@@ -15,3 +15,10 @@ from suit_ros.rosenv import local_ros_env  # noqa: E402
 
 os.environ.pop('ROS_LOCALHOST_ONLY', None)
 os.environ.update(local_ros_env())     # keeps a ROS_DOMAIN_ID set by scripts/test
+
+# pytest-xdist: each worker is its own ROS graph (the session's id plus the worker's number,
+# wrapped within 1..100), so two workers' nodes and probes never discover each other.
+_worker = os.environ.get('PYTEST_XDIST_WORKER', '')
+if _worker.startswith('gw'):
+    os.environ['ROS_DOMAIN_ID'] = str(
+        (int(os.environ['ROS_DOMAIN_ID']) + int(_worker[2:])) % 100 + 1)

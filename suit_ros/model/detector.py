@@ -26,7 +26,7 @@ from suit_ros.model.fusion import (
     BranchTerms,
     PastTerm,
     TemporalFusion,
-    sparse_past_terms,
+    sparse_past_term,
     warp_dense,
 )
 from suit_ros.model.geonet import GeoNet
@@ -52,6 +52,7 @@ from suit_ros.structures import Frame
 
 Memory = SparseMemory | DenseMemory
 Past = Tensor | PastTerm | BranchTerms
+OWN = 'own.'    # with a carry branch, the model's own head outputs in the predictions, by name
 
 
 class CarryBranch(nn.Module):
@@ -185,10 +186,16 @@ class SUITDetector(nn.Module):
             # the object's own expected displacement since the memory's frame
             shift = disp[:, 0] if q.shape[1] == 1 else (q[:, :, None] * disp).sum(dim=1)
             aux.update(carry_index=sel, carry_positions=positions, carry_shift=shift)
-        projections = [self.fusion.past] + ([self.carry.past] if self.carry is not None else [])
-        terms = sparse_past_terms(feats, probs, mask, positions, bi, disp, q, projections,
-                                  self.grid, B, prune)
-        return (BranchTerms(*terms) if self.carry is not None else terms[0]), aux
+        if self.carry is None:
+            return sparse_past_term(feats, probs, mask, positions, bi, disp, q,
+                                    self.fusion.past, self.grid, B, prune), aux
+        # the model's own term from its own samples (as without a carry), the carry's from all
+        own = torch.nonzero(sub.owned(), as_tuple=True)[0]
+        return BranchTerms(
+            sparse_past_term(feats[own], probs[own], mask[own], positions[own], bi[own],
+                             disp[own], q[own], self.fusion.past, self.grid, B, prune),
+            sparse_past_term(feats, probs, mask, positions, bi, disp, q, self.carry.past,
+                             self.grid, B, prune)), aux
 
     def fuse(self, current: Tensor, past: Past | None,
              observed: Tensor | None = None) -> Tensor:
@@ -220,7 +227,8 @@ class SUITDetector(nn.Module):
         the observed cells are those of the current frame alone (the head's receptive field
         would otherwise carry the past term from the unobserved cells next to them); with
         ``carry_branch`` the unobserved cells' outputs are the carry head's on the current
-        features plus the carry projection's past term there."""
+        features plus the carry projection's past term there (the model's own outputs stay
+        in the predictions under ``own.<name>``, for the memory's sampling)."""
         preds: dict[str, Tensor] = self.head(fused)
         if past is None or observed is None or self.fusion is None:
             return preds
@@ -228,7 +236,9 @@ class SUITDetector(nn.Module):
         if isinstance(past, BranchTerms) and self.carry is not None:
             carried: dict[str, Tensor] = self.carry.head(
                 self.fusion(current, gate_past(past.carry, observed)))
-            return {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
+            merged = {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
+            merged.update({OWN + k: v for k, v in preds.items()})
+            return merged
         if self.cfg.fusion_gate != 'unobserved_output':
             return preds
         own: dict[str, Tensor] = self.head(self.fusion(current, None))
@@ -240,12 +250,16 @@ class SUITDetector(nn.Module):
                       observed: Tensor | None = None) -> Memory | None:
         """The state handed to the next frame (None for the single-frame model); with
         ``carried`` (:meth:`carried`) and ``observed`` (:meth:`encode_observed`), the carried
-        samples the current input does not see are kept (``sampling.carry_frames``)."""
+        samples the current input does not see are kept (``sampling.carry_frames``). With a
+        carry branch the samples come from the model's own outputs (``own.<name>``), so its
+        own memory is the one it would have without the branch."""
         poses = np.asarray(poses, np.float64).copy()
         if self.cfg.temporal == 'none':
             return None
         if self.cfg.temporal == 'dense':
             return DenseMemory(fused.float(), list(stamps_ns), poses)
+        if OWN + 'heatmap' in preds:
+            preds = {k[len(OWN):]: v for k, v in preds.items() if k.startswith(OWN)}
         head = self.head
         prob = torch.sigmoid(preds['heatmap']).amax(dim=1)
         samples = significant_sampling(
@@ -259,7 +273,8 @@ class SUITDetector(nn.Module):
                            self.cfg.sampling.window)
         if carried is None or observed is None or not self.cfg.sampling.carry_frames:
             return new
-        return keep_carried(new, carried, observed, self.cfg.sampling, self.grid)
+        return keep_carried(new, carried, observed, self.cfg.sampling, self.grid,
+                            keep_new=self.carry is not None)
 
     # ------------------------------------------------------------------ training
     def forward(self, frames: Sequence[Sequence[Frame]],

@@ -13,13 +13,12 @@ scattered (``W2 sum_i w_i f_i == sum_i w_i W2 f_i``): the result equals concat +
 the dense maps at a fraction of the cost. The projected term stays sparse (:class:`PastTerm`:
 the rows it touches) and is added into the fused map in place, so no dense past map is built
 when the map is channels-last (the inference copy's layout). ``fusion_gate: carry_branch``
-projects the same splat with two W2 (:class:`BranchTerms`). W1 starts as the identity and W2
+has two such terms (:class:`BranchTerms`). W1 starts as the identity and W2
 at zero, so a fine-tuned SUIT model starts exactly as the single-frame model it was
 initialised from.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,9 +90,9 @@ class TemporalFusion(nn.Module):
 
 @dataclass
 class BranchTerms:
-    """The two past terms of ``fusion_gate: carry_branch``: ``own`` (the model's W2, added
-    everywhere as without a gate) and ``carry`` (the carry branch's W2, for the unobserved
-    cells)."""
+    """The two past terms of ``fusion_gate: carry_branch``: ``own`` (the model's W2 on its own
+    samples, added everywhere as without a gate) and ``carry`` (the carry branch's W2 on every
+    sample, carried ones included, for the unobserved cells)."""
 
     own: PastTerm
     carry: PastTerm
@@ -103,18 +102,8 @@ def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: T
                      batch_index: Tensor, displacements: Tensor, q: Tensor,
                      projection: nn.Linear, grid: BEVGrid, batch_size: int,
                      prune: float = 0.0) -> PastTerm:
-    """:func:`sparse_past_terms` with one projection."""
-    return sparse_past_terms(features, probs, mask, positions, batch_index, displacements, q,
-                             [projection], grid, batch_size, prune)[0]
-
-
-def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: Tensor,
-                      batch_index: Tensor, displacements: Tensor, q: Tensor,
-                      projections: Sequence[nn.Linear], grid: BEVGrid, batch_size: int,
-                      prune: float = 0.0) -> list[PastTerm]:
     """Equation (11): the W2-projected past term from a sparse memory, for a ``(B, C, H, W)``
-    map (:class:`PastTerm`; ``.dense()`` for the map), one per projection (the splatting
-    weights are computed once).
+    map (:class:`PastTerm`; ``.dense()`` for the map).
 
     Every (sample, cell, bin) triple adds ``p * q * W2 f`` at the current-grid cell that
     contains ``position + displacement``. Implemented per sample as a small matrix product:
@@ -131,14 +120,13 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
     """
     M, P, C = features.shape
     H, W = grid.H, grid.W
-    widths = [p.out_features for p in projections]
-    shapes = [(batch_size, c, H, W) for c in widths]
+    shape = (batch_size, projection.out_features, H, W)
     if M == 0:
-        return [PastTerm(torch.zeros(0, dtype=torch.long, device=features.device),
-                         features.new_zeros(0, c), shape) for c, shape in zip(widths, shapes)]
+        return PastTerm(torch.zeros(0, dtype=torch.long, device=features.device),
+                        features.new_zeros(0, shape[1]), shape)
     if prune > 0:
         q = q * (q >= prune)
-    g = torch.cat([p(features) for p in projections], dim=-1)                  # (M, P, sum C)
+    g = projection(features)                                                   # (M, P, C)
     cells = torch.floor(grid.xy_to_cell(positions[:, :, None, :]
                                         + displacements[:, None, :, :])).long()   # (M, P, K, 2)
     centre = torch.floor(grid.xy_to_cell(positions[:, P // 2])).long()[:, None, :]   # (M, 1, 2)
@@ -158,10 +146,7 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
     row = centre[:, 0, 1, None] + dr.reshape(1, -1)
     ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
     flat = (batch_index[:, None] * H + row) * W + col
-    index, values = flat[ok], out_local[ok]
-    starts = np.cumsum([0] + widths)
-    return [PastTerm(index, values[:, a:b], shape)
-            for a, b, shape in zip(starts[:-1], starts[1:], shapes)]
+    return PastTerm(flat[ok], out_local[ok], shape)
 
 
 def warp_dense(previous: Tensor, T_prev_now: NDArray[np.float64], grid: BEVGrid) -> Tensor:

@@ -31,6 +31,9 @@ class SparseMemory:
     :param poses: ``(B, 4, 4)`` float64 ``T_odom_base`` of each frame (the model frame's pose).
     :param ages: ``(M,)`` frames since each sample's object last had returns under it (None:
         all 0; only the carry of :func:`suit_ros.model.sampling.keep_carried` makes them grow).
+    :param own: ``(M,)`` bool, with a carry branch (``fusion_gate: carry_branch``): the
+        samples the model's own memory holds (this frame's, from its own heatmap), the others
+        being held by the carry only (None: all are its own).
     """
 
     batch_index: Tensor
@@ -44,6 +47,7 @@ class SparseMemory:
     poses: NDArray[np.float64]
     window: int
     ages: Tensor | None = None
+    own: Tensor | None = None
 
     @property
     def num_samples(self) -> int:
@@ -54,7 +58,8 @@ class SparseMemory:
     def nbytes(self) -> int:
         """Bytes held by the memory (tensors, poses, stamps)."""
         tensors = (self.batch_index, self.cell_xy, self.features, self.probs, self.mask,
-                   self.boxes, self.velocities) + (() if self.ages is None else (self.ages,))
+                   self.boxes, self.velocities) + tuple(
+                       t for t in (self.ages, self.own) if t is not None)
         return (sum(t.numel() * t.element_size() for t in tensors) + self.poses.nbytes
                 + 8 * len(self.stamps_ns))
 
@@ -63,7 +68,7 @@ class SparseMemory:
         return SparseMemory(self.batch_index, self.cell_xy.detach(), self.features.detach(),
                             self.probs.detach(), self.mask, self.boxes.detach(),
                             self.velocities.detach(), list(self.stamps_ns),
-                            self.poses.copy(), self.window, self.ages)
+                            self.poses.copy(), self.window, self.ages, self.own)
 
     def age(self) -> Tensor:
         """``(M,)`` long: :attr:`ages`, zeros when not set."""
@@ -76,7 +81,14 @@ class SparseMemory:
         return SparseMemory(self.batch_index[index], self.cell_xy[index], self.features[index],
                             self.probs[index], self.mask[index], self.boxes[index],
                             self.velocities[index], self.stamps_ns, self.poses, self.window,
-                            None if self.ages is None else self.ages[index])
+                            None if self.ages is None else self.ages[index],
+                            None if self.own is None else self.own[index])
+
+    def owned(self) -> Tensor:
+        """``(M,)`` bool: :attr:`own`, all True when not set."""
+        if self.own is None:
+            return torch.ones_like(self.batch_index, dtype=torch.bool)
+        return self.own
 
 
 @dataclass

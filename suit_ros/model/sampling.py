@@ -153,7 +153,7 @@ def cell_flags(flags: Tensor, batch_index: Tensor, xy: Tensor, grid: BEVGrid) ->
 
 
 def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
-                 cfg: SamplingConfig, grid: BEVGrid) -> SparseMemory:
+                 cfg: SamplingConfig, grid: BEVGrid, keep_new: bool = False) -> SparseMemory:
     """The next memory: this frame's samples and the carried ones, one per object.
 
     :param new: this frame's significant samples (ages unset).
@@ -166,6 +166,10 @@ def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
     at an unobserved centre inside the map, which wins over a new sample at an unobserved
     centre (a detection the memory made; it is not carried further, so nothing the memory
     invents can keep itself alive).
+
+    :param keep_new: (a carry branch) every new sample stays, whatever its centre, so the
+        model's own memory is what it would be without a carry; a carried sample stays only
+        where no new one is; :attr:`SparseMemory.own` marks the new ones.
     """
     P = new.cell_xy.shape[1]
     seen_new = cell_flags(observed, new.batch_index, new.cell_xy[:, P // 2], grid)
@@ -175,8 +179,12 @@ def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
     new = replace(new, ages=torch.where(seen_new, 0, cfg.carry_frames))
     both = concat_memories(new, carried)
     centre_p = both.probs[:, P // 2].detach().float()
-    tier = torch.cat([torch.where(seen_new, 2.0, 0.0),
+    tier = torch.cat([torch.where(seen_new | keep_new, 2.0, 0.0),
                       centre_p.new_ones(carried.num_samples)])
+    if keep_new:
+        both = replace(both, own=torch.arange(both.num_samples,
+                                              device=both.batch_index.device) < new.num_samples)
+    # (new samples already passed this NMS among themselves: with keep_new none is dropped)
     keep = refined_nms(both.boxes.detach(), tier + centre_p, both.batch_index,
                        cfg.nms_iou_threshold, grid.cell)
     return both.select(keep)
@@ -191,4 +199,6 @@ def concat_memories(a: SparseMemory, b: SparseMemory) -> SparseMemory:
                         torch.cat([a.mask, b.mask]),
                         torch.cat([a.boxes, b.boxes.to(a.boxes.dtype)]),
                         torch.cat([a.velocities, b.velocities.to(a.velocities.dtype)]),
-                        a.stamps_ns, a.poses, a.window, torch.cat([a.age(), b.age()]))
+                        a.stamps_ns, a.poses, a.window, torch.cat([a.age(), b.age()]),
+                        None if a.own is None and b.own is None
+                        else torch.cat([a.owned(), b.owned()]))
