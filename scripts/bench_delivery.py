@@ -56,7 +56,7 @@ def main() -> int:
     from suit_ros.dds import LARGE_DATA_PROFILE
     if not Path(args.bag).exists():
         from suit_ros.data.sim import preset
-        from suit_ros.data.simulate_cli import write_bag
+        from suit_ros.data.sim.recording import write_bag
         write_bag(args.bag, preset('demo', frames=100), 7, 'mcap')
     with tempfile.TemporaryDirectory() as tmp:
         default = Path(tmp) / 'fastdds_defaults.xml'

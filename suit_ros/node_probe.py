@@ -77,7 +77,7 @@ def demo_bag(workdir: str, seed: int, frames: int, sensor: str = 'sim32',
              progress: bool = False) -> str:
     """The demo drive's bag as ``sensor`` sees it (written once, then reused)."""
     from suit_ros.data.sim import preset
-    from suit_ros.data.simulate_cli import write_bag
+    from suit_ros.data.sim.recording import write_bag
     bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f'
                        + ('' if sensor == 'sim32' else f'-{sensor}'))
     if not os.path.exists(bag):

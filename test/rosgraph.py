@@ -39,7 +39,7 @@ def diag_values(msg: Any) -> dict[str, str]:
 def synthetic_bag(directory: Path, frames: int, seed: int, storage: str = 'mcap') -> Path:
     """A small synthetic bag (16 beams) for integration tests."""
     from suit_ros.data.sim import preset
-    from suit_ros.data.simulate_cli import write_bag
+    from suit_ros.data.sim.recording import write_bag
     path = directory / 'bag'
     write_bag(path, preset('test', frames=frames), seed, storage)
     return path

@@ -21,7 +21,7 @@ FRAMES = 100
 @pytest.fixture(scope='module')
 def big_bag(tmp_path_factory):
     from suit_ros.data.sim import preset
-    from suit_ros.data.simulate_cli import write_bag
+    from suit_ros.data.sim.recording import write_bag
     path = tmp_path_factory.mktemp('big') / 'bag'
     write_bag(path, preset('demo', frames=FRAMES), 7, 'mcap')
     return path

@@ -131,7 +131,7 @@ def test_corrupt_bags_and_checkpoints_are_rejected(bag, tmp_path, capsys):
 
     from suit_ros.cli import main
     from suit_ros.data.sim import preset
-    from suit_ros.data.simulate_cli import write_bag
+    from suit_ros.data.sim.recording import write_bag
     broken = tmp_path / 'broken'
     shutil.copytree(bag, broken)
     db = next(broken.glob('*.db3'))

@@ -75,7 +75,7 @@ def test_occlusion_by_wall():
 
 def test_ego_motion_static_world_coincides(tmp_path):
     from suit_ros.data.bag import read_bag_frames
-    from suit_ros.data.simulate_cli import write_bag
+    from suit_ros.data.sim.recording import write_bag
     cfg = replace(preset('test', frames=3), lidar=replace(CFG.lidar, range_noise=0.0,
                                                           dropout=0.0))
     write_bag(tmp_path / 'bag', cfg, 5, 'sqlite3')
@@ -120,7 +120,7 @@ def test_bag_reads_back_and_is_deterministic(tmp_path, storage):
     from sensor_msgs.msg import PointCloud2
 
     from suit_ros.data.bag import open_reader
-    from suit_ros.data.simulate_cli import write_bag
+    from suit_ros.data.sim.recording import write_bag
     cfg = preset('test', frames=2)
     blobs = []
     for run in range(2):

@@ -1,8 +1,10 @@
 """Composite for the carry branch: the shipped SUIT model, its head copied into the carry head,
 the carry W2 taken from a run-4 checkpoint (trained to carry with the shipped head frozen)."""
 import sys
-import torch
+
 from safetensors.torch import load_file
+import torch
+
 from suit_ros.checkpoint import load_weights_into, read_metadata, save_checkpoint, update_metadata
 from suit_ros.config import load_model_config
 from suit_ros.model.detector import SUITDetector
