@@ -110,12 +110,17 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     return dict(meta)
 
 
-def published_thresholds(meta: dict[str, Any], class_names: tuple[str, ...] | list[str]
-                         ) -> list[float]:
+def published_thresholds(meta: dict[str, Any], class_names: tuple[str, ...] | list[str],
+                         carried: bool = False) -> list[float]:
     """The per-class score thresholds the node publishes at: the checkpoint's
     ``publish_thresholds`` (chosen for the published output, ``suit-ros choose-thresholds``),
-    else its decoding threshold (``head.score_threshold``, the low one AP evaluation uses)."""
+    else its decoding threshold (``head.score_threshold``, the low one AP evaluation uses).
+
+    :param carried: those of the boxes a carry branch decodes where the input has no returns
+        (``carry_publish_thresholds``; where the checkpoint has none, the others)."""
     stored = meta.get('publish_thresholds') or {}
+    if carried:
+        stored = {**stored, **(meta.get('carry_publish_thresholds') or {})}
     config = meta.get('config') if isinstance(meta.get('config'), dict) else {}
     head = config.get('head', {}) if isinstance(config, dict) else {}
     decode = float(head.get('score_threshold', 0.1)) if isinstance(head, dict) else 0.1

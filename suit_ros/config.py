@@ -77,6 +77,8 @@ class HeadConfig:
     nms: NmsKind = 'rotated'      # 'rotated' (BEV IoU) or 'circle'
     nms_iou_threshold: float = 0.2
     circle_nms_radius: tuple[float, ...] = (2.0, 3.0, 0.5, 0.75)   # metres, per class
+    # a box of the carry branch goes when a surer one of its class is this near (metres)
+    carry_nms_radius: tuple[float, ...] = (2.5, 3.5, 1.0, 1.5)
     max_detections: int = 200
     yaw_velocity_min_speed: float = 1.0   # m/s: faster boxes face their velocity (0: off)
 
@@ -199,6 +201,8 @@ def validate(cfg: ModelConfig) -> None:
         raise bad('head.code_weights needs 10 values (offset 2, z, size 3, rot 2, vel 2)')
     if len(cfg.head.circle_nms_radius) != len(cfg.class_names):
         raise bad('head.circle_nms_radius needs one radius per class')
+    if len(cfg.head.carry_nms_radius) != len(cfg.class_names):
+        raise bad('head.carry_nms_radius needs one radius per class')
     sc = cfg.sampling
     if not 0.0 < sc.alpha < 1.0:
         raise bad('sampling.alpha must be in (0, 1)')

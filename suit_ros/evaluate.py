@@ -342,6 +342,16 @@ class ModelRun:
     memory_after: dict[int, list[int]]
     drive: list[int] = field(default_factory=list)
     ignore: list[NDArray[np.float32] | None] = field(default_factory=list)
+    carried: list[NDArray[np.bool_]] = field(default_factory=list)
+
+    def published(self, thresholds: Sequence[float], carry_thresholds: Sequence[float]
+                  ) -> list[Detections]:
+        """Each frame's detections at per-class published thresholds, the boxes a carry
+        branch decoded where the input had no returns at ``carry_thresholds``."""
+        thr, carry = np.asarray(thresholds, np.float32), np.asarray(carry_thresholds, np.float32)
+        carried = self.carried or [np.zeros(len(d), bool) for d in self.det]
+        return [d.select(d.scores >= np.where(c, carry[d.labels], thr[d.labels]))
+                for d, c in zip(self.det, carried)]
 
     def scored_detections(self) -> list[Detections]:
         """The detections, less those on ignored things (:func:`drop_ignored`)."""
@@ -399,6 +409,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             if history is None and t + 1 in (2, 10):
                 out.memory_after.setdefault(t + 1, []).append(res.memory_bytes)
             out.det.append(res.detections)
+            out.carried.append(res.carried)
             out.gt.append(frame.gt)
             out.num_points.append(frame.num_points)
             out.drive.append(drive)

@@ -124,7 +124,8 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
     """Count recall and sector precision per drive and outage frame.
 
     :param gt_seqs: the drives as played (outage sweeps, GT kept); ``det_seqs`` their
-        detections (sensor frame) at the decoding threshold; ``thresholds`` the published ones.
+        detections (sensor frame) at the decoding threshold; ``thresholds`` the published ones
+        (zeros for detections already cut at them).
     """
     from suit_ros.evaluate import match_frame
     n = len(gt_seqs)
@@ -314,10 +315,12 @@ def run(args: argparse.Namespace) -> int:
     for name, path in models.items():
         model, cfg, meta = load_checkpoint(path)
         thr = published_thresholds(meta, cfg.class_names)
+        carry = published_thresholds(meta, cfg.class_names, carried=True)
+        zero = [0.0] * len(thr)     # (for detections already cut at the published thresholds)
         for tracked in (False, True):
             key = f'{name}, tracker' if tracked else name
-            counts = count_outage(seqs, _by_drive(_run(model, seqs, tracked)), outs, thr,
-                                  args.length)
+            counts = count_outage(seqs, published_by_drive(_run(model, seqs, tracked), thr, carry),
+                                  outs, zero, args.length)
             result['runs'][key] = r = intervals(counts)
             print(f'{key:<24} recall by outage frame ' + ' '.join(f'{v[0]:.2f}' for v in
                                                                    r['recall'])
@@ -325,7 +328,7 @@ def run(args: argparse.Namespace) -> int:
                   + ' '.join(f'{v[0]:.2f}' for v in r['sector_precision']), flush=True)
             if args.occlusion:
                 run_ = _run(model, plain, tracked)
-                occ = count_occlusion(plain, _by_drive(run_), thr)
+                occ = count_occlusion(plain, published_by_drive(run_, thr, carry), zero)
                 result['occlusion'][key] = o = intervals(occ)
                 print(f'{key:<24} occluded objects, recall by frames since last seen '
                       + ' '.join(f'{v[0]:.2f}' for v in o['recall'])
@@ -400,7 +403,9 @@ def _run(model: Any, seqs: Sequence[Sequence[Frame]], tracked: bool) -> ModelRun
     return run_model(model, seqs, tracker=TrackerConfig() if tracked else None)
 
 
-def _by_drive(run: ModelRun) -> list[list[Detections]]:
-    """Each drive's detections."""
+def published_by_drive(run: ModelRun, thresholds: Sequence[float],
+                       carry_thresholds: Sequence[float]) -> list[list[Detections]]:
+    """Each drive's published detections (:meth:`ModelRun.published`)."""
     from suit_ros.accuracy import drive_frames
-    return [[run.det[i] for i in frames] for frames in drive_frames(run)]
+    det = run.published(thresholds, carry_thresholds)
+    return [[det[i] for i in frames] for frames in drive_frames(run)]

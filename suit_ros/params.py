@@ -61,7 +61,8 @@ class DetectorParams:
         read_only=True, choices=get_args(PointsQoS)))
     score_thresholds: tuple[float, ...] = field(default=(0.0,), metadata=_spec(
         'published boxes: per-class score thresholds on the final (tracked) scores; one '
-        "value: all classes; [0.0]: the checkpoint's published thresholds"))
+        "value: all classes, carried boxes too; [0.0]: the checkpoint's published ones "
+        '(with a carry branch, its own for boxes held where the cloud shows nothing)'))
     nms_iou_threshold: float = field(default=0.2, metadata=_spec(
         'BEV IoU NMS threshold', lo=0.0, hi=1.0))
     max_detections: int = field(default=200, metadata=_spec(

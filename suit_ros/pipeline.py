@@ -54,6 +54,7 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
     model, cfg, meta = load_checkpoint(params.checkpoint or default_checkpoint_path(), dev)
     runner = StreamingDetector(model, dev, precision=params.precision)
     runner.published_thresholds = published_thresholds(meta, cfg.class_names)
+    runner.published_carry_thresholds = published_thresholds(meta, cfg.class_names, True)
     return runner, cfg, meta
 
 
@@ -124,10 +125,11 @@ class DetectionPipeline:
         params.validate(len(self.class_names))
         old = self.params
         self.params = params
-        self.detector.set_thresholds(params.class_thresholds(len(self.class_names))
-                                     or self.detector.published_thresholds,
+        chosen = params.class_thresholds(len(self.class_names))   # the user's, for every box
+        self.detector.set_thresholds(chosen or self.detector.published_thresholds,
                                      params.nms_iou_threshold, params.max_detections,
-                                     params.candidates)
+                                     params.candidates,
+                                     None if chosen else self.detector.published_carry_thresholds)
         self.detector.set_tracker(
             TrackerConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix)
             if params.tracking else None)

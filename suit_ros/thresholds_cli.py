@@ -9,6 +9,13 @@ class, BEV centre within 2 m, GT with returns within 50 m), and picks per class 
 of best F1 on a 0.05 grid. ``--write`` stores them in the checkpoint's metadata
 (``publish_thresholds``), apart from the decoding threshold; the node's ``score_thresholds``
 parameter still overrides them.
+
+A model with a carry branch also gets ``carry_publish_thresholds``, for the boxes it holds where
+the cloud shows nothing: the same tune drives are played with outages drawn in (a 120-degree
+sector lost for 6 frames, as in ``suit-ros outage``, other seeds), and one factor on the
+published thresholds is chosen, the one of best F1 between recall of the lost sector's objects
+and the precision of the boxes published there, on outage frames 3 and later (those only a
+memory can hold).
 """
 from __future__ import annotations
 
@@ -20,6 +27,7 @@ from suit_ros.report import SWEEP, ClassCounts
 
 TUNE_DRIVES = 16
 TUNE_FRAMES = 40
+CARRY_FACTORS = tuple(round(0.3 + 0.05 * i, 2) for i in range(15))     # 0.30 .. 1.00
 
 
 def configure_parser(parser: argparse.ArgumentParser) -> None:
@@ -61,9 +69,45 @@ def run(args: argparse.Namespace) -> int:
         chosen[c] = float(row['threshold'])
         print(f'{c:<12}{row["threshold"]:>10.2f}{row["recall"]:>8.3f}'
               f'{row["precision"]:>10.3f}{row["f1"]:>7.3f}{row["gt"]:>6d}')
+    extra: dict[str, Any] = {}
+    if getattr(model, 'carry', None) is not None:
+        factor, carry = carry_thresholds(model, seqs, [chosen[c] for c in names])
+        extra = {'carry_publish_thresholds': dict(zip(names, carry)),
+                 'carry_publish_thresholds_source': (
+                     f'{factor:.2f} x the published ones: best F1 of recall and sector precision '
+                     f'on outage frames 3+ of the tune drives with outages drawn in')}
+        print('carry thresholds (boxes held where the cloud shows nothing): '
+              + ', '.join(f'{c} {v:.3f}' for c, v in zip(names, carry)))
     if args.write:
         update_metadata(path, publish_thresholds=chosen, publish_thresholds_source=(
             f'best F1 per class on the synthetic tune split ({args.drives} drives x '
-            f'{TUNE_FRAMES} frames, seeds 8000+), node defaults, BEV centre <= 2 m within 50 m'))
+            f'{TUNE_FRAMES} frames, seeds 8000+), node defaults, BEV centre <= 2 m within 50 m'),
+            **extra)
         print(f'stored in {path}')
     return 0
+
+
+def carry_thresholds(model: Any, seqs: Sequence[Sequence[Any]], published: list[float]
+                     ) -> tuple[float, list[float]]:
+    """The factor on ``published`` (of :data:`CARRY_FACTORS`, the highest among ties) whose
+    carry thresholds give the best F1 on outage frames 3+ of ``seqs`` played with outages
+    (node defaults), and the thresholds."""
+    from suit_ros.evaluate import run_model
+    from suit_ros.outage import count_outage, outages_for, published_by_drive, with_outages
+    from suit_ros.tracking import TrackerConfig
+    outs = [outages_for(i, len(seq), seed=1) for i, seq in enumerate(seqs)]
+    played = [with_outages(seq, o) for seq, o in zip(seqs, outs)]
+    run_ = run_model(model, played, tracker=TrackerConfig())
+    best: tuple[float, float] = (-1.0, 1.0)
+    for f in CARRY_FACTORS:
+        det = published_by_drive(run_, published, [f * t for t in published])
+        counts = count_outage(played, det, outs, [0.0] * len(published), 6)
+        tp, objects = counts.found[:, 2:].sum(), counts.objects[:, 2:].sum()
+        true, boxes = counts.true[:, 2:].sum(), counts.boxes[:, 2:].sum()
+        recall, precision = tp / max(objects, 1), true / max(boxes, 1)
+        f1 = 2 * recall * precision / max(recall + precision, 1e-9)
+        print(f'  carry factor {f:.2f}: outage frames 3+ recall {recall:.3f}, sector '
+              f'precision {precision:.3f}, F1 {f1:.3f}')
+        if f1 >= best[0]:
+            best = (f1, f)
+    return best[1], [round(best[1] * t, 4) for t in published]

@@ -4,7 +4,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from suit_ros.evaluate import DIST_THRESHOLDS, TP_METRICS, evaluate
+from suit_ros.evaluate import DIST_THRESHOLDS, TP_METRICS, ModelRun, evaluate
 from suit_ros.structures import Detections
 
 NAMES = ('car', 'truck', 'pedestrian', 'cyclist')
@@ -119,3 +119,15 @@ def test_eval_synthetic_val_is_the_fixed_validation_set(monkeypatch):
     monkeypatch.setattr(seqs, 'synthetic_split', lambda *a, **k: calls.append(a) or [[1]])
     assert synthetic_sequences('val', 'cache') == [[1]]
     assert calls == [('val', seqs.VAL_SEQUENCES, 40, 'cache')]
+
+
+def test_a_run_publishes_carried_boxes_at_their_own_thresholds():
+    det = Detections(np.zeros((4, 7)), np.zeros((4, 2)), np.array([0.2, 0.5, 0.2, 0.5]),
+                     np.array([0, 0, 1, 1]))
+    run = ModelRun([det], [det], [None], [0.0], [0], {})
+    assert len(run.published([0.3, 0.3], [0.1, 0.1])[0]) == 2           # none carried
+    run.carried = [np.array([True, False, False, True])]
+    got = run.published([0.3, 0.6], [0.1, 0.1])[0]
+    # box 0 (carried, 0.2 >= 0.1), box 1 (seen, 0.5 >= 0.3); box 2 (seen, class 1, 0.2 < 0.6);
+    # box 3 (carried, 0.5 >= 0.1)
+    assert got.scores.tolist() == pytest.approx([0.2, 0.5, 0.5])

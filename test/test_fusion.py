@@ -290,3 +290,35 @@ def test_the_carry_branch_decodes_observed_cells_as_the_model_without_it(tmp_pat
     losses['loss'].backward()
     assert branch.carry.past.weight.grad is not None
     assert branch.carry.head.heatmap[-1].weight.grad is not None
+    branch.eval()
+    _check_decode(branch, plain, got[3], ref[3])
+
+
+def _check_decode(branch, plain, got, ref):
+    """``SUITDetector.decode``: the boxes at observed cells are the head's, in order; a box
+    at an unobserved cell is marked carried, and none stands within ``head.carry_nms_radius``
+    of a surer box of its class; without a carry branch nothing is carried."""
+    (bp, obs, _), (rp, _, _) = got, ref
+    # a random heatmap (the random carry head's is surer than any observed cell), so that the
+    # candidates hold both kinds of cells
+    torch.manual_seed(2)
+    bp = {**bp, 'heatmap': torch.randn_like(bp['heatmap'])}
+    thr = torch.zeros(len(branch.cfg.class_names))
+    with torch.no_grad():
+        out = branch.decode(bp, obs, 1000, thr, 0.2, 1000)
+        head = branch.head.decode(bp, 1000, thr, 'rotated', 0.2, None, 1000)[0]
+        plain_out = plain.decode(rp, obs, 200, thr, 0.2, 200)
+    cells = out['cells']
+    assert torch.equal(out['carried'], ~obs[0, cells[:, 1], cells[:, 0]])
+    assert 0 < int(out['carried'].sum()) < len(cells)
+    at_seen = obs[0, head['cells'][:, 1], head['cells'][:, 0]]
+    assert torch.equal(out['boxes'][~out['carried']], head['boxes'][at_seen])
+    assert int((~at_seen).sum()) > int(out['carried'].sum())      # some carried boxes went
+    radius = torch.tensor(branch.cfg.head.carry_nms_radius)
+    xy, lab, sc = out['boxes'][:, :2], out['labels'], out['scores']
+    for i in torch.nonzero(out['carried'])[:, 0]:
+        surer = (sc > sc[i]) & (lab == lab[i])
+        assert not bool(((xy[surer] - xy[i]).norm(dim=1) < radius[lab[i]]).any())
+    assert not bool(plain_out['carried'].any())
+    assert torch.equal(plain_out['boxes'], plain.head.decode(rp, 200, thr, 'rotated', 0.2, None,
+                                                             200)[0]['boxes'])

@@ -8,7 +8,7 @@ import torch
 
 from suit_ros.ops.geometry import ego_transform, pose_from_xyz_rpy, se3_inverse, transform_boxes
 from suit_ros.ops.iou import bev_corners, bev_iou
-from suit_ros.ops.nms import batched_nms, circle_nms, rotated_nms
+from suit_ros.ops.nms import batched_nms, circle_nms, rotated_nms, suppress_near
 
 
 def random_boxes(n, seed):
@@ -116,6 +116,29 @@ def test_circle_nms_and_class_awareness():
     same = batched_nms(boxes, torch.tensor([0.9, 0.8]), torch.tensor([0, 0]), 'rotated', 0.2)
     diff = batched_nms(boxes, torch.tensor([0.9, 0.8]), torch.tensor([0, 1]), 'rotated', 0.2)
     assert same.tolist() == [0] and sorted(diff.tolist()) == [0, 1]
+
+
+def test_suppress_near_drops_only_movable_boxes_near_a_kept_one_of_their_class():
+    # in score order; radius 1.0 m for class 0, 3.0 m for class 1
+    centers = torch.tensor([[0.0, 0.0], [0.5, 0.0], [0.6, 0.1], [0.8, 0.0], [5.0, 0.0],
+                            [7.5, 0.0], [20.0, 0.0], [20.4, 0.0]])
+    labels = torch.tensor([0, 0, 0, 1, 1, 1, 0, 0])
+    movable = torch.tensor([False, True, False, True, False, True, True, True])
+    keep = suppress_near(centers, labels, movable, torch.tensor([1.0, 3.0]))
+    # 1: near 0 (same class) -> dropped; 2: not movable -> stays; 3: class 1, nothing surer of
+    # its class near -> stays; 5: 2.5 m from 4 (class 1, radius 3) -> dropped; 6 stays (first);
+    # 7: near 6, both movable, 6 kept -> dropped
+    assert keep.tolist() == [True, False, True, True, True, False, True, False]
+    # a dropped box suppresses nothing: 1 goes (near 0); 2 is 0.9 m from 1, which went
+    chain = suppress_near(torch.tensor([[0.0, 0.0], [0.9, 0.0], [1.8, 0.0]]),
+                          torch.tensor([0, 0, 0]), torch.tensor([False, True, True]),
+                          torch.tensor([1.0]))
+    assert chain.tolist() == [True, False, True]
+    none = suppress_near(centers, labels, torch.zeros(8, dtype=torch.bool),
+                         torch.tensor([1.0, 3.0]))
+    assert bool(none.all())
+    assert suppress_near(torch.zeros(0, 2), torch.zeros(0, dtype=torch.long),
+                         torch.zeros(0, dtype=torch.bool), torch.tensor([1.0])).shape == (0,)
 
 
 def test_ego_transform_static_object():

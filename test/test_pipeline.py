@@ -122,6 +122,15 @@ def test_default_thresholds_are_the_checkpoints_published_ones(model, classes, s
     assert pipe.detector.decode_thresholds.tolist() == pytest.approx([0.05] * 4)
     more = pipe.process(cloud(classes, T0 + 3 * S // 10, scene))
     assert len(more.detections) > len(outs[-1].detections)
+    # a carry branch's thresholds: the checkpoint's with the default, the user's value for
+    # every box otherwise
+    detector.published_carry_thresholds = [0.3, 0.3, 0.35, 0.35]
+    pipe.configure(replace(pipe.params, score_thresholds=(0.0,)))
+    assert pipe.detector.carry_thresholds.tolist() == pytest.approx([0.3, 0.3, 0.35, 0.35])
+    pipe.configure(replace(pipe.params, score_thresholds=(0.05,)))
+    assert pipe.detector.carry_thresholds.tolist() == pytest.approx([0.05] * 4)
+    with pytest.raises(ValueError, match='carry thresholds'):
+        detector.set_thresholds([0.5] * 4, carry_thresholds=[0.5])
 
 
 def test_each_detection_carries_the_returns_inside_its_box(model, classes, scene):

@@ -85,6 +85,11 @@ def test_published_thresholds_come_from_the_checkpoint(tmp_path):
     assert published_thresholds(meta, ['car', 'truck']) == [0.1, 0.1]
     meta['publish_thresholds'] = {'car': 0.4}
     assert published_thresholds(meta, ['car', 'truck']) == [0.4, 0.1]
+    # the carry branch's: its own where stored, else the published ones
+    assert published_thresholds(meta, ['car', 'truck'], carried=True) == [0.4, 0.1]
+    meta['carry_publish_thresholds'] = {'truck': 0.05}
+    assert published_thresholds(meta, ['car', 'truck'], carried=True) == [0.4, 0.05]
+    assert published_thresholds(meta, ['car', 'truck']) == [0.4, 0.1]
     path = tmp_path / 'c.safetensors'
     path.write_bytes(default_checkpoint_path().read_bytes())
     before = load_checkpoint(path)[0].state_dict()

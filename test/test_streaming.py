@@ -52,3 +52,41 @@ def test_streaming_candidates_and_literal_modes():
     with pytest.raises(ConfigError, match='sweeps'):
         model_config_from_dict({'sweeps': 0})
 
+
+
+def test_carried_boxes_are_published_at_the_carry_thresholds():
+    """With a carry branch, the boxes decoded where the cloud has no returns are marked
+    ``carried`` and cut at the carry thresholds, the others at the score thresholds."""
+    from dataclasses import replace
+
+    import numpy as np
+    torch.manual_seed(0)
+    cfg = replace(small_config('suit'), fusion_gate='carry_branch',
+                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
+    model = SUITDetector(cfg).eval()
+    with torch.no_grad():
+        model.carry.past.weight.normal_(0, 0.2)
+        model.carry.head.heatmap[-1].bias.add_(3.0)     # carried boxes among the candidates
+    K = len(cfg.class_names)
+
+    def run(thresholds, carry):
+        runner = StreamingDetector(model)
+        runner.set_thresholds(thresholds, max_detections=40, candidates=80,
+                              carry_thresholds=carry)
+        out = []
+        for t in range(4):
+            f = frame(t)
+            pts = f.points if t < 2 else f.points[f.points[:, 0] < 0]      # x > 0 lost
+            res = runner.step(pts, f.stamp_ns, f.pose)
+            assert res.carried.shape == (len(res.detections),)
+            out.append(res)
+        return out
+
+    only_seen = run([0.0] * K, [1.01] * K)
+    assert not any(r.carried.any() for r in only_seen)
+    assert sum(len(r.detections) for r in only_seen) > 0
+    only_carried = run([1.01] * K, [0.0] * K)
+    assert all(r.carried.all() for r in only_carried)
+    assert sum(len(r.detections) for r in only_carried[2:]) > 0
+    assert not any(len(r.detections) for r in only_carried[:1])     # no memory yet
+    assert np.all([r.used_memory for r in only_carried[1:]])

@@ -48,6 +48,7 @@ from suit_ros.model.sampling import (
     significant_sampling,
 )
 from suit_ros.ops.geometry import se3_inverse
+from suit_ros.ops.nms import suppress_near
 from suit_ros.structures import Frame
 
 Memory = SparseMemory | DenseMemory
@@ -243,6 +244,30 @@ class SUITDetector(nn.Module):
             return preds
         own: dict[str, Tensor] = self.head(self.fusion(current, None))
         return {k: torch.where(seen, own[k], v) for k, v in preds.items()}
+
+    def decode(self, preds: dict[str, Tensor], observed: Tensor | None, k: int,
+               score_threshold: Tensor, nms_iou_threshold: float, max_detections: int
+               ) -> dict[str, Tensor]:
+        """The boxes of one frame (a batch of one; :meth:`CenterHead.decode`, the config's NMS) and
+        ``carried`` ``(N,)``: decoded by the carry branch (at a cell without returns). A
+        carried box of which a surer box of its class lies within ``head.carry_nms_radius``
+        is dropped: the carry head answers a relaxed window of a carried sample with a
+        plateau, not one peak, and rotated-IoU NMS leaves its neighbours standing."""
+        h = self.cfg.head
+        radius = torch.tensor(h.circle_nms_radius, device=score_threshold.device)
+        out = self.head.decode(preds, k, score_threshold, h.nms, nms_iou_threshold, radius,
+                               max_detections)[0]
+        n = out['scores'].shape[0]
+        carried = torch.zeros(n, dtype=torch.bool, device=out['scores'].device)
+        if observed is not None and OWN + 'heatmap' in preds:
+            cells = out['cells']
+            carried = ~observed[0, cells[:, 1], cells[:, 0]]
+            keep = suppress_near(out['boxes'][:, :2].float(), out['labels'], carried,
+                                 torch.tensor(h.carry_nms_radius))
+            out = {name: v[keep] for name, v in out.items()}
+            carried = carried[keep]
+        out['carried'] = carried
+        return out
 
     def sample_memory(self, fused: Tensor, preds: dict[str, Tensor],
                       poses: NDArray[np.float64], stamps_ns: Sequence[int],

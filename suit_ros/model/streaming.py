@@ -34,6 +34,8 @@ class StepResult:
     :param track_ids: per detection, its velocity-filter track (0: no filter, or no pose).
     :param num_points: per detection, the current sweep's returns inside its box (0: a box
         held by the memory or the tracker where the sweep shows nothing).
+    :param carried: per detection, decoded by a carry branch where the input has no returns
+        (published at the carry thresholds).
     """
 
     detections: Detections
@@ -44,6 +46,7 @@ class StepResult:
     timings: dict[str, float] = field(default_factory=dict)
     track_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     num_points: NDArray[np.uint32] = field(default_factory=lambda: np.zeros(0, np.uint32))
+    carried: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
 
 
 class StreamingDetector:
@@ -78,8 +81,10 @@ class StreamingDetector:
         self.tracks = (None if tracker is None
                        else Tracker(tracker, self.cfg.class_names))
         self.last_reset_reason = 'start'
-        # the checkpoint's published thresholds (set by whoever loaded it; None: not known)
+        # the checkpoint's published thresholds (set by whoever loaded it; None: not known),
+        # and those of the boxes its carry branch holds where the cloud shows nothing
         self.published_thresholds: list[float] | None = None
+        self.published_carry_thresholds: list[float] | None = None
         # set keep_terms to inspect the fusion: (W1 F_t, past term or None) of the last step
         self.keep_terms = False
         self.last_terms: tuple[torch.Tensor, torch.Tensor | None] | None = None
@@ -87,24 +92,29 @@ class StreamingDetector:
 
     def set_thresholds(self, score_thresholds: list[float] | None = None,
                        nms_iou_threshold: float | None = None,
-                       max_detections: int | None = None, candidates: int | None = None
-                       ) -> None:
+                       max_detections: int | None = None, candidates: int | None = None,
+                       carry_thresholds: list[float] | None = None) -> None:
         """Change the published score thresholds and the decoding settings (safe between
         frames).
 
         :param candidates: heatmap peaks kept before the score threshold and NMS (default: the
             config's ``head.top_k``).
+        :param carry_thresholds: per class, for the boxes a carry branch decodes where the
+            input has no returns (None: ``score_thresholds``).
         """
         K = len(self.cfg.class_names)
         thr = ([self.cfg.head.score_threshold] * K if score_thresholds is None
                else [float(v) for v in score_thresholds])
-        if len(thr) != K:
-            raise ValueError(f'need {K} score thresholds (one per class), got {len(thr)}')
+        carry = thr if carry_thresholds is None else [float(v) for v in carry_thresholds]
+        if len(thr) != K or len(carry) != K:
+            raise ValueError(f'need {K} score thresholds (one per class), got {len(thr)}'
+                             f' and {len(carry)} carry thresholds')
         self.score_thresholds = np.asarray(thr, np.float32)
+        self.carry_thresholds = np.asarray(carry, np.float32)
         # decode down to the evaluation threshold (or lower, when a published one is lower)
         self.decode_thresholds = torch.tensor(
-            np.minimum(thr, self.cfg.head.score_threshold), dtype=torch.float32,
-            device=self.device)
+            np.minimum(np.minimum(thr, carry), self.cfg.head.score_threshold),
+            dtype=torch.float32, device=self.device)
         self.nms_iou_threshold = (self.cfg.head.nms_iou_threshold if nms_iou_threshold is None
                                   else float(nms_iou_threshold))
         self.max_detections = (self.cfg.head.max_detections if max_detections is None
@@ -185,10 +195,8 @@ class StreamingDetector:
                                shown.dense() if isinstance(shown, PastTerm) else shown)
         t3 = self._sync()
         preds = m.predict(current, past, fused, observed)
-        h = self.cfg.head
-        radius = torch.tensor(h.circle_nms_radius, device=self.device)
-        out = m.head.decode(preds, self.candidates, self.decode_thresholds, h.nms,
-                            self.nms_iou_threshold, radius, self.max_detections)[0]
+        out = m.decode(preds, observed, self.candidates, self.decode_thresholds,
+                       self.nms_iou_threshold, self.max_detections)
         t4 = self._sync()
         if T_odom_base is not None:
             memory = m.sample_memory(fused, preds, poses, [stamp_ns],
@@ -199,12 +207,14 @@ class StreamingDetector:
         det = Detections(out['boxes'].float().cpu().numpy(),
                          out['velocities'].float().cpu().numpy(),
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
+        carried = out['carried'].cpu().numpy()
         ids = np.zeros(len(det), np.int64)
         if self.tracks is not None and T_odom_base is not None:
             det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points)
-        published = det.scores >= self.score_thresholds[det.labels]
+        published = det.scores >= np.where(carried, self.carry_thresholds[det.labels],
+                                           self.score_thresholds[det.labels])
         if not published.all():
-            det, ids = det.select(published), ids[published]
+            det, ids, carried = det.select(published), ids[published], carried[published]
         det = boxes_to_lidar(det, T_bl)
         # the returns of this cloud in each box, counted on the input as it came (LiDAR
         # frame), not on the accumulated sweeps
@@ -216,4 +226,4 @@ class StreamingDetector:
                    'total': t6 - t0}
         samples = self._memory.num_samples if self._memory is not None else 0
         return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings,
-                          ids, num_points)
+                          ids, num_points, carried)

@@ -97,3 +97,27 @@ def batched_nms(boxes: Tensor, scores: Tensor, labels: Tensor, kind: str = 'rota
         raise ValueError(f"unknown NMS kind {kind!r}: use 'rotated' or 'circle'")
     suppress.fill_diagonal_(False)
     return greedy_suppression(suppress, order)
+
+
+def suppress_near(centers: Tensor, labels: Tensor, movable: Tensor, radius: Tensor) -> Tensor:
+    """Which of ``N`` boxes in descending score order stay when each ``movable`` one goes if a
+    kept box of its class (any, movable or not) lies within its class's ``radius`` (metres).
+
+    A box that is not movable always stays. :param centers: ``(N, 2)`` BEV centres;
+    ``labels`` ``(N,)``; ``movable`` ``(N,)`` bool; ``radius`` ``(num_classes,)``.
+    :return: ``(N,)`` bool.
+    """
+    n = centers.shape[0]
+    keep = torch.ones(n, dtype=torch.bool, device=centers.device)
+    if n == 0 or not bool(movable.any()):
+        return keep
+    near = ((torch.cdist(centers.double(), centers.double())
+             < radius.to(centers.device).double()[labels][:, None])
+            & (labels[:, None] == labels[None, :]))
+    earlier = torch.ones(n, n, dtype=torch.bool, device=centers.device).tril(-1)
+    sup = (near & earlier & movable[:, None]).cpu().numpy()      # sup[i, j]: j may drop i
+    kept = keep.cpu().numpy()
+    for i in np.nonzero(movable.cpu().numpy())[0]:
+        if (sup[i] & kept).any():
+            kept[i] = False
+    return torch.from_numpy(kept).to(centers.device)
