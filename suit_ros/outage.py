@@ -253,15 +253,20 @@ def occlusion_ap(model: Any, drives: Sequence[Sequence[Frame]], plain: ModelRun,
 def intervals(counts: OutageCounts, resamples: int = 200, seed: int = 0
               ) -> dict[str, list[list[float]]]:
     """Per outage frame ``[value, low, high]`` of recall and sector precision (per-drive
-    bootstrap), and of recall over frames 3.. (the memory's part)."""
+    bootstrap), and of both over frames 3.. (the memory's part)."""
     rng = np.random.default_rng(seed)
     n = len(counts.objects)
-    rec, prec, late = [], [], []
+    rec, prec, late, late_prec = [], [], [], []
+
+    def late_precision(pick: NDArray[np.int64]) -> float:
+        boxes = counts.boxes[pick, 2:].sum()
+        return float(counts.true[pick, 2:].sum() / boxes) if boxes else float('nan')
     for _ in range(resamples):
         pick = rng.integers(0, n, n)
         rec.append(counts.recall(pick))
         prec.append(counts.precision(pick))
         late.append(counts.found[pick, 2:].sum() / max(counts.objects[pick, 2:].sum(), 1))
+        late_prec.append(late_precision(pick))
 
     def band(samples: list[NDArray[np.float64]], value: NDArray[np.float64]
              ) -> list[list[float]]:
@@ -276,10 +281,19 @@ def intervals(counts: OutageCounts, resamples: int = 200, seed: int = 0
     late_value = counts.found[:, 2:].sum() / max(counts.objects[:, 2:].sum(), 1)
     return {'recall': band(rec, counts.recall()), 'sector_precision': band(prec,
                                                                             counts.precision()),
-            'recall_from_frame_3': [round(float(late_value), 3),
-                                    round(float(np.percentile(late, 2.5)), 3),
-                                    round(float(np.percentile(late, 97.5)), 3)],
+            'recall_from_frame_3': _interval(late_value, late),
+            'sector_precision_from_frame_3': _interval(late_precision(np.arange(n)), late_prec),
             'objects': counts.objects.sum(0).tolist(), 'boxes': counts.boxes.sum(0).tolist()}
+
+
+def _interval(value: float, samples: Sequence[float]) -> list[float]:
+    """``[value, 2.5th, 97.5th percentile of the bootstrap samples]``, rounded."""
+    finite = np.asarray(samples, np.float64)
+    finite = finite[np.isfinite(finite)]
+    if not len(finite):
+        return [round(float(value), 3), float('nan'), float('nan')]
+    return [round(float(value), 3), round(float(np.percentile(finite, 2.5)), 3),
+            round(float(np.percentile(finite, 97.5)), 3)]
 
 
 # ------------------------------------------------------------------ command line
@@ -361,11 +375,12 @@ def tables(result: dict[str, Any]) -> str:
                      + f' | {_band(r["recall_from_frame_3"])} | {r["objects"][0]} |')
     lines += ['', 'Sector precision (published boxes in the lost sector that match an object), '
               'per outage frame, and the boxes counted:', '',
-              '| model | ' + ' | '.join(f'frame {k}' for k in range(1, n + 1)) + ' | boxes |',
-              '|---' * (n + 2) + '|']
+              '| model | ' + ' | '.join(f'frame {k}' for k in range(1, n + 1))
+              + ' | frames 3+ | boxes |', '|---' * (n + 3) + '|']
     for key, r in runs.items():
+        late = r.get('sector_precision_from_frame_3')
         lines.append(f'| {key} | ' + ' | '.join(f'{v[0]:.2f}' for v in r['sector_precision'])
-                     + f' | {sum(r["boxes"])} |')
+                     + f' | {_band(late) if late else ""} | {sum(r["boxes"])} |')
     occ = result.get('occlusion') or {}
     if occ:
         gaps = len(next(iter(occ.values()))['recall'])

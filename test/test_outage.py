@@ -66,7 +66,10 @@ def test_recall_and_sector_precision_count_what_the_memory_must_hold():
     np.testing.assert_allclose(c.precision(), [1.0, 0.5, np.nan])
     j = intervals(c, resamples=20)
     assert j['recall'][0][0] == 1.0 and j['recall_from_frame_3'][0] == 0.0
+    assert np.isnan(j['sector_precision_from_frame_3'][0])       # no box published there
     assert j['objects'] == [1, 1, 1]
+    low = intervals(count_outage([played], [dets], [[o]], [0.1] * 4, 3), resamples=20)
+    assert low['recall_from_frame_3'][0] == 1.0 and low['sector_precision_from_frame_3'][0] == 1.0
 
 
 def test_occluded_objects_are_counted_by_frames_since_last_seen():
