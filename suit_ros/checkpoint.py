@@ -27,6 +27,24 @@ def default_checkpoint_path() -> Path:
     return Path(__file__).resolve().parent / 'checkpoints' / DEFAULT_NAME
 
 
+def shipped_checkpoints() -> list[str]:
+    """The names of the checkpoints shipped with the package (``suit_default``, ...)."""
+    return sorted(p.stem for p in default_checkpoint_path().parent.glob('*.safetensors'))
+
+
+def resolve_checkpoint(path: str | os.PathLike[str]) -> Path:
+    """``path`` itself when it is a file; else a shipped checkpoint named so (``suit_carry``
+    or ``suit_carry.safetensors``; '' is the default one); else ``path`` (whose reading then
+    says that it does not exist)."""
+    p = Path(path)
+    if os.fspath(path) == '':
+        return default_checkpoint_path()
+    if p.is_file() or p.parent != Path('.'):
+        return p
+    shipped = default_checkpoint_path().parent / (p.stem + '.safetensors')
+    return shipped if p.suffix in ('', '.safetensors') and shipped.is_file() else p
+
+
 def code_version() -> str:
     """``suit_ros.__version__`` plus ``git describe`` when run from a checkout."""
     try:
@@ -86,10 +104,11 @@ def _sniff(path: Path) -> None:
 def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Return a checkpoint's metadata without loading its tensors."""
     from safetensors import safe_open
-    path = Path(path)
+    path = resolve_checkpoint(path)
     if not path.is_file():
         raise CheckpointError(f'checkpoint {path} does not exist; train one with '
-                              '`suit-ros train` or pass --checkpoint')
+                              '`suit-ros train`, pass a path, or name a shipped one: '
+                              + ', '.join(shipped_checkpoints()))
     _sniff(path)
     try:
         with safe_open(str(path), framework='pt') as f:
@@ -154,6 +173,7 @@ def load_checkpoint(path: str | os.PathLike[str], device: torch.device | str | N
     from safetensors.torch import load_file
 
     from suit_ros.model.detector import SUITDetector
+    path = resolve_checkpoint(path)
     meta = read_metadata(path)
     try:
         cfg = model_config_from_dict(meta['config'], f'{path} (embedded config)')

@@ -94,12 +94,12 @@ class DetectorNode(Node):
     def _load_model(self, params: DetectorParams) -> Any:
         import torch
 
-        from suit_ros.checkpoint import default_checkpoint_path
+        from suit_ros.checkpoint import resolve_checkpoint
         from suit_ros.pipeline import load_detector
         torch.set_num_threads(torch_threads(params.threads))
         runner, cfg, meta = load_detector(params)
         self.get_logger().info(
-            f'loaded {params.checkpoint or default_checkpoint_path()} (temporal={cfg.temporal}'
+            f'loaded {resolve_checkpoint(params.checkpoint)} (temporal={cfg.temporal}'
             f', classes={list(cfg.class_names)}, code {meta.get("code_version")}) on '
             f'{runner.device.type}, {runner.precision}, {torch.get_num_threads()} torch '
             f'threads; suit_ros from {os.path.dirname(os.path.abspath(__file__))}')

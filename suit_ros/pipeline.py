@@ -47,11 +47,11 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
     """
     import torch
 
-    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.checkpoint import load_checkpoint
     dev = ('cuda' if params.device == 'cuda'
            or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
     from suit_ros.checkpoint import published_thresholds
-    model, cfg, meta = load_checkpoint(params.checkpoint or default_checkpoint_path(), dev)
+    model, cfg, meta = load_checkpoint(params.checkpoint, dev)
     runner = StreamingDetector(model, dev, precision=params.precision)
     runner.published_thresholds = published_thresholds(meta, cfg.class_names)
     runner.published_carry_thresholds = published_thresholds(meta, cfg.class_names, True)

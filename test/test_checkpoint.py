@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import os
+from pathlib import Path
 import pickle
 
 import pytest
@@ -76,6 +77,30 @@ def test_header_length_that_looks_like_a_pickle_still_loads(tmp_path, low):
     assert pad is not None, 'no padding gave the header length wanted'
     _, cfg, meta = load_checkpoint(path)
     assert cfg == ModelConfig() and len(meta['extra']['pad']) == pad
+
+
+def test_shipped_checkpoints_by_name(tmp_path, monkeypatch):
+    from suit_ros.checkpoint import (
+        default_checkpoint_path,
+        resolve_checkpoint,
+        shipped_checkpoints,
+    )
+    names = shipped_checkpoints()
+    assert {'suit_default', 'centerpoint_single'} <= set(names)
+    shipped = default_checkpoint_path().parent
+    assert resolve_checkpoint('') == default_checkpoint_path()
+    assert resolve_checkpoint('centerpoint_single') == shipped / 'centerpoint_single.safetensors'
+    assert resolve_checkpoint('centerpoint_single.safetensors') == resolve_checkpoint(
+        'centerpoint_single')
+    assert load_checkpoint('centerpoint_single')[1].temporal == 'none'
+    # a file of that name in the working directory wins; a path is a path
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / 'centerpoint_single.safetensors').write_bytes(b'mine')
+    assert resolve_checkpoint('centerpoint_single.safetensors') == Path(
+        'centerpoint_single.safetensors')
+    assert resolve_checkpoint('sub/suit_default') == Path('sub/suit_default')
+    with pytest.raises(CheckpointError, match='name a shipped one: ' + ', '.join(names)):
+        read_metadata('no_such_model')
 
 
 def test_corrupt_truncated_foreign_missing(tmp_path, ckpt):
