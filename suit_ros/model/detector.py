@@ -205,6 +205,10 @@ class SUITDetector(nn.Module):
         with a carry branch this is the model's own fused map, as without a gate."""
         if self.fusion is None:
             return current
+        if isinstance(past, BranchTerms) and observed is not None:
+            fused, past.carry_input = self.fusion.forward_branches(
+                current, past.own, gate_past(past.carry, observed))
+            return fused
         if isinstance(past, BranchTerms):
             past = past.own
         elif observed is not None and past is not None:
@@ -235,8 +239,9 @@ class SUITDetector(nn.Module):
             return preds
         seen = observed[:, None]
         if isinstance(past, BranchTerms) and self.carry is not None:
-            carried: dict[str, Tensor] = self.carry.head(
-                self.fusion(current, gate_past(past.carry, observed)))
+            carry_input = (past.carry_input if past.carry_input is not None
+                           else self.fusion(current, gate_past(past.carry, observed)))
+            carried: dict[str, Tensor] = self.carry.head(carry_input)
             merged = {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
             merged.update({OWN + k: v for k, v in preds.items()})
             return merged

@@ -87,6 +87,14 @@ class TemporalFusion(nn.Module):
             return past_term.add_to(out)
         return out.add_(past_term.to(out.dtype))
 
+    def forward_branches(self, current: Tensor, own: PastTerm, carry: PastTerm
+                         ) -> tuple[Tensor, Tensor]:
+        """``forward(current, own)`` and ``forward(current, carry)`` with W1 applied once
+        (the same values, bit for bit)."""
+        out: Tensor = self.current(current)
+        other = carry.add_to(out.clone())
+        return own.add_to(out), other
+
 
 @dataclass
 class BranchTerms:
@@ -96,6 +104,8 @@ class BranchTerms:
 
     own: PastTerm
     carry: PastTerm
+    # the carry head's input (the carry term where the input has no returns), once fused
+    carry_input: Tensor | None = None
 
 
 def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: Tensor,
