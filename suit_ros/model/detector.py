@@ -206,9 +206,9 @@ class SUITDetector(nn.Module):
         if self.fusion is None:
             return current
         if isinstance(past, BranchTerms) and observed is not None:
-            fused, past.carry_input = self.fusion.forward_branches(
+            own_fused, past.carry_input = self.fusion.forward_branches(
                 current, past.own, gate_past(past.carry, observed))
-            return fused
+            return own_fused
         if isinstance(past, BranchTerms):
             past = past.own
         elif observed is not None and past is not None:

@@ -81,19 +81,22 @@ class TemporalFusion(nn.Module):
         out: Tensor = self.current(current)
         # in place: the conv's output is fresh (and autograd does not need it for the conv);
         # in the conv's dtype (bfloat16 in a bfloat16 inference copy)
-        if past_term is None:
-            return out
-        if isinstance(past_term, PastTerm):
-            return past_term.add_to(out)
-        return out.add_(past_term.to(out.dtype))
+        return out if past_term is None else _add(out, past_term)
 
-    def forward_branches(self, current: Tensor, own: PastTerm, carry: PastTerm
+    def forward_branches(self, current: Tensor, own: PastTerm, carry: Tensor | PastTerm
                          ) -> tuple[Tensor, Tensor]:
         """``forward(current, own)`` and ``forward(current, carry)`` with W1 applied once
         (the same values, bit for bit)."""
         out: Tensor = self.current(current)
-        other = carry.add_to(out.clone())
+        other = _add(out.clone(), carry)
         return own.add_to(out), other
+
+
+def _add(out: Tensor, term: Tensor | PastTerm) -> Tensor:
+    """``out += term`` in place, in ``out``'s dtype."""
+    if isinstance(term, PastTerm):
+        return term.add_to(out)
+    return out.add_(term.to(out.dtype))
 
 
 @dataclass
