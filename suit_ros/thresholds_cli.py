@@ -89,25 +89,40 @@ def run(args: argparse.Namespace) -> int:
 
 def carry_thresholds(model: Any, seqs: Sequence[Sequence[Any]], published: list[float]
                      ) -> tuple[float, list[float]]:
-    """The factor on ``published`` (of :data:`CARRY_FACTORS`, the highest among ties) whose
-    carry thresholds give the best F1 on outage frames 3+ of ``seqs`` played with outages
-    (node defaults), and the thresholds."""
+    """The factor on ``published`` (:func:`best_carry_factor`) for the carry thresholds, from
+    ``seqs`` played with outages (node defaults), and the thresholds."""
     from suit_ros.evaluate import run_model
-    from suit_ros.outage import count_outage, outages_for, published_by_drive, with_outages
+    from suit_ros.outage import outages_for, with_outages
     from suit_ros.tracking import TrackerConfig
     outs = [outages_for(i, len(seq), seed=1) for i, seq in enumerate(seqs)]
     played = [with_outages(seq, o) for seq, o in zip(seqs, outs)]
-    run_ = run_model(model, played, tracker=TrackerConfig())
-    best: tuple[float, float] = (-1.0, 1.0)
+    rows = carry_factor_rows(run_model(model, played, tracker=TrackerConfig()), played, outs,
+                             published)
+    for r in rows:
+        print(f'  carry factor {r["factor"]:.2f}: outage frames 3+ recall {r["recall"]:.3f}, '
+              f'sector precision {r["precision"]:.3f}, F1 {r["f1"]:.3f}')
+    factor = best_carry_factor(rows)
+    return factor, [round(factor * t, 4) for t in published]
+
+
+def carry_factor_rows(run: Any, played: Sequence[Sequence[Any]], outs: Sequence[Sequence[Any]],
+                      published: list[float]) -> list[dict[str, float]]:
+    """Per factor of :data:`CARRY_FACTORS`: recall of the lost sectors' objects and the
+    precision of the boxes published there on outage frames 3+, and their F1, with the
+    carried boxes cut at factor x ``published`` (the others at ``published``)."""
+    from suit_ros.outage import count_outage, published_by_drive
+    rows = []
     for f in CARRY_FACTORS:
-        det = published_by_drive(run_, published, [f * t for t in published])
-        counts = count_outage(played, det, outs, [0.0] * len(published), 6)
-        tp, objects = counts.found[:, 2:].sum(), counts.objects[:, 2:].sum()
-        true, boxes = counts.true[:, 2:].sum(), counts.boxes[:, 2:].sum()
-        recall, precision = tp / max(objects, 1), true / max(boxes, 1)
-        f1 = 2 * recall * precision / max(recall + precision, 1e-9)
-        print(f'  carry factor {f:.2f}: outage frames 3+ recall {recall:.3f}, sector '
-              f'precision {precision:.3f}, F1 {f1:.3f}')
-        if f1 >= best[0]:
-            best = (f1, f)
-    return best[1], [round(best[1] * t, 4) for t in published]
+        det = published_by_drive(run, published, [f * t for t in published])
+        counts = count_outage(played, det, outs, [0.0] * len(published),
+                              max((o.frames for d in outs for o in d), default=0))
+        recall = counts.found[:, 2:].sum() / max(counts.objects[:, 2:].sum(), 1)
+        precision = counts.true[:, 2:].sum() / max(counts.boxes[:, 2:].sum(), 1)
+        rows.append({'factor': f, 'recall': float(recall), 'precision': float(precision),
+                     'f1': float(2 * recall * precision / max(recall + precision, 1e-9))})
+    return rows
+
+
+def best_carry_factor(rows: Sequence[dict[str, float]]) -> float:
+    """The factor of best F1, the highest among ties (fewer boxes for the same F1)."""
+    return max(rows, key=lambda r: (r['f1'], r['factor']))['factor']

@@ -129,3 +129,31 @@ def test_report_command_fails_clearly(tmp_path, capsys):
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'r'),
                  '--score-thresholds', '0.1', '0.2']) == 1
     assert 'needs 1 or 4 values' in capsys.readouterr().err
+
+
+def test_carry_thresholds_take_the_factor_of_best_f1_on_outage_frames():
+    """The carry thresholds: one factor on the published ones, the one of best F1 between
+    the recall of the lost sector's objects and the precision of the boxes published there on
+    outage frames 3+, the highest among ties."""
+    from test_outage import box, drive
+
+    from suit_ros.outage import Outage, with_outages
+    from suit_ros.thresholds_cli import best_carry_factor, carry_factor_rows
+    o = Outage(0.0, 120.0, 4, 4)
+    played = with_outages(drive(), [o])
+    det, carried = [], []
+    for k in range(len(played)):
+        lost = bool(o.active(k))
+        # the car ahead, held by the carry at 0.2 while its sector is lost; a ghost at 0.12
+        boxes = [box(10.3, 0), box(20, 2)] if lost else [box(10.3, 0)]
+        scores = [0.2, 0.12] if lost else [0.9]
+        det.append(Detections(np.array(boxes), np.zeros((len(boxes), 2)), np.array(scores),
+                              np.zeros(len(boxes), np.int64)))
+        carried.append(np.full(len(boxes), lost))
+    run = ModelRun([f.gt for f in played], det, [f.num_points for f in played],
+                   [0.0] * 12, [0] * 12, {}, [0] * 12, carried=carried)
+    rows = {r['factor']: r for r in carry_factor_rows(run, [played], [[o]], [0.4] * 4)}
+    assert rows[0.3]['recall'] == 1.0 and rows[0.3]['precision'] == 0.5     # the ghost too
+    assert rows[0.5]['recall'] == 1.0 and rows[0.5]['precision'] == 1.0
+    assert rows[0.55]['recall'] == 0.0 and rows[1.0]['f1'] == 0.0
+    assert best_carry_factor(list(rows.values())) == 0.5        # 0.35..0.5 tie at F1 1
