@@ -105,6 +105,15 @@ class Report:
     frames: int
     source: str
     notes: list[str] = field(default_factory=list)
+    # the detections as published (carried boxes at their own thresholds; None: the cuts of
+    # ``counts`` at ``thresholds``)
+    published: dict[str, ClassCounts] | None = None
+
+    def at_published(self, c: str) -> dict[str, Any]:
+        """Class ``c``'s counts as published."""
+        if self.published is None:
+            return self.counts[c].at(self.thresholds[self.class_names.index(c)])
+        return self.published[c].at(0.0)
 
     def to_json(self) -> dict[str, Any]:
         """JSON-serialisable summary."""
@@ -112,14 +121,15 @@ class Report:
                                'published_thresholds': dict(zip(self.class_names,
                                                                 self.thresholds)),
                                'notes': self.notes, 'classes': {}}
-        for c, thr in zip(self.class_names, self.thresholds):
+        for c in self.class_names:
             cc = self.counts[c]
-            out['classes'][c] = {'published': cc.at(thr),
+            out['classes'][c] = {'published': self.at_published(c),
                                  'ap': _r(self.ap[c]) if cc.npos else None,
                                  'sweep': [cc.at(t) for t in SWEEP]}
-        car = self.counts.get('car')
-        if car is not None:
-            out['car_heading'] = car.heading(self.thresholds[self.class_names.index('car')])
+        if 'car' in self.counts:
+            out['car_heading'] = (
+                self.counts['car'].heading(self.thresholds[self.class_names.index('car')])
+                if self.published is None else self.published['car'].heading(0.0))
         return out
 
     def markdown(self) -> str:
@@ -127,7 +137,10 @@ class Report:
         j = self.to_json()
         lines = [f'# Real-data report: {self.source}', '',
                  f'{self.frames} frames. Published thresholds: '
-                 + ', '.join(f'{c} {t:.2f}' for c, t in zip(self.class_names, self.thresholds)),
+                 + ', '.join(f'{c} {t:.2f}' for c, t in zip(self.class_names, self.thresholds))
+                 + ('' if self.published is None else
+                    ' (boxes held by the carry branch where the cloud has no returns: the '
+                    "checkpoint's carry thresholds)"),
                  '', '| class | GT | recall | precision | FP / frame | AP (nuScenes-style) |',
                  '|---|---|---|---|---|---|']
         for c in self.class_names:
@@ -167,16 +180,26 @@ def class_counts(gt: Sequence[Detections], det: Sequence[Detections],
 
 
 def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[float],
-                 source: str, max_range: float = 50.0, match_dist: float = 2.0) -> Report:
+                 source: str, max_range: float = 50.0, match_dist: float = 2.0,
+                 carry_thresholds: Sequence[float] | None = None) -> Report:
     """The report of a :class:`~suit_ros.evaluate.ModelRun` (detections at the decoding
-    threshold; the published thresholds are cuts of them)."""
+    threshold; the published thresholds are cuts of them, and with ``carry_thresholds`` the
+    boxes a carry branch decoded where the input had no returns are cut at those)."""
+    from dataclasses import replace
+
     from suit_ros.evaluate import evaluate
     names = tuple(class_names)
     scored = run.scored_detections()
     counts = class_counts(run.gt, scored, names, run.num_points, max_range, match_dist)
     ap = evaluate(run.gt, scored, names, dict.fromkeys(names, max_range),
                   run.num_points).class_ap
-    return Report(names, [float(t) for t in thresholds], counts, ap, len(run.gt), source)
+    published = None
+    if carry_thresholds is not None and any(c.any() for c in run.carried):
+        cut = replace(run, det=run.published(thresholds, carry_thresholds), carried=[])
+        published = class_counts(run.gt, cut.scored_detections(), names, run.num_points,
+                                 max_range, match_dist)
+    return Report(names, [float(t) for t in thresholds], counts, ap, len(run.gt), source,
+                  published=published)
 
 
 def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det: Detections,
@@ -299,7 +322,7 @@ def report_thresholds(meta: dict[str, Any], class_names: Sequence[str],
 
 def run(args: argparse.Namespace) -> int:
     """Run the model, write the report and pictures."""
-    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, published_thresholds
     from suit_ros.evaluate import run_model
     from suit_ros.tracking import TrackerConfig
     model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
@@ -316,18 +339,26 @@ def run(args: argparse.Namespace) -> int:
         from suit_ros.data.kitti import camera_fov_run
         result = camera_fov_run(result, seqs)
         notes.append('KITTI labels only the front camera view: only it is scored')
-    report = build_report(result, names, thresholds, source, args.max_range, args.match_dist)
+    carry = (None if args.score_thresholds
+             else published_thresholds(meta, list(names), carried=True))
+    report = build_report(result, names, thresholds, source, args.max_range, args.match_dist,
+                          carry)
     report.notes += notes
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / 'report.json').write_text(json.dumps(report.to_json(), indent=2), encoding='utf-8')
     (out / 'report.md').write_text(report.markdown(), encoding='utf-8')
-    scored = result.scored_detections()
+    scored, drawn_at = result.scored_detections(), list(thresholds)
+    if report.published is not None:       # the pictures show what is published
+        from dataclasses import replace
+        scored = replace(result, det=result.published(thresholds, carry or thresholds),
+                         carried=[]).scored_detections()
+        drawn_at = [0.0] * len(names)
     first = drawn = 0                  # first: the run's index of the sequence's frame 0
     for seq in seqs:
         for k, f in enumerate(seq[:max(args.pictures, 0)]):
             draw_bev(out / 'bev' / f'{f.sequence_id or "seq"}_{k:04d}.png',
-                     f.points, result.gt[first + k], scored[first + k], names, thresholds,
+                     f.points, result.gt[first + k], scored[first + k], names, drawn_at,
                      f.ignore_boxes, args.max_range, args.match_dist,
                      f'{source}: frame {k} of {f.sequence_id}')
             drawn += 1

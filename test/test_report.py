@@ -74,6 +74,14 @@ def test_report_drops_ignored_and_out_of_range_and_draws(tmp_path):
     assert (p['gt'], p['tp'], p['fp']) == (1, 1, 1)        # 60 m: out; 3 m: ignored
     assert rep.to_json()['car_heading']['matched'] == 1
     assert '| car | 1 | 1.000 | 0.500 |' in rep.markdown()
+    # carried boxes at their own thresholds: the one at 25 m (0.6) goes at a carry cut of 0.7,
+    # a carried one at 0.3 stays at a cut of 0.2
+    run.det = [dets([10.2, 3.0, 60.0, 25.0, 30.0], [0.9, 0.8, 0.8, 0.6, 0.3])]
+    run.carried = [np.array([False, False, False, True, True])]
+    p = build_report(run, ('car',), [0.5], 'test', carry_thresholds=[0.2]).at_published('car')
+    assert (p['gt'], p['tp'], p['fp']) == (1, 1, 2)        # 25 m and 30 m published
+    p = build_report(run, ('car',), [0.5], 'test', carry_thresholds=[0.7]).at_published('car')
+    assert (p['gt'], p['tp'], p['fp']) == (1, 1, 0)
     png = tmp_path / 'bev.png'
     draw_bev(png, np.random.default_rng(0).uniform(-40, 40, (500, 5)), gt[0], det[0], ('car',),
              [0.5], ignore)
