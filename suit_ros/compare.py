@@ -293,7 +293,11 @@ def run(args: argparse.Namespace) -> int:
     """Compare; print and write the page."""
     import torch
 
-    from suit_ros.checkpoint import default_checkpoint_path
+    from suit_ros.checkpoint import (
+        default_checkpoint_path,
+        resolve_checkpoint,
+        shipped_checkpoints,
+    )
     from suit_ros.errors import SuitRosError
     torch.set_num_threads(args.threads)
     checkpoints = [(n, p) for n, p in args.run]
@@ -309,8 +313,9 @@ def run(args: argparse.Namespace) -> int:
     if len({n for n, _ in checkpoints}) != len(checkpoints):
         raise SuitRosError('run names must differ')
     for _, path in checkpoints:
-        if not Path(path).is_file():
-            raise SuitRosError(f'checkpoint {path} does not exist')
+        if not resolve_checkpoint(path).is_file():
+            raise SuitRosError(f'checkpoint {path} does not exist (a path, or a shipped one '
+                               f'by name: {", ".join(shipped_checkpoints())})')
     try:
         result, runs, val = compare(checkpoints, variants, args.drives, args.frames,
                                     args.resamples, args.cache_dir, args.precision)
