@@ -60,7 +60,34 @@ def claims(res: dict[str, Any]) -> list[tuple[str, str, str]]:
     return out
 
 
-REAL_DEV = {'suit': 'docs/real_dev/suit.json', 'single': 'docs/real_dev/single.json'}
+REAL_DEV = {'suit': 'docs/real_dev/suit.json', 'single': 'docs/real_dev/single.json',
+            'suit_carry': 'docs/real_dev/suit_carry.json'}
+CARRY = 'suit_ros/checkpoints/suit_carry.safetensors'
+OUTAGE = 'docs/outage/shipped.json'
+CARRY_VAL = 'docs/experiments/memory_carry/val_carry/results.json'
+
+
+def carry_lines() -> list[str]:
+    """The opt-in ``suit_carry`` checkpoint: what it adds, from its metadata, the outage
+    benchmark and its validation comparison."""
+    from suit_ros.checkpoint import read_metadata
+    if not (Path(CARRY).is_file() and Path(OUTAGE).is_file() and Path(CARRY_VAL).is_file()):
+        return []
+    meta = read_metadata(CARRY)
+    runs = json.loads(Path(OUTAGE).read_text())['runs']
+    diff = json.loads(Path(CARRY_VAL).read_text())['differences']['run6c - SUIT']
+    c, d = runs['suit_carry'], runs['SUIT (suit_default)']
+    thr = meta.get('carry_publish_thresholds', {})
+    return ['', '**`suit_carry.safetensors`** (opt-in: `checkpoint: suit_carry`): '
+            f'{meta.get("description", "")}. Outage frames 3-6 of a 120-degree sector lost for '
+            f'6 frames (docs/outage): recall {fmt(c, "recall_from_frame_3", 2)} against '
+            f'{fmt(d, "recall_from_frame_3", 2)}, sector precision '
+            f'{fmt(c, "sector_precision_from_frame_3", 2)}; validation mAP against '
+            f'suit_default {fmt(diff, "mAP")}, NDS {fmt(diff, "NDS")}. The boxes it holds '
+            'where the cloud has no returns are published at '
+            + ', '.join(f'{k} {v:.2f}' for k, v in thr.items())
+            + f' ({meta.get("carry_publish_thresholds_source", "")}). Its step is about 1.3x '
+            "suit_default's (the second head)."]
 
 
 def real_dev_lines(meta: dict[str, dict[str, Any]]) -> list[str]:
@@ -185,6 +212,7 @@ def main() -> int:
                   + (f' Single frame with tracking: mAP {fmt(g, "mAP")}, NDS {fmt(g, "NDS")}, '
                      f'mAVE {fmt(g, "mAVE")}.' if g else '')]
     lines += real_dev_lines(meta)
+    lines += carry_lines()
     lines += ['', 'Limitations: trained only on the synthetic world (see docs/results.md for the '
               'held-out sensor and clutter figures, and the README for what to expect on real '
               'sensors); speed is read only partly: on moving cars the predicted along-track '

@@ -110,11 +110,18 @@ def test_published_thresholds_come_from_the_checkpoint(tmp_path):
 
 
 def test_shipped_checkpoints_carry_published_thresholds_above_the_decoding_one():
-    for name in ('suit_default.safetensors', 'centerpoint_single.safetensors'):
-        meta = read_metadata(default_checkpoint_path().parent / name)
+    for name in ('suit_default', 'centerpoint_single', 'suit_carry'):
+        meta = read_metadata(name)
         thr = published_thresholds(meta, meta['class_names'])
         assert set(meta['publish_thresholds']) == set(meta['class_names'])
         assert all(t > meta['config']['head']['score_threshold'] for t in thr), (name, thr)
+        carry = published_thresholds(meta, meta['class_names'], carried=True)
+        if meta['config'].get('fusion_gate') == 'carry_branch':
+            # its own, lower ones for what it holds where the cloud has no returns
+            assert set(meta['carry_publish_thresholds']) == set(meta['class_names'])
+            assert all(0.1 < c < t for c, t in zip(carry, thr)), (name, carry)
+        else:
+            assert carry == thr and 'carry_publish_thresholds' not in meta
 
 
 @pytest.mark.slow
