@@ -305,8 +305,8 @@ def _check_decode(branch, plain, got, ref):
     bp = {**bp, 'heatmap': torch.randn_like(bp['heatmap'])}
     thr = torch.zeros(len(branch.cfg.class_names))
     with torch.no_grad():
-        out = branch.decode(bp, obs, 1000, thr, 0.2, 1000)
-        head = branch.head.decode(bp, 1000, thr, 'rotated', 0.2, None, 1000)[0]
+        out = branch.decode(bp, obs, 300, thr, 0.2, 300)
+        head = branch.head.decode(bp, 300, thr, 'rotated', 0.2, None, 300)[0]
         plain_out = plain.decode(rp, obs, 200, thr, 0.2, 200)
     cells = out['cells']
     assert torch.equal(out['carried'], ~obs[0, cells[:, 1], cells[:, 0]])
