@@ -75,7 +75,7 @@ def carry_lines() -> list[str]:
         return []
     meta = read_metadata(CARRY)
     runs = json.loads(Path(OUTAGE).read_text())['runs']
-    diff = json.loads(Path(CARRY_VAL).read_text())['differences']['run6c - SUIT']
+    diff = json.loads(Path(CARRY_VAL).read_text())['differences']['suit_carry - SUIT']
     c, d = runs['suit_carry'], runs['SUIT (suit_default)']
     thr = meta.get('carry_publish_thresholds', {})
     return ['', '**`suit_carry.safetensors`** (opt-in: `checkpoint: suit_carry`): '

@@ -10,7 +10,7 @@ devkit computes them. NDS here has no attribute term: NDS = (5 mAP + sum of the 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 import json
 from typing import TYPE_CHECKING, Any
 
@@ -352,6 +352,11 @@ class ModelRun:
         carried = self.carried or [np.zeros(len(d), bool) for d in self.det]
         return [d.select(d.scores >= np.where(c, carry[d.labels], thr[d.labels]))
                 for d, c in zip(self.det, carried)]
+
+    def as_published(self, thresholds: Sequence[float], carry_thresholds: Sequence[float]
+                     ) -> ModelRun:
+        """The run with only its published detections (:meth:`published`)."""
+        return replace(self, det=self.published(thresholds, carry_thresholds), carried=[])
 
     def scored_detections(self) -> list[Detections]:
         """The detections, less those on ignored things (:func:`drop_ignored`)."""

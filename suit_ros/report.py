@@ -185,8 +185,6 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
     """The report of a :class:`~suit_ros.evaluate.ModelRun` (detections at the decoding
     threshold; the published thresholds are cuts of them, and with ``carry_thresholds`` the
     boxes a carry branch decoded where the input had no returns are cut at those)."""
-    from dataclasses import replace
-
     from suit_ros.evaluate import evaluate
     names = tuple(class_names)
     scored = run.scored_detections()
@@ -195,9 +193,9 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
                   run.num_points).class_ap
     published = None
     if carry_thresholds is not None and any(c.any() for c in run.carried):
-        cut = replace(run, det=run.published(thresholds, carry_thresholds), carried=[])
-        published = class_counts(run.gt, cut.scored_detections(), names, run.num_points,
-                                 max_range, match_dist)
+        published = class_counts(run.gt, run.as_published(thresholds, carry_thresholds)
+                                 .scored_detections(), names, run.num_points, max_range,
+                                 match_dist)
     return Report(names, [float(t) for t in thresholds], counts, ap, len(run.gt), source,
                   published=published)
 
@@ -350,9 +348,7 @@ def run(args: argparse.Namespace) -> int:
     (out / 'report.md').write_text(report.markdown(), encoding='utf-8')
     scored, drawn_at = result.scored_detections(), list(thresholds)
     if report.published is not None:       # the pictures show what is published
-        from dataclasses import replace
-        scored = replace(result, det=result.published(thresholds, carry or thresholds),
-                         carried=[]).scored_detections()
+        scored = result.as_published(thresholds, carry or thresholds).scored_detections()
         drawn_at = [0.0] * len(names)
     first = drawn = 0                  # first: the run's index of the sequence's frame 0
     for seq in seqs:
