@@ -45,6 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.ops.geometry import CellIndex
+from suit_ros.ops.kernels import distinct_values
 from suit_ros.structures import Detections
 
 
@@ -329,18 +330,18 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     pts = np.asarray(points)
     if pts.ndim != 2 or pts.shape[1] < 5 or len(pts) == 0 or not which.any():
         return vel, ok
-    pts = pts[(pts[:, 2] > 0.3) & (pts[:, 2] < 5.0)]        # above the ground
-    lags = pts[:, 4]
-    past_lags = np.unique(lags[lags > 0])
+    lags = distinct_values(pts[:, 4])
+    past_lags = lags[lags > 0]
     if len(past_lags) == 0:
         return vel, ok
-    # only the points near the boxes' search areas, bucketed by a coarse grid (each box reads
-    # the cells its area touches)
+    # only the points above the ground near the boxes' search areas, bucketed by a coarse
+    # grid (each box reads the cells its area touches)
     speeds = np.arange(-max_speed, max_speed + 1e-9, 0.25)
     reach = max_speed * float(past_lags.max())
     picked = np.flatnonzero(which)
     r = 0.5 * b[picked, 3] + reach + b[picked, 4]
-    index = CellIndex(pts, b[picked, :2] - r[:, None], b[picked, :2] + r[:, None], 4.0)
+    index = CellIndex(pts, b[picked, :2] - r[:, None], b[picked, :2] + r[:, None], 4.0,
+                      z_range=(0.3, 5.0))
     for n, j in enumerate(picked):
         cx, cy, cz, length, width, height, yaw = b[j]
         half = 0.5 * length + reach

@@ -105,13 +105,11 @@ class SUITDetector(nn.Module):
     def encode_observed(self, points: Sequence[Tensor]) -> tuple[Tensor, Tensor | None]:
         """:meth:`encode`, and where the input has returns (``(B, H, W)`` bool at the head
         grid, ``fusion_gate_radius`` cells around each occupied pillar; None without a gate)."""
-        rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
-                for i, pts in enumerate(points)]
         # a frozen base (temporal fine-tuning) builds no graph: no backward through it
         grad = torch.is_grad_enabled() and any(
             p.requires_grad for m in (self.pillars, self.backbone) for p in m.parameters())
         with torch.set_grad_enabled(grad):
-            bev = self.pillars(torch.cat(rows, dim=0), len(points))
+            bev = self.pillars.encode_clouds(points)
             out: Tensor = self.backbone(bev)
         if self.cfg.fusion_gate == 'none' or self.fusion is None:
             return out, None

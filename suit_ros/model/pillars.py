@@ -7,6 +7,8 @@ grid and its running count give each point its pillar's index (pure torch; 4x fa
 """
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import torch
 from torch import Tensor, nn
 
@@ -87,35 +89,86 @@ class PillarEncoder(nn.Module):
         inverse = (torch.cumsum(occupied, 0) - 1)[key]
         return pts, inverse, keys
 
-    def _folded_pillars(self, feats: Tensor, inverse: Tensor, mean: Tensor, centre_x: Tensor,
-                        centre_y: Tensor) -> Tensor:
-        """The same pillar features when the norm is folded into ``linear`` (inference copy),
-        without building the decorated points: the linear map of the offsets from the pillar's
-        mean and centre splits into a per-point and a per-pillar term; the max over a pillar's
-        points is taken on the per-point term, then the per-pillar term is subtracted and the
-        ReLU applied (both commute with that max)."""
-        C = feats.shape[1]
+    def _folded_terms(self, C: int) -> Tensor:
+        """The folded encoder's linear map split for the per-pillar max: the linear map of a
+        point's offsets from its pillar's mean and centre splits into a per-point term
+        (``A``, ``(32, C)``, applied to the raw features) and a per-pillar one
+        (:meth:`_per_pillar`); the max over a pillar's points is taken on the per-point term,
+        then the per-pillar term is subtracted and the ReLU applied (both commute with that
+        max)."""
         W = self.weight()
         A = W[:, :C].clone()
         A[:, :3] += W[:, C:C + 3]
         A[:, 0] += W[:, C + 3]
         A[:, 1] += W[:, C + 4]
+        return A
+
+    def _per_pillar(self, C: int, mean: Tensor, keys: Tensor) -> Tensor:
+        """The per-pillar term of :meth:`_folded_terms` for pillars at ``keys`` (cells)."""
+        g = self.grid
+        W = self.weight()
+        centre_x = ((keys % g.nx).to(mean.dtype) + 0.5) * g.pillar_size + g.point_range[0]
+        centre_y = (((keys // g.nx) % g.ny).to(mean.dtype) + 0.5) * g.pillar_size \
+            + g.point_range[1]
         per_pillar = (mean @ W[:, C:C + 3].T + centre_x[:, None] * W[:, C + 3]
                       + centre_y[:, None] * W[:, C + 4])
         if self.linear.bias is not None:
             per_pillar = per_pillar - self.linear.bias
+        return per_pillar
+
+    def _folded_pillars(self, feats: Tensor, inverse: Tensor, mean: Tensor, keys: Tensor
+                        ) -> Tensor:
+        """The same pillar features when the norm is folded into ``linear`` (inference copy),
+        without building the decorated points (:meth:`_folded_terms`)."""
+        C = feats.shape[1]
+        per_pillar = self._per_pillar(C, mean, keys)
         # in chunks of points: a (P, C) product of a 64-beam input (over 40 MB) would be a
         # fresh allocation every frame (above the allocator's reuse threshold, paid in page
         # faults, 3x the work itself); the max does not depend on the order of the points
         pillar = torch.full(per_pillar.shape, float('-inf'), dtype=feats.dtype,
                             device=feats.device)
-        A_t = A.T.to(feats.dtype)
+        A_t = self._folded_terms(C).T.to(feats.dtype)
         for a in range(0, feats.shape[0], self.CHUNK):
             z = feats[a:a + self.CHUNK] @ A_t
             pillar.scatter_reduce_(0, inverse[a:a + self.CHUNK, None].expand_as(z), z, 'amax')
         # the per-pillar term is the same for every point of the pillar: subtract it after
         # the max
         return torch.relu_(pillar.sub_(per_pillar))
+
+    def compiled(self, clouds: Sequence[Tensor]) -> bool:
+        """Whether :meth:`encode_clouds` takes the compiled path for these clouds: the
+        folded inference copy (no norm, no gradient), no cap, float32 clouds on the CPU."""
+        return (not self.training and isinstance(self.norm, nn.Identity) and not self.max_points
+                and not torch.is_grad_enabled()
+                and all(c.device.type == 'cpu' and c.dtype == torch.float32 for c in clouds))
+
+    def encode_clouds(self, clouds: Sequence[Tensor]) -> Tensor:
+        """Encode a batch of ``(N_i, in_channels)`` clouds into ``(B, C, ny, nx)``.
+
+        The inference copy on the CPU pillarizes and reduces each cloud in two compiled
+        passes over its points (:func:`suit_ros.ops.kernels.pillar_max`); the same features
+        as :meth:`forward` (the tests compare), which every other case runs.
+        """
+        if not self.compiled(clouds):
+            rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
+                    for i, pts in enumerate(clouds)]
+            out: Tensor = self(torch.cat(rows, dim=0), len(clouds))
+            return out
+        from suit_ros.ops.kernels import pillar_max
+        g = self.grid
+        C = self.in_channels
+        A = self._folded_terms(C).T.contiguous().numpy()
+        cells = g.ny * g.nx
+        canvas = torch.zeros(len(clouds) * cells, self.out_channels,
+                             dtype=self.canvas_dtype or torch.float32)
+        for b, pts in enumerate(clouds):
+            keys, mean, top = pillar_max(pts.numpy(), g.point_range, g.pillar_size, g.nx, g.ny,
+                                         A)
+            k = torch.from_numpy(keys)
+            pillar = torch.relu_(torch.from_numpy(top).sub_(
+                self._per_pillar(C, torch.from_numpy(mean), k)))
+            canvas[k + b * cells] = pillar.to(canvas.dtype)
+        return canvas.view(len(clouds), g.ny, g.nx, self.out_channels).permute(0, 3, 1, 2)
 
     def cap(self, points: Tensor) -> Tensor:
         """``points`` with the denser pillars thinned to about ``max_points`` each
@@ -138,11 +191,11 @@ class PillarEncoder(nn.Module):
         mean = torch.zeros(U, 3, dtype=feats.dtype, device=feats.device)
         mean.index_add_(0, inverse, feats[:, :3])
         mean = mean / count.clamp(min=1.0)[:, None]
-        ix = (keys % g.nx).to(feats.dtype)
-        iy = ((keys // g.nx) % g.ny).to(feats.dtype)
-        centre_x = (ix + 0.5) * g.pillar_size + g.point_range[0]
-        centre_y = (iy + 0.5) * g.pillar_size + g.point_range[1]
         if self.training or not isinstance(self.norm, nn.Identity):
+            ix = (keys % g.nx).to(feats.dtype)
+            iy = ((keys // g.nx) % g.ny).to(feats.dtype)
+            centre_x = (ix + 0.5) * g.pillar_size + g.point_range[0]
+            centre_y = (iy + 0.5) * g.pillar_size + g.point_range[1]
             decorated = torch.cat([
                 feats,
                 feats[:, :3] - mean[inverse],
@@ -155,7 +208,7 @@ class PillarEncoder(nn.Module):
             pillar = pillar.scatter_reduce_(0, inverse[:, None].expand_as(x), x, 'amax',
                                             include_self=False)
         else:
-            pillar = self._folded_pillars(feats, inverse, mean, centre_x, centre_y)
+            pillar = self._folded_pillars(feats, inverse, mean, keys)
         canvas = torch.zeros(batch_size * g.ny * g.nx, self.out_channels,
                              dtype=self.canvas_dtype or pillar.dtype, device=pillar.device)
         canvas[keys] = pillar.to(canvas.dtype)

@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.ops.geometry import se3_inverse, transform_boxes
+from suit_ros.ops.kernels import transform_sweep
 from suit_ros.structures import Detections, Frame
 
 DEFAULT_MAX_AGE_S = 0.5
@@ -74,14 +75,9 @@ def accumulate_sweeps(sweeps: Sequence[Sweep], T_base_lidar: NDArray[np.float64]
         b = a + len(pts)
         T = (np.asarray(T_base_lidar, np.float64) if i == 0
              else T_base_odom @ np.asarray(s.T_odom_lidar, np.float64))
-        np.matmul(pts[:, :3], T[:3, :3].T.astype(np.float32), out=out[a:b, :3])
-        out[a:b, :3] += T[:3, 3].astype(np.float32)
-        out[a:b, 3] = pts[:, 3]
-        lag = np.float32((now.stamp_ns - s.stamp_ns) * 1e-9)
-        if pts.shape[1] == 5:
-            np.add(pts[:, 4], lag, out=out[a:b, 4])
-        else:
-            out[a:b, 4] = lag
+        # one pass a sweep (compiled): moved, intensity copied, lag written
+        transform_sweep(pts, T[:3, :3].astype(np.float32), T[:3, 3].astype(np.float32),
+                        np.float32((now.stamp_ns - s.stamp_ns) * 1e-9), out[a:b])
         a = b
     return out
 

@@ -6,6 +6,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.ops.kernels import bucket_points
+
 
 def se3_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
     """Invert a rigid transform ``(4, 4)`` exactly (R^T, -R^T t)."""
@@ -98,10 +100,12 @@ class CellIndex:
 
     :param xy: ``(N, >= 2)`` points (x, y first).
     :param lo, hi: ``(M, 2)`` each rectangle's lower and upper corner (m).
+    :param z_range: only the points with ``lo < z < hi`` (third column).
     """
 
     def __init__(self, xy: NDArray[np.floating[Any]], lo: NDArray[np.floating[Any]],
-                 hi: NDArray[np.floating[Any]], cell: float) -> None:
+                 hi: NDArray[np.floating[Any]], cell: float,
+                 z_range: tuple[float, float] | None = None) -> None:
         lo_c = np.floor(np.asarray(lo, np.float64).reshape(-1, 2) / cell).astype(np.int64)
         hi_c = np.floor(np.asarray(hi, np.float64).reshape(-1, 2) / cell).astype(np.int64)
         self.order = np.zeros(0, np.int64)
@@ -118,15 +122,8 @@ class CellIndex:
             self.cells.append((rows[:, None] * shape[1] + cols[None, :]).ravel())
         marked = np.zeros(int(shape[0]) * int(shape[1]), bool)
         marked[np.concatenate(self.cells)] = True
-        # columns compared one by one: reductions along a short axis are slow in numpy
-        ix = np.floor(p[:, 0] * (1.0 / cell)).astype(np.int64) - origin[0]
-        iy = np.floor(p[:, 1] * (1.0 / cell)).astype(np.int64) - origin[1]
-        idx = np.flatnonzero((ix >= 0) & (ix < shape[0]) & (iy >= 0) & (iy < shape[1]))
-        flat = ix[idx] * shape[1] + iy[idx]
-        keep = marked[flat]
-        idx, flat = idx[keep], flat[keep]
-        order = np.argsort(flat, kind='stable')
-        self.order, self.keys = idx[order], flat[order]
+        # one compiled pass: the points in marked cells, sorted by cell (counting sort)
+        self.order, self.keys = bucket_points(p, cell, origin, shape, marked, z_range)
 
     def select(self, k: int) -> NDArray[np.int64]:
         """Indices (into the cloud) of the points in the cells rectangle ``k`` touches."""
