@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.ops.geometry import CellIndex
-from suit_ros.ops.kernels import distinct_values
+from suit_ros.ops.kernels import distinct_values, sweep_histograms
 from suit_ros.structures import Detections
 
 
@@ -340,27 +340,28 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     reach = max_speed * float(past_lags.max())
     picked = np.flatnonzero(which)
     r = 0.5 * b[picked, 3] + reach + b[picked, 4]
-    index = CellIndex(pts, b[picked, :2] - r[:, None], b[picked, :2] + r[:, None], 4.0,
-                      z_range=(0.3, 5.0))
+    bp = b[picked]
+    half = 0.5 * bp[:, 3] + reach
+    band = np.stack([bp[:, 0], bp[:, 1], half, 0.5 * bp[:, 4] + 0.3, bp[:, 6]], axis=1)
+    index = CellIndex(pts, bp[:, :2] - r[:, None], bp[:, :2] + r[:, None], 2.0,
+                      z_range=(0.3, 5.0), oriented=band)
+    # each box's returns projected on its heading and histogrammed per sweep, in one
+    # compiled pass (in the cloud's dtype, as numpy computes an array against float scalars)
+    cos, sin = np.cos(bp[:, 6]), np.sin(bp[:, 6])
+    geometry = np.zeros((len(picked), 8), np.float64)
+    geometry[:, :7] = np.stack([bp[:, 0], bp[:, 1], cos, sin, half, 0.5 * bp[:, 4] + 0.3,
+                                bp[:, 2] + 0.5 * bp[:, 5] + 0.3], axis=1)
+    n_bins = (2 * half / bin_m).astype(np.int64) + 1
+    idx, starts = index.select_all()
+    hist, length = sweep_histograms(pts, idx, starts, geometry.astype(pts.dtype),
+                                    past_lags, pts.dtype.type(bin_m), n_bins)
     for n, j in enumerate(picked):
-        cx, cy, cz, length, width, height, yaw = b[j]
-        half = 0.5 * length + reach
-        sel = index.select(n)
-        p = pts[sel]
-        c, s = np.cos(yaw), np.sin(yaw)
-        dx, dy = p[:, 0] - cx, p[:, 1] - cy
-        u = dx * c + dy * s
-        inside = ((np.abs(u) < half) & (np.abs(-dx * s + dy * c) < 0.5 * width + 0.3)
-                  & (p[:, 2] < cz + 0.5 * height + 0.3))
-        bins = ((u[inside] + half) / bin_m).astype(np.int64)
-        lag = p[inside, 4]
-        n_bins = int(2 * half / bin_m) + 1
-        current = np.bincount(bins[lag == 0], minlength=n_bins).astype(np.float64)
+        current = hist[n, 0, :length[n]]
         if current.sum() < min_points:
             continue
         score = np.zeros(len(speeds))
-        for L in past_lags:
-            earlier = np.bincount(bins[lag == L], minlength=n_bins).astype(np.float64)
+        for q, L in enumerate(past_lags):
+            earlier = hist[n, 1 + q, :length[n]]
             if earlier.sum() < min_points:
                 continue
             # corr[k]: overlap when the earlier sweep is shifted by (k - (n - 1)) bins
@@ -369,5 +370,5 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
             score += np.interp(shift, np.arange(len(corr)), corr)
             ok[j] = True
         if ok[j]:
-            vel[j] = speeds[int(np.argmax(score))] * np.array([c, s])
+            vel[j] = speeds[int(np.argmax(score))] * np.array([cos[n], sin[n]])
     return vel, ok

@@ -137,9 +137,10 @@ class PillarEncoder(nn.Module):
 
     def compiled(self, clouds: Sequence[Tensor]) -> bool:
         """Whether :meth:`encode_clouds` takes the compiled path for these clouds: the
-        folded inference copy (no norm, no gradient), no cap, float32 clouds on the CPU."""
+        folded inference copy (no norm, no gradient), no cap, the five usual input channels,
+        float32 clouds on the CPU."""
         return (not self.training and isinstance(self.norm, nn.Identity) and not self.max_points
-                and not torch.is_grad_enabled()
+                and self.in_channels == 5 and not torch.is_grad_enabled()
                 and all(c.device.type == 'cpu' and c.dtype == torch.float32 for c in clouds))
 
     def encode_clouds(self, clouds: Sequence[Tensor]) -> Tensor:

@@ -6,7 +6,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.kernels import bucket_points
+from suit_ros.ops.kernels import bucket_points, count_in_boxes, gather_cells
 
 
 def se3_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -101,11 +101,16 @@ class CellIndex:
     :param xy: ``(N, >= 2)`` points (x, y first).
     :param lo, hi: ``(M, 2)`` each rectangle's lower and upper corner (m).
     :param z_range: only the points with ``lo < z < hi`` (third column).
+    :param oriented: ``(M, 5)`` centre x, y, half length, half width and yaw of a rotated
+        rectangle inside each axis-aligned one: a rectangle then keeps only the cells that its
+        rotated rectangle can touch (a cell whose centre lies within half a cell diagonal of
+        it), so a search along a heading reads a band, not the square around it.
     """
 
     def __init__(self, xy: NDArray[np.floating[Any]], lo: NDArray[np.floating[Any]],
                  hi: NDArray[np.floating[Any]], cell: float,
-                 z_range: tuple[float, float] | None = None) -> None:
+                 z_range: tuple[float, float] | None = None,
+                 oriented: NDArray[np.floating[Any]] | None = None) -> None:
         lo_c = np.floor(np.asarray(lo, np.float64).reshape(-1, 2) / cell).astype(np.int64)
         hi_c = np.floor(np.asarray(hi, np.float64).reshape(-1, 2) / cell).astype(np.int64)
         self.order = np.zeros(0, np.int64)
@@ -117,13 +122,32 @@ class CellIndex:
             return
         origin = lo_c.min(0)
         shape = hi_c.max(0) - origin + 1
-        for a, b in zip(lo_c - origin, hi_c - origin):
+        margin = cell * np.sqrt(0.5)
+        for k, (a, b) in enumerate(zip(lo_c - origin, hi_c - origin)):
             rows, cols = np.arange(a[0], b[0] + 1), np.arange(a[1], b[1] + 1)
-            self.cells.append((rows[:, None] * shape[1] + cols[None, :]).ravel())
+            flat = (rows[:, None] * shape[1] + cols[None, :]).ravel()
+            if oriented is not None:
+                cx, cy, hl, hw, yaw = (float(v) for v in oriented[k])
+                dx = np.repeat((rows + origin[0] + 0.5) * cell - cx, len(cols))
+                dy = np.tile((cols + origin[1] + 0.5) * cell - cy, len(rows))
+                c, s = np.cos(yaw), np.sin(yaw)
+                flat = flat[(np.abs(dx * c + dy * s) <= hl + margin)
+                            & (np.abs(-dx * s + dy * c) <= hw + margin)]
+            self.cells.append(flat)
         marked = np.zeros(int(shape[0]) * int(shape[1]), bool)
         marked[np.concatenate(self.cells)] = True
         # one compiled pass: the points in marked cells, sorted by cell (counting sort)
         self.order, self.keys = bucket_points(p, cell, origin, shape, marked, z_range)
+
+    def select_all(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """Every rectangle's :meth:`select`, concatenated, and where each one's run starts
+        ``(M + 1,)`` (one compiled pass)."""
+        if not self.cells:
+            return np.zeros(0, np.int64), np.zeros(1, np.int64)
+        offsets = np.zeros(len(self.cells) + 1, np.int64)
+        np.cumsum([len(c) for c in self.cells], out=offsets[1:])
+        idx, starts = gather_cells(self.order, self.keys, np.concatenate(self.cells), offsets)
+        return idx, starts
 
     def select(self, k: int) -> NDArray[np.int64]:
         """Indices (into the cloud) of the points in the cells rectangle ``k`` touches."""
@@ -144,11 +168,10 @@ def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floa
         return out
     r = 0.5 * np.hypot(b[:, 3], b[:, 4])
     index = CellIndex(p, b[:, :2] - r[:, None], b[:, :2] + r[:, None], cell)
-    for k in range(len(b)):
-        sel = index.select(k)
-        if len(sel):
-            out[k] = int(points_in_boxes(np.asarray(p[sel, :3], np.float64), b[k:k + 1]).sum())
-    return out
+    idx, starts = index.select_all()
+    counts: NDArray[np.uint32] = count_in_boxes(p, idx, starts, b, np.cos(b[:, 6]),
+                                                np.sin(b[:, 6]))
+    return counts
 
 
 def thin_per_cell(cell: NDArray[np.integer[Any]], max_points: int) -> NDArray[np.bool_]:

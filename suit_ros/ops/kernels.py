@@ -54,26 +54,21 @@ def _pillar_ids(points: Any, lo: Any, hi: Any, size: Any, nx: int, ny: int
     """Each point's pillar (-1 out of range; pillars numbered in order of first appearance)
     and each pillar's cell ``iy * nx + ix``."""
     n = points.shape[0]
-    cell_pillar = np.full(nx * ny, -1, np.int64)
-    pid = np.empty(n, np.int64)
+    cell_pillar = np.full(nx * ny, -1, np.int32)
+    pid = np.empty(n, np.int32)
     U = 0
     for i in range(n):
         x = points[i, 0]
         y = points[i, 1]
         z = points[i, 2]
+        pid[i] = -1
         if (x >= lo[0] and x < hi[0] and y >= lo[1] and y < hi[1]
                 and z >= lo[2] and z < hi[2]):
-            ix = min(int((x - lo[0]) / size), nx - 1)
-            iy = min(int((y - lo[1]) / size), ny - 1)
-            k = iy * nx + ix
-            p = cell_pillar[k]
-            if p < 0:
-                p = U
-                cell_pillar[k] = p
+            k = min(int((y - lo[1]) / size), ny - 1) * nx + min(int((x - lo[0]) / size), nx - 1)
+            if cell_pillar[k] < 0:
+                cell_pillar[k] = U
                 U += 1
-            pid[i] = p
-        else:
-            pid[i] = -1
+            pid[i] = cell_pillar[k]
     cells = np.empty(U, np.int64)
     for k in range(nx * ny):
         if cell_pillar[k] >= 0:
@@ -83,33 +78,41 @@ def _pillar_ids(points: Any, lo: Any, hi: Any, size: Any, nx: int, ny: int
 
 @_jit_fma
 def _pillar_reduce(points: Any, pid: Any, U: int, A: Any) -> tuple[Any, Any]:  # pragma: no cover
-    """Per pillar: the mean of its points' xyz and the max over its points of ``p @ A``."""
-    n, F = points.shape
+    """Per pillar: the mean of its points' xyz and the max over its points of ``p @ A``.
+
+    The five features of a point are summed in their order, as a matmul does; the loop over
+    the ``C`` outputs is innermost, so it runs in SIMD lanes (``contract`` fuses only the
+    multiply-adds of that sum).
+    """
+    n = points.shape[0]
     C = A.shape[1]
     count = np.zeros(U, np.float32)
     mean = np.zeros((U, 3), np.float32)
-    top = np.full((U, C), -np.inf, np.float32)
-    z = np.empty(C, np.float32)
+    top = np.full(U * C, -np.inf, np.float32)
+    a = A.ravel()
     for i in range(n):
         p = pid[i]
         if p < 0:
             continue
         count[p] += np.float32(1.0)
-        for j in range(3):
-            mean[p, j] += points[i, j]
+        x0 = points[i, 0]
+        x1 = points[i, 1]
+        x2 = points[i, 2]
+        x3 = points[i, 3]
+        x4 = points[i, 4]
+        mean[p, 0] += x0
+        mean[p, 1] += x1
+        mean[p, 2] += x2
+        base = p * C
         for c in range(C):
-            z[c] = np.float32(0.0)
-        for f in range(F):
-            v = points[i, f]
-            for c in range(C):
-                z[c] += v * A[f, c]
-        row = top[p]
-        for c in range(C):
-            row[c] = max(row[c], z[c])
+            v = ((((np.float32(0.0) + x0 * a[c]) + x1 * a[C + c]) + x2 * a[2 * C + c])
+                 + x3 * a[3 * C + c]) + x4 * a[4 * C + c]
+            if v > top[base + c]:
+                top[base + c] = v
     for p in range(U):
         for j in range(3):
             mean[p, j] = mean[p, j] / count[p]
-    return mean, top
+    return mean, top.reshape(U, C)
 
 
 def pillar_max(points: NDArray[np.float32], point_range: tuple[float, ...], size: float,
@@ -117,43 +120,61 @@ def pillar_max(points: NDArray[np.float32], point_range: tuple[float, ...], size
                ) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
     """Pillarize one cloud and reduce it per pillar, in two passes over its points.
 
-    :param points: ``(N, F)`` float32, x, y, z first.
+    :param points: ``(N, 5)`` float32: x, y, z, intensity, time lag.
     :param point_range: x0, y0, z0, x1, y1, z1; a point is in range when ``lo <= p < hi``.
-    :param A: ``(F, C)`` float32, the per-point linear map.
+    :param A: ``(5, C)`` float32, the per-point linear map.
     :return: each occupied pillar's cell ``iy * nx + ix`` ``(U,)``, its points' mean xyz
         ``(U, 3)`` and ``max_i points[i] @ A`` over its points ``(U, C)``, pillars in order
         of first appearance.
     """
     r = np.asarray(point_range, np.float32)
     pts = np.ascontiguousarray(points, np.float32)
+    if pts.ndim != 2 or pts.shape[1] != 5 or A.shape[0] != 5:
+        raise ValueError(f'pillar_max takes (N, 5) points and a (5, C) map, got {pts.shape} '
+                         f'and {A.shape}')
     pid, cells = _pillar_ids(pts, r[:3], r[3:], np.float32(size), int(nx), int(ny))
     mean, top = _pillar_reduce(pts, pid, len(cells), np.ascontiguousarray(A, np.float32))
     return cells, mean, top
 
 
 @_jit
-def _bucket(x: Any, y: Any, inv_cell: Any, origin: Any, shape: Any, marked: Any,
-            z: Any, zlo: Any, zhi: Any, use_z: bool) -> tuple[Any, Any]:  # pragma: no cover
-    n = x.shape[0]
-    flat = np.empty(n, np.int64)
+def _bucket(p: Any, inv_cell: Any, origin: Any, shape: Any, marked: Any, zlo: Any, zhi: Any,
+            z_col: int) -> tuple[Any, Any]:  # pragma: no cover
+    """The points in marked cells, counting-sorted by cell (stable: a cell's points in cloud
+    order). Without branches on the points (a cloud in random order, as a merged or
+    resampled one can be, would mispredict most of them): every point is written at the
+    end of the kept ones, and the end moves on only when it is kept."""
+    n = p.shape[0]
+    flat = np.empty(n + 1, np.int64)
+    idx = np.empty(n + 1, np.int64)
+    cells = shape[0] * shape[1]
+    counts = np.zeros(cells + 1, np.int64)
+    use_z = z_col >= 0
+    zc = z_col if use_z else 0
     m = 0
-    idx = np.empty(n, np.int64)
-    counts = np.zeros(shape[0] * shape[1] + 1, np.int64)
     for i in range(n):
-        if use_z and not (z[i] > zlo and z[i] < zhi):
-            continue
-        ix = np.int64(np.floor(x[i] * inv_cell)) - origin[0]
-        iy = np.int64(np.floor(y[i] * inv_cell)) - origin[1]
-        if ix < 0 or ix >= shape[0] or iy < 0 or iy >= shape[1]:
-            continue
-        k = ix * shape[1] + iy
-        if not marked[k]:
-            continue
+        x = p[i, 0] * inv_cell
+        y = p[i, 1] * inv_cell
+        finite = abs(x) < 1e15 and abs(y) < 1e15      # NaN, inf: in no cell
+        x = x if finite else 0.0
+        y = y if finite else 0.0
+        # floor, without a libm call
+        ix = np.int64(x)
+        ix -= ix > x
+        iy = np.int64(y)
+        iy -= iy > y
+        ix -= origin[0]
+        iy -= origin[1]
+        inside = finite & (ix >= 0) & (ix < shape[0]) & (iy >= 0) & (iy < shape[1])
+        if use_z:
+            z = p[i, zc]
+            inside &= (z > zlo) & (z < zhi)
+        k = ix * shape[1] + iy if inside else 0
+        keep = inside & marked[k]
         idx[m] = i
         flat[m] = k
-        counts[k + 1] += 1
-        m += 1
-    # a counting sort by cell, stable (points of a cell in cloud order)
+        counts[k + 1] += keep
+        m += keep
     for k in range(1, counts.shape[0]):
         counts[k] += counts[k - 1]
     order = np.empty(m, np.int64)
@@ -182,23 +203,23 @@ def bucket_points(xy: NDArray[np.floating[Any]], cell: float, origin: NDArray[np
     p = np.asarray(xy)
     if p.dtype not in (np.float32, np.float64):
         p = p.astype(np.float64)
-    use_z = z_range is not None
     zlo, zhi = z_range if z_range is not None else (0.0, 0.0)
-    z = p[:, z_column] if use_z else p[:, 0]
     dt = p.dtype.type
-    return _bucket(p[:, 0], p[:, 1], dt(1.0 / cell), np.asarray(origin, np.int64),
-                   np.asarray(shape, np.int64), np.ascontiguousarray(marked, np.bool_),
-                   z, dt(zlo), dt(zhi), use_z)
+    return _bucket(p, dt(1.0 / cell), np.asarray(origin, np.int64), np.asarray(shape, np.int64),
+                   np.ascontiguousarray(marked, np.bool_), dt(zlo), dt(zhi),
+                   z_column if z_range is not None else -1)
 
 
 @_jit
 def _distinct(values: Any, limit: int) -> Any:  # pragma: no cover
     found = np.empty(limit, values.dtype)
     m = 0
+    last = values[0]
     for i in range(values.shape[0]):
         v = values[i]
-        if v != v:
+        if v != v or (v == last and m > 0):       # NaN; the value just seen (runs of one lag)
             continue
+        last = v
         seen = False
         for j in range(m):
             if found[j] == v:
@@ -237,3 +258,108 @@ def warm_up() -> None:
         bucket_points(arr, 1.0, np.zeros(2, np.int64), np.array([2, 2]), marked)
         bucket_points(arr, 1.0, np.zeros(2, np.int64), np.array([2, 2]), marked, (0.0, 1.0))
     distinct_values(pts[:, 4])
+
+
+@_jit
+def gather_cells(order: Any, keys: Any, cells: Any, offsets: Any
+                 ) -> tuple[Any, Any]:  # pragma: no cover
+    """The points of each rectangle of a :class:`~suit_ros.ops.geometry.CellIndex`: for
+    rectangle ``r``, its cells are ``cells[offsets[r]:offsets[r + 1]]``; the points of a cell
+    are the run of ``keys == cell`` in the sorted ``keys`` (``order`` gives their indices).
+
+    :return: the indices of every rectangle's points, concatenated, and where each
+        rectangle's run starts ``(R + 1,)``.
+    """
+    R = offsets.shape[0] - 1
+    starts = np.zeros(R + 1, np.int64)
+    lo = np.searchsorted(keys, cells, 'left')
+    hi = np.searchsorted(keys, cells, 'right')
+    for r in range(R):
+        n = 0
+        for j in range(offsets[r], offsets[r + 1]):
+            n += hi[j] - lo[j]
+        starts[r + 1] = starts[r] + n
+    idx = np.empty(starts[R], np.int64)
+    for r in range(R):
+        m = starts[r]
+        for j in range(offsets[r], offsets[r + 1]):
+            for q in range(lo[j], hi[j]):
+                idx[m] = order[q]
+                m += 1
+    return idx, starts
+
+
+@_jit
+def count_in_boxes(xyz: Any, idx: Any, starts: Any, boxes: Any, cos: Any, sin: Any
+                   ) -> Any:  # pragma: no cover
+    """Per box ``k``, how many of the points ``idx[starts[k]:starts[k + 1]]`` lie inside it,
+    the rule and float64 arithmetic of :func:`suit_ros.ops.geometry.points_in_boxes`
+    (``cos``/``sin`` of the yaws given, computed by numpy)."""
+    M = boxes.shape[0]
+    out = np.zeros(M, np.uint32)
+    for k in range(M):
+        hl = boxes[k, 3] / 2
+        hw = boxes[k, 4] / 2
+        hh = boxes[k, 5] / 2
+        c = cos[k]
+        s = sin[k]
+        n = 0
+        for j in range(starts[k], starts[k + 1]):
+            i = idx[j]
+            dx = np.float64(xyz[i, 0]) - boxes[k, 0]
+            dy = np.float64(xyz[i, 1]) - boxes[k, 1]
+            dz = np.float64(xyz[i, 2]) - boxes[k, 2]
+            if (abs(dx * c + dy * s) <= hl and abs(-dx * s + dy * c) <= hw
+                    and abs(dz) <= hh):
+                n += 1
+        out[k] = n
+    return out
+
+
+@_jit
+def sweep_histograms(pts: Any, idx: Any, starts: Any, geometry: Any, lags: Any, bin_m: Any,
+                     n_bins: Any) -> tuple[Any, Any]:  # pragma: no cover
+    """Per box, the histograms along its heading of its returns, one per sweep (row 0 the
+    current sweep, row ``1 + l`` the sweep of lag ``lags[l]``), for
+    :func:`suit_ros.tracking.sweep_velocities`.
+
+    float32 arithmetic throughout, as numpy computes a float32 cloud against float scalars:
+    ``geometry`` is ``(M, 8)`` float32: centre x, y, cos, sin, half the search length, half
+    the width plus margin, the top (centre z + half height + margin), and unused.
+    :return: ``(M, 1 + L, width)`` counts and each box's histogram length (its ``n_bins``,
+        or more where a bin rounded up past it, as ``np.bincount`` would return).
+    """
+    M = geometry.shape[0]
+    L = lags.shape[0]
+    # numpy's bincount grows past n_bins if a float32 bin rounds up to n_bins: room for it
+    width = (n_bins.max() if M else 0) + 2
+    out = np.zeros((M, L + 1, width), np.float64)
+    length = n_bins.copy()
+    for k in range(M):
+        cx = geometry[k, 0]
+        cy = geometry[k, 1]
+        c = geometry[k, 2]
+        s = geometry[k, 3]
+        half = geometry[k, 4]
+        across_max = geometry[k, 5]
+        top = geometry[k, 6]
+        for j in range(starts[k], starts[k + 1]):
+            # without branches on the points (see _bucket); a point outside adds 0
+            i = idx[j]
+            dx = pts[i, 0] - cx
+            dy = pts[i, 1] - cy
+            u = dx * c + dy * s
+            inside = (abs(u) < half) & (abs(-dx * s + dy * c) < across_max) & (pts[i, 2] < top)
+            lag = pts[i, 4]
+            row = 0
+            valid = lag == 0
+            for q in range(L):
+                same = lags[q] == lag
+                row = 1 + q if same else row
+                valid |= same
+            inside &= valid
+            b = np.int64((u + half) / bin_m) if inside else 0
+            b = min(b, width - 1)
+            out[k, row, b] += inside
+            length[k] = max(length[k], (b + 1) * inside)
+    return out, length
