@@ -159,13 +159,14 @@ def test_cell_index_selects_exactly_the_points_of_the_touched_cells():
     xy = rng.uniform(-30, 30, (5000, 2))
     lo = np.array([[-10.0, -3.0], [5.0, 5.0], [100.0, 100.0]])
     hi = np.array([[-4.0, 7.5], [5.5, 20.0], [101.0, 101.0]])
-    index = CellIndex(xy, lo, hi, 2.0)
+    idx, starts = CellIndex(xy, lo, hi, 2.0).select_all()
     cells = np.floor(xy / 2.0)
     for k in range(3):
         inside = (cells >= np.floor(lo[k] / 2)) & (cells <= np.floor(hi[k] / 2))
         want = np.flatnonzero(np.all(inside, axis=1))
-        np.testing.assert_array_equal(np.sort(index.select(k)), want)
-    assert len(CellIndex(xy[:0], lo, hi, 2.0).select(1)) == 0
+        np.testing.assert_array_equal(np.sort(idx[starts[k]:starts[k + 1]]), want)
+    idx, starts = CellIndex(xy[:0], lo, hi, 2.0).select_all()
+    assert len(idx) == 0 and len(starts) == 4
 
 
 def test_count_points_in_boxes_matches_the_dense_membership_on_a_large_cloud():

@@ -64,7 +64,7 @@ def accumulate_sweeps(sweeps: Sequence[Sweep], T_base_lidar: NDArray[np.float64]
         raise ValueError('accumulate_sweeps needs at least the current sweep')
     now = sweeps[0]
     T_base_odom = np.asarray(T_base_lidar, np.float64) @ se3_inverse(now.T_odom_lidar)
-    arrays = [np.asarray(s.points, np.float32) for s in sweeps]
+    arrays = [np.ascontiguousarray(s.points, np.float32) for s in sweeps]
     for pts in arrays:
         if pts.ndim != 2 or pts.shape[1] not in (4, 5):
             raise ValueError(f'sweep points must be (N, 4) or (N, 5), got {pts.shape}')

@@ -96,7 +96,7 @@ class CellIndex:
 
     Built in time linear in the points: a grid of ``cell`` m over the rectangles' cells marks
     the cells each rectangle touches; only the points in marked cells are kept and sorted by
-    cell. :meth:`select` then gives a rectangle's points by binary search.
+    cell. :meth:`select_all` then gives each rectangle's points by binary search.
 
     :param xy: ``(N, >= 2)`` points (x, y first).
     :param lo, hi: ``(M, 2)`` each rectangle's lower and upper corner (m).
@@ -148,13 +148,6 @@ class CellIndex:
         np.cumsum([len(c) for c in self.cells], out=offsets[1:])
         idx, starts = gather_cells(self.order, self.keys, np.concatenate(self.cells), offsets)
         return idx, starts
-
-    def select(self, k: int) -> NDArray[np.int64]:
-        """Indices (into the cloud) of the points in the cells rectangle ``k`` touches."""
-        starts = np.searchsorted(self.keys, self.cells[k], 'left')
-        ends = np.searchsorted(self.keys, self.cells[k], 'right')
-        return np.concatenate([self.order[a:e] for a, e in zip(starts, ends) if e > a]
-                              or [np.zeros(0, np.int64)])
 
 
 def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],

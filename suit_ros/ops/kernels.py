@@ -32,10 +32,11 @@ _jit = numba.njit(cache=True, nogil=True)
 _jit_fma = numba.njit(cache=True, nogil=True, fastmath={'contract'})
 
 
-@_jit
+@_jit_fma
 def transform_sweep(src: Any, R: Any, t: Any, lag: Any, out: Any) -> None:  # pragma: no cover
     """``out[:, :3] = src[:, :3] @ R.T + t``, intensity copied, ``out[:, 4]`` the sweep's lag
-    (added to the point's own lag when ``src`` has a fifth column). All float32."""
+    (added to the point's own lag when ``src`` has a fifth column). All float32; the product
+    is a chain of FMAs from zero, as the float32 matmul computes it, then ``t`` is added."""
     n = src.shape[0]
     has_lag = src.shape[1] == 5
     for i in range(n):
@@ -43,7 +44,7 @@ def transform_sweep(src: Any, R: Any, t: Any, lag: Any, out: Any) -> None:  # pr
         y = src[i, 1]
         z = src[i, 2]
         for r in range(3):
-            out[i, r] = (x * R[r, 0] + y * R[r, 1] + z * R[r, 2]) + t[r]
+            out[i, r] = (((np.float32(0.0) + x * R[r, 0]) + y * R[r, 1]) + z * R[r, 2]) + t[r]
         out[i, 3] = src[i, 3]
         out[i, 4] = src[i, 4] + lag if has_lag else lag
 
@@ -245,21 +246,6 @@ def distinct_values(values: NDArray[Any], limit: int = 64) -> NDArray[Any]:
     return out
 
 
-def warm_up() -> None:
-    """Compile (or load from the cache) every kernel for the dtypes the node uses."""
-    pts = np.zeros((2, 5), np.float32)
-    transform_sweep(pts[:, :4], np.eye(3, dtype=np.float32), np.zeros(3, np.float32),
-                    np.float32(0.0), pts.copy())
-    transform_sweep(pts, np.eye(3, dtype=np.float32), np.zeros(3, np.float32),
-                    np.float32(0.0), pts.copy())
-    pillar_max(pts, (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0), 0.5, 4, 4, np.zeros((5, 2), np.float32))
-    marked = np.ones(4, bool)
-    for arr in (pts, pts.astype(np.float64)):
-        bucket_points(arr, 1.0, np.zeros(2, np.int64), np.array([2, 2]), marked)
-        bucket_points(arr, 1.0, np.zeros(2, np.int64), np.array([2, 2]), marked, (0.0, 1.0))
-    distinct_values(pts[:, 4])
-
-
 @_jit
 def gather_cells(order: Any, keys: Any, cells: Any, offsets: Any
                  ) -> tuple[Any, Any]:  # pragma: no cover
@@ -363,3 +349,26 @@ def sweep_histograms(pts: Any, idx: Any, starts: Any, geometry: Any, lags: Any, 
             out[k, row, b] += inside
             length[k] = max(length[k], (b + 1) * inside)
     return out, length
+
+
+def warm_up() -> None:
+    """Compile (or load from the cache) every kernel for the argument types of the node's
+    step: float32 clouds of 4 (the sensor's) and 5 columns (the model input), xyz slices of
+    them, float64 boxes. (A test checks that a step after this compiles nothing more.)"""
+    sweep = np.zeros((4, 4), np.float32)
+    model_input = np.zeros((4, 5), np.float32)
+    R, t, lag = np.eye(3, dtype=np.float32), np.zeros(3, np.float32), np.float32(0.0)
+    transform_sweep(sweep, R, t, lag, model_input)
+    transform_sweep(model_input, R, t, lag, model_input.copy())
+    pillar_max(model_input, (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0), 0.5, 4, 4,
+               np.zeros((5, 2), np.float32))
+    origin, shape, marked = np.zeros(2, np.int64), np.array([2, 2]), np.ones(4, bool)
+    for xyz in (sweep[:, :3], model_input):
+        order, keys = bucket_points(xyz, 1.0, origin, shape, marked)
+        bucket_points(xyz, 1.0, origin, shape, marked, (0.0, 1.0))
+    idx, starts = gather_cells(order, keys, np.zeros(1, np.int64), np.array([0, 1]))
+    boxes = np.ones((1, 7))
+    count_in_boxes(sweep[:, :3], idx, starts, boxes, np.ones(1), np.zeros(1))
+    sweep_histograms(model_input, idx, starts, np.ones((1, 8), np.float32),
+                     np.ones(1, np.float32), np.float32(0.1), np.ones(1, np.int64))
+    distinct_values(model_input[:, 4])

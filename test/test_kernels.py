@@ -1,0 +1,230 @@
+"""The compiled per-point loops (suit_ros/ops/kernels.py) against the array code they replace:
+the same results, bit for bit, on LiDAR-shaped clouds and on the inputs users get wrong."""
+from __future__ import annotations
+
+from typing import Any
+
+from modelkit import cloud_in_grid, small_config
+import numpy as np
+import pytest
+import torch
+
+from suit_ros.model.detector import SUITDetector
+from suit_ros.model.inference import inference_copy
+from suit_ros.ops import kernels
+from suit_ros.ops.geometry import CellIndex
+
+
+def lidar_like(n: int, seed: int, lags: tuple[float, ...] = (0.0, 0.1, 0.2)) -> np.ndarray:
+    """Rings of returns in scan order (range 2-80 m, some beyond the grid), several sweeps."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for lag in lags:
+        az = np.sort(rng.uniform(-np.pi, np.pi, n))
+        rng_m = rng.uniform(2, 80, n) * rng.choice([1.0, 0.3], n, p=[0.7, 0.3])
+        z = rng.uniform(-2.5, 5.0, n)
+        parts.append(np.c_[rng_m * np.cos(az), rng_m * np.sin(az), z, rng.uniform(0, 1, n),
+                           np.full(n, lag)])
+    return np.concatenate(parts).astype(np.float32)
+
+
+def test_the_compiled_pillar_encoder_equals_the_torch_one_bit_for_bit():
+    """Folded inference copy, float32 and bfloat16 canvas: a batch of two clouds (points out
+    of range in x, y and z, dense and single-point pillars), an empty cloud, one with every
+    point out of range."""
+    torch.manual_seed(0)
+    model = SUITDetector(small_config()).eval()
+    clouds = [torch.from_numpy(np.concatenate([cloud_in_grid(k) for k in range(6)])),
+              torch.from_numpy(lidar_like(4000, 1)), torch.zeros(0, 5),
+              torch.tensor([[90.0, 0.0, 0.0, 0.5, 0.0]])]
+    for precision in ('float32', 'bfloat16'):
+        enc = inference_copy(model, precision=precision).pillars
+        with torch.inference_mode():
+            assert enc.compiled(clouds)
+            fast = enc.encode_clouds(clouds)
+            rows = torch.cat([torch.cat([torch.full((len(c), 1), float(i)), c], 1)
+                              for i, c in enumerate(clouds)])
+            assert torch.equal(fast, enc(rows, len(clouds)))
+            assert int((fast[0].abs().sum(0) > 0).sum()) > 100
+            assert not fast[2:].any()
+
+
+def test_the_encoder_takes_the_torch_path_when_training_or_with_gradients():
+    enc = SUITDetector(small_config()).pillars
+    cloud = [torch.from_numpy(lidar_like(100, 2))]
+    assert not enc.compiled(cloud)                                  # training mode, a norm
+    folded = inference_copy(SUITDetector(small_config()).eval()).pillars
+    with torch.enable_grad():
+        assert not folded.compiled(cloud)
+    with torch.no_grad():
+        assert folded.compiled(cloud)
+        assert not folded.compiled([cloud[0].double()])
+
+
+def test_pillar_max_refuses_other_feature_counts():
+    with pytest.raises(ValueError, match=r'\(N, 5\)'):
+        kernels.pillar_max(np.zeros((3, 4), np.float32), (-1, -1, -1, 1, 1, 1), 0.5, 4, 4,
+                           np.zeros((5, 2), np.float32))
+
+
+def _numpy_buckets(p: np.ndarray, cell: float, origin: np.ndarray, shape: np.ndarray,
+                   marked: np.ndarray, z_range: tuple[float, float] | None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The array code the bucket kernel replaced (CellIndex before it)."""
+    keep_z = np.ones(len(p), bool) if z_range is None else \
+        (p[:, 2] > z_range[0]) & (p[:, 2] < z_range[1])
+    with np.errstate(invalid='ignore'):
+        ix = np.floor(p[:, 0] * (1.0 / cell)).astype(np.int64) - origin[0]
+        iy = np.floor(p[:, 1] * (1.0 / cell)).astype(np.int64) - origin[1]
+    idx = np.flatnonzero(keep_z & (ix >= 0) & (ix < shape[0]) & (iy >= 0) & (iy < shape[1])
+                         & np.isfinite(p[:, 0]) & np.isfinite(p[:, 1]))
+    flat = ix[idx] * shape[1] + iy[idx]
+    idx, flat = idx[marked[flat]], flat[marked[flat]]
+    order = np.argsort(flat, kind='stable')
+    return idx[order], flat[order]
+
+
+@pytest.mark.parametrize('dtype', [np.float32, np.float64])
+@pytest.mark.parametrize('z_range', [None, (0.3, 5.0)])
+def test_buckets_equal_the_array_code_with_non_finite_and_far_points(dtype: Any, z_range: Any):
+    p = lidar_like(20_000, 3).astype(dtype)
+    rng = np.random.default_rng(4)
+    p = p[rng.permutation(len(p))]                                   # no scan order
+    p[:50, 0] = np.nan
+    p[50:60, 1] = np.inf
+    p[60:70] = -1e20
+    origin, shape = np.array([-20, -15]), np.array([40, 31])
+    marked = rng.random(shape[0] * shape[1]) < 0.3
+    order, keys = kernels.bucket_points(p, 2.0, origin, shape, marked, z_range)
+    want_order, want_keys = _numpy_buckets(p, 2.0, origin, shape, marked, z_range)
+    assert len(order) > 1000
+    np.testing.assert_array_equal(order, want_order)
+    np.testing.assert_array_equal(keys, want_keys)
+
+
+def test_every_point_of_an_oriented_rectangle_is_in_its_selection():
+    """A search band along a heading keeps only the cells it can touch, and loses no point."""
+    rng = np.random.default_rng(5)
+    xy = rng.uniform(-30, 30, (40_000, 2))
+    band = np.array([[3.0, -4.0, 7.0, 1.2, 0.7], [-10.0, 12.0, 4.0, 1.0, -2.0]])
+    r = band[:, 2] + band[:, 3]
+    index = CellIndex(xy, band[:, :2] - r[:, None], band[:, :2] + r[:, None], 2.0,
+                      oriented=band)
+    square = CellIndex(xy, band[:, :2] - r[:, None], band[:, :2] + r[:, None], 2.0)
+    idx, starts = index.select_all()
+    idx_sq, starts_sq = square.select_all()
+    for k, (cx, cy, hl, hw, yaw) in enumerate(band):
+        d = xy - [cx, cy]
+        u = d[:, 0] * np.cos(yaw) + d[:, 1] * np.sin(yaw)
+        v = -d[:, 0] * np.sin(yaw) + d[:, 1] * np.cos(yaw)
+        inside = np.flatnonzero((np.abs(u) <= hl) & (np.abs(v) <= hw))
+        sel = idx[starts[k]:starts[k + 1]]
+        assert set(inside) <= set(sel)
+        assert len(sel) < 0.7 * (starts_sq[k + 1] - starts_sq[k])   # fewer points read
+
+
+def test_distinct_values_equal_numpy_unique():
+    rng = np.random.default_rng(6)
+    lags = np.repeat(np.array([0.0, 0.1, 0.2], np.float32), 1000)
+    lags[::97] = np.nan
+    np.testing.assert_array_equal(kernels.distinct_values(lags),
+                                  np.array([0.0, 0.1, 0.2], np.float32))
+    many = rng.normal(size=500).astype(np.float32)                  # past the limit
+    np.testing.assert_array_equal(kernels.distinct_values(many), np.unique(many))
+    assert len(kernels.distinct_values(np.zeros(0, np.float32))) == 0
+    assert len(kernels.distinct_values(np.full(4, np.nan, np.float32))) == 0
+
+
+def test_after_the_warm_up_a_detector_step_compiles_nothing():
+    """The node warms the kernels up when it loads its model: its first cloud compiles no
+    kernel (a multi-second stall) for the types a step uses."""
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.tracking import TrackerConfig
+    kernels.warm_up()
+    dispatchers = [getattr(kernels, n) for n in dir(kernels)
+                   if hasattr(getattr(kernels, n), 'signatures')]
+    before = {d: set(map(str, d.signatures)) for d in dispatchers}
+    runner = StreamingDetector(SUITDetector(small_config()).eval(), tracker=TrackerConfig())
+    pose = np.eye(4)
+    for t in range(3):
+        pose[0, 3] = 0.5 * t
+        runner.step(lidar_like(3000, 7 + t, lags=(0.0,))[:, :4], int(1e9 + t * 1e8), pose)
+    new = {d.__name__: set(map(str, d.signatures)) - before[d] for d in dispatchers}
+    assert not any(new.values()), new
+
+
+def test_a_moved_sweep_equals_the_float32_matrix_product():
+    from suit_ros.model.sweeps import Sweep, accumulate_sweeps
+    from suit_ros.ops.geometry import pose_from_xyz_rpy, se3_inverse
+    T_bl = pose_from_xyz_rpy((0.9, 0.1, 1.8), (0.0, 0.02, 0.01))
+    T0 = pose_from_xyz_rpy((250_000.0, -130_000.0, 40.0), (0.01, 0.0, 0.3))
+    T1 = pose_from_xyz_rpy((250_000.8, -130_000.1, 40.0), (0.01, 0.0, 0.32))
+    a, b = lidar_like(5000, 8, (0.0,))[:, :4], lidar_like(5000, 9, (0.05,))
+    out = accumulate_sweeps([Sweep(a, T1, 2 * 10**9), Sweep(b, T0, 19 * 10**8)], T_bl)
+    T = (T_bl @ se3_inverse(T1)) @ T0                   # as accumulate_sweeps composes it
+    want = b[:, :3] @ T[:3, :3].T.astype(np.float32)
+    want += T[:3, 3].astype(np.float32)
+    np.testing.assert_array_equal(out[5000:, :3], want)
+    np.testing.assert_array_equal(out[5000:, 4], b[:, 4] + np.float32(0.1))
+    np.testing.assert_array_equal(out[:5000, 3], a[:, 3])
+
+
+def _numpy_sweep_velocities(pts: np.ndarray, boxes: np.ndarray, which: np.ndarray
+                            ) -> tuple[np.ndarray, np.ndarray]:
+    """sweep_velocities as array code, box by box (the implementation before the kernels)."""
+    max_speed, bin_m, min_points = 20.0, 0.1, 10
+    vel, ok = np.zeros((len(boxes), 2)), np.zeros(len(boxes), bool)
+    pts = pts[(pts[:, 2] > 0.3) & (pts[:, 2] < 5.0)]
+    past = np.unique(pts[:, 4][pts[:, 4] > 0])
+    speeds = np.arange(-max_speed, max_speed + 1e-9, 0.25)
+    reach = max_speed * float(past.max())
+    for j in np.flatnonzero(which):
+        cx, cy, cz, length, width, height, yaw = boxes[j]
+        half = 0.5 * length + reach
+        c, s = np.cos(yaw), np.sin(yaw)
+        dx, dy = pts[:, 0] - cx, pts[:, 1] - cy
+        u = dx * c + dy * s
+        inside = ((np.abs(u) < half) & (np.abs(-dx * s + dy * c) < 0.5 * width + 0.3)
+                  & (pts[:, 2] < cz + 0.5 * height + 0.3))
+        bins = ((u[inside] + half) / bin_m).astype(np.int64)
+        lag = pts[inside, 4]
+        n_bins = int(2 * half / bin_m) + 1
+        current = np.bincount(bins[lag == 0], minlength=n_bins).astype(np.float64)
+        if current.sum() < min_points:
+            continue
+        score = np.zeros(len(speeds))
+        for L in past:
+            earlier = np.bincount(bins[lag == L], minlength=n_bins).astype(np.float64)
+            if earlier.sum() < min_points:
+                continue
+            corr = np.correlate(current, earlier, 'full') / (current.sum() * earlier.sum())
+            score += np.interp(speeds * L / bin_m + (len(current) - 1),
+                               np.arange(len(corr)), corr)
+            ok[j] = True
+        if ok[j]:
+            vel[j] = speeds[int(np.argmax(score))] * np.array([c, s])
+    return vel, ok
+
+
+def test_sweep_velocities_equal_the_array_code_on_moving_cars():
+    """Cars at 0-15 m/s, three sweeps, boxes off by up to half a metre, and a ground."""
+    from suit_ros.tracking import sweep_velocities
+    rng = np.random.default_rng(10)
+    parts, boxes = [lidar_like(20_000, 11)], []
+    for _ in range(25):
+        centre, yaw, speed = rng.uniform(-40, 40, 2), rng.uniform(-3, 3), rng.uniform(0, 15)
+        heading = np.array([np.cos(yaw), np.sin(yaw)])
+        for lag in (0.0, 0.1, 0.2):
+            body = rng.uniform([-2.2, -0.9, 0.2], [2.2, 0.9, 1.5], (300, 3))
+            xy = centre - speed * lag * heading + body[:, :1] * heading \
+                + body[:, 1:2] * heading[::-1] * [-1, 1]
+            parts.append(np.c_[xy, body[:, 2], np.full(300, 0.5), np.full(300, lag)])
+        boxes.append([*(centre + rng.normal(0, 0.3, 2)), 0.8, 4.5, 1.9, 1.6, yaw])
+    pts = np.concatenate(parts).astype(np.float32)
+    boxes_a = np.array(boxes)
+    which = rng.random(len(boxes_a)) < 0.9
+    vel, ok = sweep_velocities(pts, boxes_a, which)
+    want_vel, want_ok = _numpy_sweep_velocities(pts, boxes_a, which)
+    assert ok.sum() >= 15
+    np.testing.assert_array_equal(ok, want_ok)
+    np.testing.assert_array_equal(vel, want_vel)
