@@ -28,15 +28,15 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
                         name='suit_ros_bench_probe', quiet=True) as (node, probe):
         rec = OutputRecorder(probe.node)
         wait_ready(probe, node, lambda: bool(rec.diags), 90)
-        cpu0, t0 = process_cpu_s(node.pid), time.monotonic()
-        t_play = play_into(probe, bag, ['--rate', str(rate), '--start-delay', '1.0',
-                                        '--wait-subscribers', '20', '--topics', '/points',
-                                        '/odom'], 120, settle_s=0.0)
-        cores = (process_cpu_s(node.pid) - cpu0) / max(time.monotonic() - t0, 1e-9)
+        rec.pid = node.pid
+        play_into(probe, bag, ['--rate', str(rate), '--start-delay', '1.0',
+                               '--wait-subscribers', '20', '--topics', '/points', '/odom'],
+                  120, settle_s=0.0)
         probe.spin_for(2.5)
     return {'node_threads': threads, 'node_precision': precision, 'sensor': sensor,
-            'cpu_cores': cores, **_summary(rec.clouds, {k: t for k, (t, _) in rec.dets.items()},
-                                           rec.diags[-1] if rec.diags else {}, t_play)}
+            'cpu_cores': rec.cores, **_summary(rec.clouds,
+                                               {k: t for k, (t, _) in rec.dets.items()},
+                                               rec.diags[-1] if rec.diags else {})}
 
 
 class OutputRecorder:
@@ -51,6 +51,11 @@ class OutputRecorder:
         self.clouds: dict[int, float] = {}
         self.dets: dict[int, tuple[float, dict[str, Any]]] = {}
         self.diags: list[dict[str, str]] = []
+        # set to the detector's process id: its CPU time is read at the first cloud and at
+        # each detections message (the playback window, not the player's start-up)
+        self.pid: int | None = None
+        self._first_cpu: tuple[float, float] | None = None
+        self._last_cpu: tuple[float, float] | None = None
         probe.create_subscription(PointCloud2, '/points', self._on_cloud,
                                   QoSProfile(depth=10,
                                              reliability=QoSReliabilityPolicy.RELIABLE))
@@ -61,13 +66,27 @@ class OutputRecorder:
     def _key(m: Any) -> int:
         return int(m.header.stamp.sec) * 10**9 + int(m.header.stamp.nanosec)
 
+    @property
+    def cores(self) -> float:
+        """The detector's CPU use (cores) from the first cloud to the last detections."""
+        if self._first_cpu is None or self._last_cpu is None:
+            return float('nan')
+        (t0, c0), (t1, c1) = self._first_cpu, self._last_cpu
+        return (c1 - c0) / max(t1 - t0, 1e-9)
+
+    def _cpu_sample(self) -> tuple[float, float] | None:
+        return None if self.pid is None else (time.monotonic(), process_cpu_s(self.pid))
+
     def _on_cloud(self, m: Any) -> None:
         self.clouds.setdefault(self._key(m), time.monotonic())
+        if self._first_cpu is None:
+            self._first_cpu = self._cpu_sample()
 
     def _on_detections(self, m: Any) -> None:
         from suit_ros.msg_adapters.detections import pointcloud2_to_detections
         received = time.monotonic()
         self.dets.setdefault(self._key(m), (received, pointcloud2_to_detections(m)))
+        self._last_cpu = self._cpu_sample()
 
     def _on_diagnostics(self, m: Any) -> None:
         self.diags.append({kv.key: kv.value for kv in m.status[0].values})
@@ -99,16 +118,17 @@ def process_cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf('SC_CLK_TCK')
 
 
-def _summary(clouds: dict[int, float], dets: dict[int, float], last: dict[str, str],
-             t_play: float) -> dict[str, Any]:
-    """Frames, rate, latency at the probe (cloud received -> detections received), the
-    node's model time and its overhead."""
+def _summary(clouds: dict[int, float], dets: dict[int, float], last: dict[str, str]
+             ) -> dict[str, Any]:
+    """Frames, rate (from the first cloud to the last detections), latency at the probe
+    (cloud received -> detections received), the node's model time and its overhead."""
     lat = [dets[s] - clouds[s] for s in dets if s in clouds]
+    span = max(dets.values()) - min(clouds.values()) if dets and clouds else 0.0
     model = float(last.get('model_ms_p50', 'nan'))
     overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50'))
     return {'frames_in': len(clouds), 'frames_out': len(dets),
             'dropped': int(last.get('dropped_frames', -1)),
-            'rate_hz': len(dets) / max(t_play - 1.0, 1e-9),
+            'rate_hz': len(dets) / span if span > 0 else 0.0,
             'latency_ms_p50': float(np.median(lat)) * 1e3 if lat else float('nan'),
             'latency_ms_p95': float(np.percentile(lat, 95)) * 1e3 if lat else float('nan'),
             'model_ms_p50': model, 'overhead_pct': 100.0 * overhead / model if model else 0.0}

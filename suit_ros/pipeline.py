@@ -52,11 +52,9 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
            or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
     from suit_ros.checkpoint import published_thresholds
     model, cfg, meta = load_checkpoint(params.checkpoint, dev)
-    # the compiled per-point loops: compiled (or read from their cache) now, not in the
-    # first cloud's callback
-    from suit_ros.ops.kernels import warm_up
-    warm_up()
     runner = StreamingDetector(model, dev, precision=params.precision)
+    # the first clouds are not slower than the rest (compiled kernels, oneDNN primitives)
+    runner.warm_up()
     runner.published_thresholds = published_thresholds(meta, cfg.class_names)
     runner.published_carry_thresholds = published_thresholds(meta, cfg.class_names, True)
     return runner, cfg, meta

@@ -228,3 +228,25 @@ def test_sweep_velocities_equal_the_array_code_on_moving_cars():
     assert ok.sum() >= 15
     np.testing.assert_array_equal(ok, want_ok)
     np.testing.assert_array_equal(vel, want_vel)
+
+
+def test_a_warmed_up_detector_answers_a_drive_as_a_fresh_one():
+    """The warm-up's two made-up frames leave nothing behind: memory, sweeps, tracks and
+    track ids are those of a fresh detector (the shipped model, a synthetic drive)."""
+    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
+    from suit_ros.data.sim import preset, sim_frames
+    from suit_ros.evaluate import step_inputs
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.tracking import TrackerConfig
+    model, _, _ = load_checkpoint(default_checkpoint_path(), 'cpu')
+    fresh, warmed = (StreamingDetector(model, tracker=TrackerConfig()) for _ in range(2))
+    warmed.warm_up(points=5000)
+    assert warmed.memory is None and len(warmed.sweeps) == 0
+    assert warmed.last_reset_reason == 'start'
+    frames = list(sim_frames(preset('test-real', frames=4), 5))
+    for f in frames:
+        a, b = fresh.step(*step_inputs(f)), warmed.step(*step_inputs(f))
+        np.testing.assert_array_equal(a.detections.boxes, b.detections.boxes)
+        np.testing.assert_array_equal(a.detections.scores, b.detections.scores)
+        np.testing.assert_array_equal(a.track_ids, b.track_ids)
+    assert len(a.detections) > 0 and a.used_memory
