@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """The SUIT step by stage at 40k / 115k / 264k points a sweep (cached val-real drives; the
-264k input is the hdl64e sweeps densified 2.3x by jittered copies), 1 thread, tracker on,
-the three sizes stepping in turn. Run from the repository root (the data_cache of the
+264k input is the hdl64e sweeps densified 2.3x by jittered copies, each beside its original
+(scan order kept), and `260kshuf` the same points shuffled), 1 thread, tracker on, the sizes
+stepping in turn. Before/after a change: run it at each commit (PYTHONPATH=a worktree). Run from the repository root (the data_cache of the
 validation split must exist); prints one line per size and the ratios."""
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
 from suit_ros.data.sequences import load_sequence
 from suit_ros.evaluate import step_inputs
 from suit_ros.model.streaming import StreamingDetector
-from suit_ros.tracking import FilterConfig
+from suit_ros.tracking import TrackerConfig
 
 STAGES = ('sweeps', 'encode', 'head_decode', 'sampling', 'fusion', 'tracking', 'total')
 
@@ -30,14 +31,15 @@ def main() -> None:
     rng = np.random.default_rng(0)
     sim32, hdl = drive('val-real-sim32'), drive('val-real-hdl64e')
 
-    def dense(f, k=2.3):
+    def dense(f, k=2.3, order=True):
         n = int(len(f.points) * k)
         idx = rng.integers(0, len(f.points), n)
+        if order: idx = np.sort(idx)
         p = f.points[idx].copy()
         p[:, :3] += rng.normal(0, 0.03, (n, 3)).astype(np.float32)
         return replace(f, points=p)
-    sets = {'37k': sim32, '114k': hdl, '260k': [dense(f) for f in hdl]}
-    runners = {k: StreamingDetector(model, precision='auto', velocity_filter=FilterConfig())
+    sets = {'37k': sim32, '114k': hdl, '260k': [dense(f) for f in hdl], '260kshuf': [dense(f, order=False) for f in hdl]}
+    runners = {k: StreamingDetector(model, precision='auto', tracker=TrackerConfig())
                for k in sets}
     times = {k: {s: [] for s in STAGES} for k in sets}
     for i in range(len(sim32)):
