@@ -2,8 +2,9 @@
 """The SUIT step by stage at 40k / 115k / 264k points a sweep (cached val-real drives; the
 264k input is the hdl64e sweeps densified 2.3x by jittered copies, each beside its original
 (scan order kept), and `260kshuf` the same points shuffled), 1 thread, tracker on, the sizes
-stepping in turn. Before/after a change: run it at each commit (PYTHONPATH=a worktree). Run from the repository root (the data_cache of the
-validation split must exist); prints one line per size and the ratios."""
+stepping in turn. Before/after a change: run it at each commit (PYTHONPATH=a worktree).
+Run from the repository root (the data_cache of the validation split must exist); prints
+one line per size and the ratios."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -34,11 +35,13 @@ def main() -> None:
     def dense(f, k=2.3, order=True):
         n = int(len(f.points) * k)
         idx = rng.integers(0, len(f.points), n)
-        if order: idx = np.sort(idx)
+        if order:
+            idx = np.sort(idx)
         p = f.points[idx].copy()
         p[:, :3] += rng.normal(0, 0.03, (n, 3)).astype(np.float32)
         return replace(f, points=p)
-    sets = {'37k': sim32, '114k': hdl, '260k': [dense(f) for f in hdl], '260kshuf': [dense(f, order=False) for f in hdl]}
+    sets = {'37k': sim32, '114k': hdl, '260k': [dense(f) for f in hdl],
+            '260kshuf': [dense(f, order=False) for f in hdl]}
     runners = {k: StreamingDetector(model, precision='auto', tracker=TrackerConfig())
                for k in sets}
     times = {k: {s: [] for s in STAGES} for k in sets}
