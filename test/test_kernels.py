@@ -41,10 +41,12 @@ def test_the_compiled_pillar_encoder_equals_the_torch_one_bit_for_bit():
         enc = inference_copy(model, precision=precision).pillars
         with torch.inference_mode():
             assert enc.compiled(clouds)
-            fast = enc.encode_clouds(clouds)
+            fast, occupied = enc.encode_clouds(clouds)
             rows = torch.cat([torch.cat([torch.full((len(c), 1), float(i)), c], 1)
                               for i, c in enumerate(clouds)])
-            assert torch.equal(fast, enc(rows, len(clouds)))
+            slow = enc(rows, len(clouds))
+            assert torch.equal(fast, slow)
+            assert torch.equal(occupied, (slow != 0).any(dim=1))
             assert int((fast[0].abs().sum(0) > 0).sum()) > 100
             assert not fast[2:].any()
 

@@ -109,13 +109,13 @@ class SUITDetector(nn.Module):
         grad = torch.is_grad_enabled() and any(
             p.requires_grad for m in (self.pillars, self.backbone) for p in m.parameters())
         with torch.set_grad_enabled(grad):
-            bev = self.pillars.encode_clouds(points)
+            bev, occupied = self.pillars.encode_clouds(points)
             out: Tensor = self.backbone(bev)
         if self.cfg.fusion_gate == 'none' or self.fusion is None:
             return out, None
         with torch.no_grad():
             # an occupied pillar has a non-zero feature (max over its points after a ReLU)
-            occ = (bev != 0).any(dim=1, keepdim=True).float()
+            occ = occupied[:, None].float()
             occ = F.max_pool2d(occ, self.cfg.out_stride, self.cfg.out_stride)
             r = self.cfg.fusion_gate_radius
             if r:

@@ -143,33 +143,39 @@ class PillarEncoder(nn.Module):
                 and self.in_channels == 5 and not torch.is_grad_enabled()
                 and all(c.device.type == 'cpu' and c.dtype == torch.float32 for c in clouds))
 
-    def encode_clouds(self, clouds: Sequence[Tensor]) -> Tensor:
-        """Encode a batch of ``(N_i, in_channels)`` clouds into ``(B, C, ny, nx)``.
+    def encode_clouds(self, clouds: Sequence[Tensor]) -> tuple[Tensor, Tensor]:
+        """Encode a batch of ``(N_i, in_channels)`` clouds into ``(B, C, ny, nx)``, and where
+        the pseudo-image is non-zero ``(B, ny, nx)`` bool (an occupied pillar whose features
+        are not all zero: the input has returns there).
 
         The inference copy on the CPU pillarizes and reduces each cloud in two compiled
-        passes over its points (:func:`suit_ros.ops.kernels.pillar_max`); the same features
-        as :meth:`forward` (the tests compare), which every other case runs.
+        passes over its points (:func:`suit_ros.ops.kernels.pillar_max`) and reads the
+        occupancy off its pillars, not the whole image; the same values as :meth:`forward`
+        (the tests compare), which every other case runs.
         """
+        g = self.grid
         if not self.compiled(clouds):
             rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
                     for i, pts in enumerate(clouds)]
-            out: Tensor = self(torch.cat(rows, dim=0), len(clouds))
-            return out
+            bev: Tensor = self(torch.cat(rows, dim=0), len(clouds))
+            return bev, (bev != 0).any(dim=1)
         from suit_ros.ops.kernels import pillar_max
-        g = self.grid
         C = self.in_channels
         A = self._folded_terms(C).T.contiguous().numpy()
         cells = g.ny * g.nx
         canvas = torch.zeros(len(clouds) * cells, self.out_channels,
                              dtype=self.canvas_dtype or torch.float32)
+        occupied = torch.zeros(len(clouds) * cells, dtype=torch.bool)
         for b, pts in enumerate(clouds):
             keys, mean, top = pillar_max(pts.numpy(), g.point_range, g.pillar_size, g.nx, g.ny,
                                          A)
-            k = torch.from_numpy(keys)
+            k = torch.from_numpy(keys) + b * cells
             pillar = torch.relu_(torch.from_numpy(top).sub_(
-                self._per_pillar(C, torch.from_numpy(mean), k)))
-            canvas[k + b * cells] = pillar.to(canvas.dtype)
-        return canvas.view(len(clouds), g.ny, g.nx, self.out_channels).permute(0, 3, 1, 2)
+                self._per_pillar(C, torch.from_numpy(mean), k - b * cells))).to(canvas.dtype)
+            canvas[k] = pillar
+            occupied[k] = (pillar != 0).any(dim=1)
+        return (canvas.view(len(clouds), g.ny, g.nx, self.out_channels).permute(0, 3, 1, 2),
+                occupied.view(len(clouds), g.ny, g.nx))
 
     def cap(self, points: Tensor) -> Tensor:
         """``points`` with the denser pillars thinned to about ``max_points`` each
