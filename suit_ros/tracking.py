@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.ops.geometry import CellIndex
-from suit_ros.ops.kernels import distinct_values, sweep_histograms
+from suit_ros.ops.kernels import as_float, distinct_values, sweep_histograms
 from suit_ros.structures import Detections
 
 
@@ -327,7 +327,7 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     b = np.asarray(boxes, np.float64).reshape(-1, 7)
     vel = np.zeros((len(b), 2))
     ok = np.zeros(len(b), bool)
-    pts = np.asarray(points)
+    pts = as_float(points)
     if pts.ndim != 2 or pts.shape[1] < 5 or len(pts) == 0 or not which.any():
         return vel, ok
     lags = distinct_values(pts[:, 4])

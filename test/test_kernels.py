@@ -252,3 +252,17 @@ def test_a_warmed_up_detector_answers_a_drive_as_a_fresh_one():
         np.testing.assert_array_equal(a.detections.scores, b.detections.scores)
         np.testing.assert_array_equal(a.track_ids, b.track_ids)
     assert len(a.detections) > 0 and a.used_memory
+
+
+def test_counts_and_sweep_velocities_take_float16_clouds():
+    """Training drives are kept in float16: they are counted as their float64 values are."""
+    from suit_ros.ops.geometry import count_points_in_boxes
+    from suit_ros.tracking import sweep_velocities
+    pts = lidar_like(3000, 12).astype(np.float16)
+    boxes = np.array([[5.0, 2.0, 0.5, 4.5, 1.9, 1.6, 0.3], [-12.0, 7.0, 0.5, 4.5, 1.9, 1.6, 2.0]])
+    wide = pts.astype(np.float64)
+    np.testing.assert_array_equal(count_points_in_boxes(pts[:, :3], boxes),
+                                  count_points_in_boxes(wide[:, :3], boxes))
+    for a, b in zip(sweep_velocities(pts, boxes, np.ones(2, bool)),
+                    sweep_velocities(wide, boxes, np.ones(2, bool))):
+        np.testing.assert_array_equal(a, b)

@@ -6,7 +6,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.kernels import bucket_points, count_in_boxes, gather_cells
+from suit_ros.ops.kernels import as_float, bucket_points, count_in_boxes, gather_cells
 
 
 def se3_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -156,7 +156,7 @@ def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floa
     linear in the points (:class:`CellIndex` over the boxes' bounding squares)."""
     b = np.asarray(boxes, np.float64).reshape(-1, 7)
     out = np.zeros(len(b), np.uint32)
-    p = np.asarray(xyz)
+    p = as_float(xyz)
     if len(p) == 0 or len(b) == 0:
         return out
     r = 0.5 * np.hypot(b[:, 3], b[:, 4])

@@ -189,6 +189,13 @@ def _bucket(p: Any, inv_cell: Any, origin: Any, shape: Any, marked: Any, zlo: An
     return order, keys
 
 
+def as_float(points: NDArray[Any]) -> NDArray[np.floating[Any]]:
+    """``points`` as the kernels take them: float32 or float64 as they are, anything else
+    (float16 training drives, integers) as float64."""
+    p = np.asarray(points)
+    return p if p.dtype in (np.float32, np.float64) else p.astype(np.float64)
+
+
 def bucket_points(xy: NDArray[np.floating[Any]], cell: float, origin: NDArray[np.int64],
                   shape: NDArray[np.int64], marked: NDArray[np.bool_],
                   z_range: tuple[float, float] | None = None, z_column: int = 2
@@ -201,9 +208,7 @@ def bucket_points(xy: NDArray[np.floating[Any]], cell: float, origin: NDArray[np
     :param z_range: keep only points with ``lo < p[:, z_column] < hi``.
     :return: the points' indices into ``xy`` and their cells, both ``(K,)``.
     """
-    p = np.asarray(xy)
-    if p.dtype not in (np.float32, np.float64):
-        p = p.astype(np.float64)
+    p = as_float(xy)
     zlo, zhi = z_range if z_range is not None else (0.0, 0.0)
     dt = p.dtype.type
     return _bucket(p, dt(1.0 / cell), np.asarray(origin, np.int64), np.asarray(shape, np.int64),
