@@ -266,3 +266,12 @@ def test_counts_and_sweep_velocities_take_float16_clouds():
     for a, b in zip(sweep_velocities(pts, boxes, np.ones(2, bool)),
                     sweep_velocities(wide, boxes, np.ones(2, bool))):
         np.testing.assert_array_equal(a, b)
+
+
+def test_a_kernel_without_a_cache_location_still_compiles():
+    """numba refuses to cache a function it cannot place on disk (here: one without a source
+    file, as a read-only install and home would be); the kernel is compiled uncached."""
+    namespace: dict[str, Any] = {}
+    exec('def twice(x):\n    return 2 * x\n', namespace)
+    twice = kernels.compiled()(namespace['twice'])
+    assert twice(21) == 42

@@ -20,16 +20,34 @@ the package folder is read-only); :func:`warm_up` compiles them all, as the node
 """
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Callable
+from typing import Any, TypeVar, cast
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
-# ``contract`` lets LLVM fuse a multiply and an add into one FMA: the per-point product of the
-# pillar encoder then rounds as torch's float32 matmul does on this CPU (the tests compare)
-_jit = numba.njit(cache=True, nogil=True)
-_jit_fma = numba.njit(cache=True, nogil=True, fastmath={'contract'})
+F = TypeVar('F', bound=Callable[..., Any])
+
+
+def compiled(fastmath: set[str] | None = None) -> Callable[[F], F]:
+    """``numba.njit`` (GIL released), cached on disk where numba finds a writable place
+    (beside the module, or the user's cache folder; ``NUMBA_CACHE_DIR`` chooses one); where
+    none is (a read-only install and home), compiled in each process instead of failing.
+
+    :param fastmath: LLVM fast-math flags; ``{'contract'}`` lets a multiply and an add fuse
+        into one FMA, which is how the float32 matmul rounds on this CPU (the tests compare).
+    """
+    def wrap(fn: F) -> F:
+        try:
+            return cast(F, numba.njit(cache=True, nogil=True, fastmath=fastmath or False)(fn))
+        except RuntimeError:                  # "cannot cache function ...: no locator"
+            return cast(F, numba.njit(cache=False, nogil=True, fastmath=fastmath or False)(fn))
+    return wrap
+
+
+_jit = compiled()
+_jit_fma = compiled({'contract'})
 
 
 @_jit_fma
