@@ -3,20 +3,23 @@
 A 64-beam sensor puts about 115k points in a sweep and the model reads three sweeps, so every
 pass over the model input touches 340k points. In numpy or torch each step of such a pass
 (a mask, a gather, a product, a scatter) writes a temporary of the whole cloud; here one loop
-does the step's work in a single pass, without temporaries. Each kernel computes what the
-array code it replaces computed, in the same float32 operations and order (the tests compare
-them), so outputs do not change:
+does the step's work without them. Each kernel computes what the array code it replaced
+computed, in the same floating-point operations and order (test/test_kernels.py compares
+them bit for bit), so outputs do not change:
 
 - :func:`transform_sweep`: a sweep moved into base_link and tagged with its time lag
   (:func:`suit_ros.model.sweeps.accumulate_sweeps`);
 - :func:`pillar_max`: dynamic pillarization and the folded pillar encoder's per-pillar max
-  (:class:`suit_ros.model.pillars.PillarEncoder`, inference);
-- :func:`bucket_points`: the points in marked cells of a coarse grid, sorted by cell
-  (:class:`suit_ros.ops.geometry.CellIndex`, used by the box point counts and the tracker);
+  and mean (:class:`suit_ros.model.pillars.PillarEncoder`, inference);
+- :func:`bucket_points` and :func:`gather_cells`: the points in marked cells of a coarse grid,
+  sorted by cell, and each rectangle's share of them (:class:`suit_ros.ops.geometry.CellIndex`);
+- :func:`count_in_boxes`: the points inside each box (the node's ``num_points``);
+- :func:`sweep_histograms`: each vehicle's returns along its heading, per sweep (the tracker's
+  velocity reading, :func:`suit_ros.tracking.sweep_velocities`);
 - :func:`distinct_values`: the distinct time lags of a model input.
 
-Compiled on first use and cached on disk beside this module (or in numba's user cache when
-the package folder is read-only); :func:`warm_up` compiles them all, as the node does at start.
+Compiled on first use (:func:`compiled`) and cached on disk; :func:`warm_up` compiles the
+types a detector step uses, as the node does at start.
 """
 from __future__ import annotations
 
@@ -160,9 +163,8 @@ def pillar_max(points: NDArray[np.float32], point_range: tuple[float, ...], size
 def _bucket(p: Any, inv_cell: Any, origin: Any, shape: Any, marked: Any, zlo: Any, zhi: Any,
             z_col: int) -> tuple[Any, Any]:  # pragma: no cover
     """The points in marked cells, counting-sorted by cell (stable: a cell's points in cloud
-    order). Without branches on the points (a cloud in random order, as a merged or
-    resampled one can be, would mispredict most of them): every point is written at the
-    end of the kept ones, and the end moves on only when it is kept."""
+    order). Every point is written at the end of the kept ones, and the end moves on only
+    when it is kept."""
     n = p.shape[0]
     flat = np.empty(n + 1, np.int64)
     idx = np.empty(n + 1, np.int64)
