@@ -115,7 +115,7 @@ def _sensor_sizes(model_args: argparse.Namespace, n: int) -> dict[str, Any]:
     points a sweep) and a 64-beam sensor (hdl64e, about 114k) sees it, and the 64-beam sweeps
     densified 2.3x by jittered copies of their points (about 260k, an OS1-128 or AT128), each
     copy beside its original so the sweep keeps its scan order, as a driver publishes it
-    (shuffled, the same points cost 10-15% more: the per-point loops lose their locality).
+    (shuffled, the same points cost 13-16% more: the per-point loops lose their locality).
     Three sweeps in each input, tracker on; the three step frame by frame in turn."""
     from dataclasses import replace
 

@@ -342,15 +342,15 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     r = 0.5 * b[picked, 3] + reach + b[picked, 4]
     bp = b[picked]
     half = 0.5 * bp[:, 3] + reach
-    band = np.stack([bp[:, 0], bp[:, 1], half, 0.5 * bp[:, 4] + 0.3, bp[:, 6]], axis=1)
+    across = 0.5 * bp[:, 4] + 0.3
+    band = np.stack([bp[:, 0], bp[:, 1], half, across, bp[:, 6]], axis=1)
     index = CellIndex(pts, bp[:, :2] - r[:, None], bp[:, :2] + r[:, None], 2.0,
                       z_range=(0.3, 5.0), oriented=band)
     # each box's returns projected on its heading and histogrammed per sweep, in one
     # compiled pass (in the cloud's dtype, as numpy computes an array against float scalars)
     cos, sin = np.cos(bp[:, 6]), np.sin(bp[:, 6])
-    geometry = np.zeros((len(picked), 8), np.float64)
-    geometry[:, :7] = np.stack([bp[:, 0], bp[:, 1], cos, sin, half, 0.5 * bp[:, 4] + 0.3,
-                                bp[:, 2] + 0.5 * bp[:, 5] + 0.3], axis=1)
+    geometry = np.stack([bp[:, 0], bp[:, 1], cos, sin, half, across,
+                         bp[:, 2] + 0.5 * bp[:, 5] + 0.3], axis=1)
     n_bins = (2 * half / bin_m).astype(np.int64) + 1
     idx, starts = index.select_all()
     hist, length = sweep_histograms(pts, idx, starts, geometry.astype(pts.dtype),

@@ -41,7 +41,7 @@ def test_the_compiled_pillar_encoder_equals_the_torch_one_bit_for_bit():
         enc = inference_copy(model, precision=precision).pillars
         with torch.inference_mode():
             assert enc.compiled(clouds)
-            fast, occupied = enc.encode_clouds(clouds)
+            fast, occupied = enc.encode_clouds(clouds, occupancy=True)
             rows = torch.cat([torch.cat([torch.full((len(c), 1), float(i)), c], 1)
                               for i, c in enumerate(clouds)])
             slow = enc(rows, len(clouds))

@@ -108,10 +108,11 @@ class SUITDetector(nn.Module):
         # a frozen base (temporal fine-tuning) builds no graph: no backward through it
         grad = torch.is_grad_enabled() and any(
             p.requires_grad for m in (self.pillars, self.backbone) for p in m.parameters())
+        gated = self.cfg.fusion_gate != 'none' and self.fusion is not None
         with torch.set_grad_enabled(grad):
-            bev, occupied = self.pillars.encode_clouds(points)
+            bev, occupied = self.pillars.encode_clouds(points, occupancy=gated)
             out: Tensor = self.backbone(bev)
-        if self.cfg.fusion_gate == 'none' or self.fusion is None:
+        if occupied is None:
             return out, None
         with torch.no_grad():
             # an occupied pillar has a non-zero feature (max over its points after a ReLU)

@@ -143,10 +143,11 @@ class PillarEncoder(nn.Module):
                 and self.in_channels == 5 and not torch.is_grad_enabled()
                 and all(c.device.type == 'cpu' and c.dtype == torch.float32 for c in clouds))
 
-    def encode_clouds(self, clouds: Sequence[Tensor]) -> tuple[Tensor, Tensor]:
-        """Encode a batch of ``(N_i, in_channels)`` clouds into ``(B, C, ny, nx)``, and where
-        the pseudo-image is non-zero ``(B, ny, nx)`` bool (an occupied pillar whose features
-        are not all zero: the input has returns there).
+    def encode_clouds(self, clouds: Sequence[Tensor], occupancy: bool = False
+                      ) -> tuple[Tensor, Tensor | None]:
+        """Encode a batch of ``(N_i, in_channels)`` clouds into ``(B, C, ny, nx)``, and with
+        ``occupancy`` where the pseudo-image is non-zero ``(B, ny, nx)`` bool (an occupied
+        pillar whose features are not all zero: the input has returns there; None without).
 
         The inference copy on the CPU pillarizes and reduces each cloud in two compiled
         passes over its points (:func:`suit_ros.ops.kernels.pillar_max`) and reads the
@@ -158,24 +159,25 @@ class PillarEncoder(nn.Module):
             rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
                     for i, pts in enumerate(clouds)]
             bev: Tensor = self(torch.cat(rows, dim=0), len(clouds))
-            return bev, (bev != 0).any(dim=1)
+            return bev, (bev != 0).any(dim=1) if occupancy else None
         from suit_ros.ops.kernels import pillar_max
         C = self.in_channels
         A = self._folded_terms(C).T.contiguous().numpy()
         cells = g.ny * g.nx
         canvas = torch.zeros(len(clouds) * cells, self.out_channels,
                              dtype=self.canvas_dtype or torch.float32)
-        occupied = torch.zeros(len(clouds) * cells, dtype=torch.bool)
+        occupied = torch.zeros(len(clouds) * cells, dtype=torch.bool) if occupancy else None
         for b, pts in enumerate(clouds):
             keys, mean, top = pillar_max(pts.numpy(), g.point_range, g.pillar_size, g.nx, g.ny,
                                          A)
-            k = torch.from_numpy(keys) + b * cells
+            k = torch.from_numpy(keys)
             pillar = torch.relu_(torch.from_numpy(top).sub_(
-                self._per_pillar(C, torch.from_numpy(mean), k - b * cells))).to(canvas.dtype)
-            canvas[k] = pillar
-            occupied[k] = (pillar != 0).any(dim=1)
+                self._per_pillar(C, torch.from_numpy(mean), k))).to(canvas.dtype)
+            canvas[k + b * cells] = pillar
+            if occupied is not None:
+                occupied[k + b * cells] = (pillar != 0).any(dim=1)
         return (canvas.view(len(clouds), g.ny, g.nx, self.out_channels).permute(0, 3, 1, 2),
-                occupied.view(len(clouds), g.ny, g.nx))
+                None if occupied is None else occupied.view(len(clouds), g.ny, g.nx))
 
     def cap(self, points: Tensor) -> Tensor:
         """``points`` with the denser pillars thinned to about ``max_points`` each

@@ -140,8 +140,9 @@ class CellIndex:
         self.order, self.keys = bucket_points(p, cell, origin, shape, marked, z_range)
 
     def select_all(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """Every rectangle's :meth:`select`, concatenated, and where each one's run starts
-        ``(M + 1,)`` (one compiled pass)."""
+        """The indices (into the cloud) of the points in the cells each rectangle touches,
+        concatenated, and where each rectangle's run starts ``(M + 1,)`` (one compiled
+        pass)."""
         if not self.cells:
             return np.zeros(0, np.int64), np.zeros(1, np.int64)
         offsets = np.zeros(len(self.cells) + 1, np.int64)

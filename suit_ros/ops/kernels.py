@@ -335,8 +335,8 @@ def sweep_histograms(pts: Any, idx: Any, starts: Any, geometry: Any, lags: Any, 
     :func:`suit_ros.tracking.sweep_velocities`.
 
     float32 arithmetic throughout, as numpy computes a float32 cloud against float scalars:
-    ``geometry`` is ``(M, 8)`` float32: centre x, y, cos, sin, half the search length, half
-    the width plus margin, the top (centre z + half height + margin), and unused.
+    ``geometry`` is ``(M, 7)`` float32: centre x, y, cos, sin, half the search length, half
+    the width plus margin, the top (centre z + half height + margin).
     :return: ``(M, 1 + L, width)`` counts and each box's histogram length (its ``n_bins``,
         or more where a bin rounded up past it, as ``np.bincount`` would return).
     """
@@ -394,6 +394,6 @@ def warm_up() -> None:
     idx, starts = gather_cells(order, keys, np.zeros(1, np.int64), np.array([0, 1]))
     boxes = np.ones((1, 7))
     count_in_boxes(sweep[:, :3], idx, starts, boxes, np.ones(1), np.zeros(1))
-    sweep_histograms(model_input, idx, starts, np.ones((1, 8), np.float32),
+    sweep_histograms(model_input, idx, starts, np.ones((1, 7), np.float32),
                      np.ones(1, np.float32), np.float32(0.1), np.ones(1, np.int64))
     distinct_values(model_input[:, 4])
