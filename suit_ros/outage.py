@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.data.sequences import seen_ids
 from suit_ros.evaluate import ModelRun
 from suit_ros.structures import Detections, Frame
 
@@ -68,13 +69,6 @@ def outages_for(drive: int, frames: int, width_deg: float = 120.0, length: int =
     rng = np.random.default_rng([seed, drive])
     return [Outage(float(rng.uniform(-180, 180)), width_deg, first, length)
             for first in range(6, frames - length + 1, period)]
-
-
-def seen_ids(frame: Frame) -> set[int]:
-    """Instance ids of the frame's GT objects that have returns in it."""
-    if frame.gt is None or frame.num_points is None or frame.instance_ids is None:
-        return set()
-    return {int(i) for i, c in zip(frame.instance_ids, frame.num_points) if c > 0}
 
 
 def with_outages(seq: Sequence[Frame], outages: Sequence[Outage]) -> list[Frame]:

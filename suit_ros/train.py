@@ -65,6 +65,7 @@ class TrainConfig:
     distill_weight: float = 0.0      # ordinary frames kept near the starting model (distill)
     frozen_batchnorm: bool = False   # every batch norm keeps its statistics (small batches)
     carry_gt: bool = False           # GT keeps objects seen earlier in the clip (ClipSampler)
+    occlusion_weight: float = 0.0    # clips drawn by 1 + weight * occluded objects (ClipSampler)
     eval_at_end: bool = True
     checkpoint_every: int = 200
 
@@ -88,6 +89,8 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     if not 0.0 <= tc.overhead_probability <= 1.0:
         raise ConfigError(f'{path}: overhead_probability must be in [0, 1], not '
                           f'{tc.overhead_probability}')
+    if not tc.occlusion_weight >= 0:
+        raise ConfigError(f'{path}: occlusion_weight must be >= 0, not {tc.occlusion_weight}')
     if not 0.0 <= tc.outage_probability <= 1.0 or tc.distill_weight < 0:
         raise ConfigError(f'{path}: outage_probability must be in [0, 1] and distill_weight '
                           f'>= 0, not {tc.outage_probability} and {tc.distill_weight}')
@@ -404,7 +407,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps,
-                          tc.outage_probability, tc.outage_width_deg, tc.carry_gt)
+                          tc.outage_probability, tc.outage_width_deg, tc.carry_gt,
+                          tc.occlusion_weight)
     frozen = freeze(module, tc.freeze)
     distiller = _distiller(tc, module, dev)
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)

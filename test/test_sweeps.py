@@ -182,7 +182,7 @@ def test_outage_clips_lose_a_sector_and_keep_the_objects_seen_before(tmp_path):
     those frames keeps the objects that had returns just before (so the loss asks the memory
     to carry them), and the frames before the outage are untouched."""
     from suit_ros.data.sequences import ClipSampler, synthetic_sequence
-    from suit_ros.outage import seen_ids
+    from suit_ros.data.sequences import seen_ids
     seq = synthetic_sequence('test', 3, 8, tmp_path)
     lossy = ClipSampler([seq], [6], 4, sweeps=3, outage_probability=1.0,
                         outage_width_deg=(120.0, 120.0))
@@ -212,7 +212,7 @@ def test_carry_gt_keeps_objects_seen_earlier_in_the_clip(tmp_path):
     """With ``carry_gt`` a frame's GT also holds the objects that had returns in an earlier
     frame of the clip (occluded now); the first frame keeps only those with returns."""
     from suit_ros.data.sequences import ClipSampler, synthetic_sequence
-    from suit_ros.outage import seen_ids
+    from suit_ros.data.sequences import seen_ids
     seq = synthetic_sequence('test', 3, 8, tmp_path)
     sampler = ClipSampler([seq], [6], 2, sweeps=3, outage_probability=1.0, carry_gt=True)
     kept_unseen = 0
@@ -228,3 +228,44 @@ def test_carry_gt_keeps_objects_seen_earlier_in_the_clip(tmp_path):
             kept_unseen += len(ids - now)
             earlier |= seen_ids(f)
     assert kept_unseen > 0
+
+
+def test_occluded_in_clip_counts_objects_hidden_after_being_seen():
+    """Frame by frame: an object counts while it is present without returns after a frame of
+    the clip in which it had returns; never seen, or gone from the GT, does not count."""
+    from suit_ros.data.sequences import occluded_in_clip
+    seen = [frozenset({1, 2}), frozenset({2}), frozenset(), frozenset({1})]
+    present = [frozenset({1, 2, 3}), frozenset({1, 2, 3}), frozenset({1, 3}), frozenset({1, 3})]
+    # frame 1: object 1 hidden (seen in 0); frame 2: object 1 hidden, 2 gone; frame 3: 1 back
+    assert occluded_in_clip(seen, present) == 2
+    assert occluded_in_clip(seen[:1], present[:1]) == 0
+    assert occluded_in_clip([], []) == 0
+    # min_gap 2: only frame 2 counts (object 1 last had returns two frames before)
+    assert occluded_in_clip(seen, present, min_gap=2) == 1
+    assert occluded_in_clip(seen, present, min_gap=3) == 0
+
+
+def test_occlusion_weight_draws_clips_with_occlusions_more_often(tmp_path):
+    """With a large ``occlusion_weight`` the drawn clips hold far more occluded objects than
+    clips drawn uniformly; weight 0 keeps the uniform draw; a negative weight is refused."""
+    from suit_ros.data.sequences import (ClipSampler, occluded_in_clip, present_ids,
+                                         seen_ids, synthetic_sequence)
+    seqs = [synthetic_sequence('test', s, 14, tmp_path) for s in (3, 4)]
+    L = 4
+    by_start = {(i, s): occluded_in_clip([seen_ids(f) for f in seq[s:s + L]],
+                                         [present_ids(f) for f in seq[s:s + L]])
+                for i, seq in enumerate(seqs) for s in range(len(seq) - L + 1)}
+    assert max(by_start.values()) > 0 and min(by_start.values()) == 0
+
+    def drawn(weight: float) -> float:
+        sampler = ClipSampler(seqs, [L], 5, occlusion_weight=weight)
+        counts = []
+        for _ in range(200):
+            seq, start = sampler._draw_start(L)
+            counts.append(by_start[([id(q) for q in seqs].index(id(seq)), start)])
+        return float(np.mean(counts))
+    uniform = float(np.mean(list(by_start.values())))
+    assert drawn(50.0) > 1.5 * uniform
+    assert abs(drawn(0.0) - uniform) < 0.5 * uniform + 0.5
+    with pytest.raises(ValueError, match='occlusion_weight'):
+        ClipSampler(seqs, [L], 0, occlusion_weight=-1.0)

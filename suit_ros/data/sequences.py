@@ -150,7 +150,8 @@ def load_sequence(path: Path, points_dtype: PointsDtype = np.float32) -> list[Fr
     return out
 
 
-def training_view(frame: Frame, min_points: int = 1, keep_ids: set[int] | None = None
+def training_view(frame: Frame, min_points: int = 1,
+                  keep_ids: set[int] | frozenset[int] | None = None
                   ) -> Frame:
     """The frame with GT restricted to boxes that have at least ``min_points`` returns (or
     whose instance id is in ``keep_ids``: objects seen before an outage)."""
@@ -165,6 +166,32 @@ def training_view(frame: Frame, min_points: int = 1, keep_ids: set[int] | None =
                                  else None))
 
 
+def seen_ids(frame: Frame) -> frozenset[int]:
+    """Instance ids of the frame's GT objects with returns in it."""
+    if frame.gt is None or frame.num_points is None or frame.instance_ids is None:
+        return frozenset()
+    return frozenset(int(i) for i, c in zip(frame.instance_ids, frame.num_points) if c > 0)
+
+
+def present_ids(frame: Frame) -> frozenset[int]:
+    """Instance ids of every GT object of the frame (with returns or not)."""
+    if frame.gt is None or frame.instance_ids is None:
+        return frozenset()
+    return frozenset(int(i) for i in frame.instance_ids)
+
+
+def occluded_in_clip(seen: Sequence[frozenset[int]], present: Sequence[frozenset[int]],
+                     min_gap: int = 1) -> int:
+    """Occluded objects of a clip, counted frame by frame: present in a frame, with returns in
+    an earlier frame of the clip but in none of the last ``min_gap`` frames (this one
+    included; with ``min_gap`` = the model's sweeps, only a memory can still see them)."""
+    n, last = 0, dict[int, int]()
+    for t, (sn, pr) in enumerate(zip(seen, present)):
+        n += sum(1 for i in pr - sn if i in last and t - last[i] >= min_gap)
+        last.update((i, t) for i in sn)
+    return n
+
+
 class ClipSampler:
     """Random clips of consecutive model frames (length drawn from ``lengths``).
 
@@ -177,12 +204,17 @@ class ClipSampler:
         the outage (they are still there), so the loss rewards carrying them.
     :param carry_gt: every frame's GT keeps the objects that had returns in an earlier frame of
         the clip (occluded now, still there), in every clip.
+    :param occlusion_weight: clips are drawn with weight ``1 + occlusion_weight * n``, where
+        ``n`` counts the clip's objects that only a memory can see (frame by frame: present,
+        with returns earlier in the clip but in none of the last ``sweeps`` frames, see
+        :func:`occluded_in_clip`); 0 draws every start alike. Puts natural occlusions beyond
+        the sweep window in front of the loss without cutting anything out of the sweeps.
     """
 
     def __init__(self, sequences: Sequence[Sequence[Frame]], lengths: Sequence[int],
                  seed: int, sweeps: int = 1, outage_probability: float = 0.0,
                  outage_width_deg: tuple[float, float] = (60.0, 180.0),
-                 carry_gt: bool = False) -> None:
+                 carry_gt: bool = False, occlusion_weight: float = 0.0) -> None:
         span = max(lengths)
         self.sequences = [s for s in sequences if len(s) >= span]
         if not self.sequences:
@@ -196,7 +228,24 @@ class ClipSampler:
         self.outage_probability = outage_probability
         self.outage_width_deg = outage_width_deg
         self.carry_gt = carry_gt
+        if not (occlusion_weight >= 0.0 and np.isfinite(occlusion_weight)):
+            raise ValueError(f'occlusion_weight must be >= 0, not {occlusion_weight}')
+        self.occlusion_weight = occlusion_weight
         self.rng = np.random.default_rng(seed)
+        # per clip length: the (sequence, start) pairs and their cumulative draw weights
+        self._starts: dict[int, tuple[NDArray[np.int64], NDArray[np.float64]]] = {}
+        if occlusion_weight > 0:
+            seen = [[seen_ids(f) for f in seq] for seq in self.sequences]
+            present = [[present_ids(f) for f in seq] for seq in self.sequences]
+            for L in set(self.lengths):
+                pairs, weights = [], []
+                for i, (sn, pr) in enumerate(zip(seen, present)):
+                    for s in range(len(sn) - L + 1):
+                        pairs.append((i, s))
+                        weights.append(1.0 + occlusion_weight * occluded_in_clip(
+                            sn[s:s + L], pr[s:s + L], min_gap=sweeps))
+                self._starts[L] = (np.asarray(pairs, np.int64),
+                                   np.cumsum(np.asarray(weights, np.float64)))
 
     def batch(self, batch_size: int) -> list[list[Frame]]:
         """``batch_size`` clips of one common length."""
@@ -206,20 +255,18 @@ class ClipSampler:
                            ) -> tuple[list[list[Frame]], list[list[bool]]]:
         """Clips as :meth:`batch`, and per clip frame whether an outage is active in it."""
         from suit_ros.model.sweeps import model_frame
-        from suit_ros.outage import seen_ids
         L = int(self.rng.choice(self.lengths))
         clips, lost = [], []
         for _ in range(batch_size):
-            seq = self.sequences[int(self.rng.integers(len(self.sequences)))]
-            start = int(self.rng.integers(len(seq) - L + 1))
+            seq, start = self._draw_start(L)
             first = max(start - self.sweeps + 1, 0)
             window = list(seq[first:start + L])
             active = [False] * L
-            seen: set[int] | None = None
+            seen: frozenset[int] | None = None
             if L >= 3 and self.rng.random() < self.outage_probability:
                 window, active, seen = self._draw_outage(window, start - first, L)
             clip = []
-            earlier: set[int] = set()
+            earlier = frozenset[int]()
             for t in range(L):
                 f = model_frame(window, start - first + t, self.sweeps)
                 keep = earlier if self.carry_gt else (seen if active[t] else None)
@@ -230,10 +277,20 @@ class ClipSampler:
             lost.append(active)
         return clips, lost
 
+    def _draw_start(self, L: int) -> tuple[Sequence[Frame], int]:
+        """A sequence and a clip start: uniform, or by occlusion weight."""
+        if L in self._starts:
+            pairs, cum = self._starts[L]
+            k = int(np.searchsorted(cum, self.rng.random() * cum[-1], side='right'))
+            i, start = pairs[min(k, len(pairs) - 1)]
+            return self.sequences[int(i)], int(start)
+        seq = self.sequences[int(self.rng.integers(len(self.sequences)))]
+        return seq, int(self.rng.integers(len(seq) - L + 1))
+
     def _draw_outage(self, window: list[Frame], offset: int, L: int
-                     ) -> tuple[list[Frame], list[bool], set[int]]:
+                     ) -> tuple[list[Frame], list[bool], frozenset[int]]:
         """Remove a random sector from the window's sweeps from clip frame 1 or 2 on."""
-        from suit_ros.outage import Outage, seen_ids, with_outages
+        from suit_ros.outage import Outage, with_outages
         begin = int(self.rng.integers(1, min(2, L - 2) + 1))
         o = Outage(float(self.rng.uniform(-180, 180)),
                    float(self.rng.uniform(*self.outage_width_deg)), offset + begin, L - begin)
