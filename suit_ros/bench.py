@@ -184,6 +184,9 @@ def run(args: argparse.Namespace) -> int:
     """Run every measurement and print the table."""
     import torch
 
+    from suit_ros.heap import keep_freed_memory
+    keep_freed_memory()          # the allocator as the node sets it (suit_ros.heap)
+
     from suit_ros.data.sim import preset
     from suit_ros.data.sim.scene import Simulation, to_frame
     from suit_ros.model.streaming import StreamingDetector

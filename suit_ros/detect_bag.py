@@ -120,6 +120,8 @@ def _cloud_frame(reader: Any, points_topic: str) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """Process the bag; print a summary."""
+    from suit_ros.heap import keep_freed_memory
+    keep_freed_memory()          # the allocator as the node sets it (suit_ros.heap)
     from suit_ros.data.bag import open_reader, open_writer
     from suit_ros.msg_adapters.classes import MessageClasses
     out_path = Path(args.output)

@@ -182,6 +182,9 @@ def main(args: list[str] | None = None) -> int:
     import signal
 
     from rclpy.signals import SignalHandlerOptions
+
+    from suit_ros.heap import keep_freed_memory
+    keep_freed_memory()      # before any thread allocates: frames reuse their pages
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = DetectorNode()

@@ -233,8 +233,8 @@ def test_sweep_velocities_equal_the_array_code_on_moving_cars():
 
 
 def test_a_warmed_up_detector_answers_a_drive_as_a_fresh_one():
-    """The warm-up's two made-up frames leave nothing behind: memory, sweeps, tracks and
-    track ids are those of a fresh detector (the shipped model, a synthetic drive)."""
+    """The warm-up's made-up frames leave nothing behind: memory, sweeps, tracks and track
+    ids are those of a fresh detector (the shipped model, a synthetic drive)."""
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     from suit_ros.data.sim import preset, sim_frames
     from suit_ros.evaluate import step_inputs
@@ -242,8 +242,10 @@ def test_a_warmed_up_detector_answers_a_drive_as_a_fresh_one():
     from suit_ros.tracking import TrackerConfig
     model, _, _ = load_checkpoint(default_checkpoint_path(), 'cpu')
     fresh, warmed = (StreamingDetector(model, tracker=TrackerConfig()) for _ in range(2))
+    tracks = warmed.tracks
     warmed.warm_up(points=5000)
     assert warmed.memory is None and len(warmed.sweeps) == 0
+    assert warmed.tracks is tracks and len(tracks) == 0
     assert warmed.last_reset_reason == 'start'
     frames = list(sim_frames(preset('test-real', frames=4), 5))
     for f in frames:

@@ -181,8 +181,7 @@ def test_outage_clips_lose_a_sector_and_keep_the_objects_seen_before(tmp_path):
     """An outage clip loses one sector of its sweeps from clip frame 1 or 2 on; the GT of
     those frames keeps the objects that had returns just before (so the loss asks the memory
     to carry them), and the frames before the outage are untouched."""
-    from suit_ros.data.sequences import ClipSampler, synthetic_sequence
-    from suit_ros.data.sequences import seen_ids
+    from suit_ros.data.sequences import ClipSampler, seen_ids, synthetic_sequence
     seq = synthetic_sequence('test', 3, 8, tmp_path)
     lossy = ClipSampler([seq], [6], 4, sweeps=3, outage_probability=1.0,
                         outage_width_deg=(120.0, 120.0))
@@ -211,8 +210,7 @@ def test_outage_clips_lose_a_sector_and_keep_the_objects_seen_before(tmp_path):
 def test_carry_gt_keeps_objects_seen_earlier_in_the_clip(tmp_path):
     """With ``carry_gt`` a frame's GT also holds the objects that had returns in an earlier
     frame of the clip (occluded now); the first frame keeps only those with returns."""
-    from suit_ros.data.sequences import ClipSampler, synthetic_sequence
-    from suit_ros.data.sequences import seen_ids
+    from suit_ros.data.sequences import ClipSampler, seen_ids, synthetic_sequence
     seq = synthetic_sequence('test', 3, 8, tmp_path)
     sampler = ClipSampler([seq], [6], 2, sweeps=3, outage_probability=1.0, carry_gt=True)
     kept_unseen = 0
@@ -248,8 +246,13 @@ def test_occluded_in_clip_counts_objects_hidden_after_being_seen():
 def test_occlusion_weight_draws_clips_with_occlusions_more_often(tmp_path):
     """With a large ``occlusion_weight`` the drawn clips hold far more occluded objects than
     clips drawn uniformly; weight 0 keeps the uniform draw; a negative weight is refused."""
-    from suit_ros.data.sequences import (ClipSampler, occluded_in_clip, present_ids,
-                                         seen_ids, synthetic_sequence)
+    from suit_ros.data.sequences import (
+        ClipSampler,
+        occluded_in_clip,
+        present_ids,
+        seen_ids,
+        synthetic_sequence,
+    )
     seqs = [synthetic_sequence('test', s, 14, tmp_path) for s in (3, 4)]
     L = 4
     by_start = {(i, s): occluded_in_clip([seen_ids(f) for f in seq[s:s + L]],

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -138,9 +139,10 @@ class PillarEncoder(nn.Module):
     def compiled(self, clouds: Sequence[Tensor]) -> bool:
         """Whether :meth:`encode_clouds` takes the compiled path for these clouds: the
         folded inference copy (no norm, no gradient), no cap, the five usual input channels,
-        float32 clouds on the CPU."""
+        float32 clouds on the CPU, a float32 or bfloat16 pseudo-image."""
         return (not self.training and isinstance(self.norm, nn.Identity) and not self.max_points
                 and self.in_channels == 5 and not torch.is_grad_enabled()
+                and self.canvas_dtype in (None, torch.float32, torch.bfloat16)
                 and all(c.device.type == 'cpu' and c.dtype == torch.float32 for c in clouds))
 
     def encode_clouds(self, clouds: Sequence[Tensor], occupancy: bool = False
@@ -160,22 +162,24 @@ class PillarEncoder(nn.Module):
                     for i, pts in enumerate(clouds)]
             bev: Tensor = self(torch.cat(rows, dim=0), len(clouds))
             return bev, (bev != 0).any(dim=1) if occupancy else None
-        from suit_ros.ops.kernels import pillar_max
+        from suit_ros.ops.kernels import pillar_features, pillar_max
         C = self.in_channels
         A = self._folded_terms(C).T.contiguous().numpy()
+        W = self.weight().detach().contiguous().numpy()
+        bias = None if self.linear.bias is None else self.linear.bias.detach().numpy()
         cells = g.ny * g.nx
         canvas = torch.zeros(len(clouds) * cells, self.out_channels,
                              dtype=self.canvas_dtype or torch.float32)
+        # bfloat16 is written as its bits (numpy has no bfloat16)
+        image = (canvas.view(torch.int16).numpy().view(np.uint16)
+                if canvas.dtype == torch.bfloat16 else canvas.numpy())
         occupied = torch.zeros(len(clouds) * cells, dtype=torch.bool) if occupancy else None
         for b, pts in enumerate(clouds):
             keys, mean, top = pillar_max(pts.numpy(), g.point_range, g.pillar_size, g.nx, g.ny,
                                          A)
-            k = torch.from_numpy(keys)
-            pillar = torch.relu_(torch.from_numpy(top).sub_(
-                self._per_pillar(C, torch.from_numpy(mean), k))).to(canvas.dtype)
-            canvas[k + b * cells] = pillar
-            if occupied is not None:
-                occupied[k + b * cells] = (pillar != 0).any(dim=1)
+            pillar_features(top, mean, keys, W, bias,
+                            (g.point_range[0], g.point_range[1], g.pillar_size, g.nx, g.ny),
+                            image, b * cells, None if occupied is None else occupied.numpy())
         return (canvas.view(len(clouds), g.ny, g.nx, self.out_channels).permute(0, 3, 1, 2),
                 None if occupied is None else occupied.view(len(clouds), g.ny, g.nx))
 

@@ -141,12 +141,14 @@ class StreamingDetector:
                 self.tracks.reset()
         self.last_reset_reason = reason
 
-    def warm_up(self, points: int = 30_000) -> None:
-        """Run two steps on a made-up cloud (ground rings and a few walls, ``points`` returns),
-        then forget them: the first real clouds do not pay for the compiled kernels' loading,
-        oneDNN's primitive creation and the allocator's growth (100-180 ms extra on the first
-        frames of a 64-beam drive). The tracker is left out and the state reset, so what
-        follows is what it would have been without this."""
+    def warm_up(self, points: int = 130_000) -> None:
+        """Run the model on a made-up cloud (ground rings and a few walls, ``points`` returns)
+        as many times as it reads sweeps, so the last input has as many points as a 128-beam
+        stream gives, then forget it: the first real clouds do not pay for the compiled
+        kernels' loading, oneDNN's primitive creation and the allocator's growth (100-180 ms
+        extra on the first frames of a 64-beam drive, measured). A throwaway tracker runs
+        (the node turns its own on later) and the state is reset, so what follows is what it
+        would have been without this (tracks and track ids included)."""
         from suit_ros.ops.kernels import warm_up
         warm_up()
         rng = np.random.default_rng(0)
@@ -156,11 +158,13 @@ class StreamingDetector:
         z = np.where(r > 7.9, rng.uniform(-1.8, 1.5, points), -1.8)
         cloud = np.c_[r * np.cos(az), r * np.sin(az), z,
                       rng.uniform(0, 1, points)].astype(np.float32)
-        tracks, self.tracks = self.tracks, None
+        tracks = self.tracks          # a throwaway tracker, whether one is on or not yet
+        self.tracks = Tracker(tracks.config if tracks is not None else TrackerConfig(),
+                              self.cfg.class_names)
         reason = self.last_reset_reason
         try:
             pose = np.eye(4)
-            for k in range(2):
+            for k in range(max(self.cfg.sweeps, 2)):
                 pose[0, 3] = 0.8 * k
                 self.step(cloud, 10**9 + k * 10**8, pose)
         finally:

@@ -10,7 +10,8 @@ them bit for bit), so outputs do not change:
 - :func:`transform_sweep`: a sweep moved into base_link and tagged with its time lag
   (:func:`suit_ros.model.sweeps.accumulate_sweeps`);
 - :func:`pillar_max`: dynamic pillarization and the folded pillar encoder's per-pillar max
-  and mean (:class:`suit_ros.model.pillars.PillarEncoder`, inference);
+  and mean (:class:`suit_ros.model.pillars.PillarEncoder`, inference), and
+  :func:`pillar_features`: its pillar features written into the pseudo-image;
 - :func:`bucket_points` and :func:`gather_cells`: the points in marked cells of a coarse grid,
   sorted by cell, and each rectangle's share of them (:class:`suit_ros.ops.geometry.CellIndex`);
 - :func:`count_in_boxes`: the points inside each box (the node's ``num_points``);
@@ -135,6 +136,58 @@ def _pillar_reduce(points: Any, pid: Any, U: int, A: Any) -> tuple[Any, Any]:  #
         for j in range(3):
             mean[p, j] = mean[p, j] / count[p]
     return mean, top.reshape(U, C)
+
+
+@_jit_fma
+def _mean_product(mean: Any, B: Any) -> Any:  # pragma: no cover
+    """``mean @ B`` for ``(U, 3)`` and ``(3, C)`` float32, each entry a chain of FMAs from
+    zero over the three terms, as the float32 matmul computes it."""
+    U = mean.shape[0]
+    C = B.shape[1]
+    out = np.empty((U, C), np.float32)
+    for p in range(U):
+        m0 = mean[p, 0]
+        m1 = mean[p, 1]
+        m2 = mean[p, 2]
+        for c in range(C):
+            out[p, c] = ((np.float32(0.0) + m0 * B[0, c]) + m1 * B[1, c]) + m2 * B[2, c]
+    return out
+
+
+@_jit
+def _pillar_features(top: Any, mm: Any, cells: Any, nx: int, ny: int, lo: Any, size: Any,
+                     wx: Any, wy: Any, bias: Any, rows: Any, offset: int, occupied: Any,
+                     to_bfloat16: bool) -> None:  # pragma: no cover
+    """The folded encoder's pillar features, written into the pseudo-image: for pillar ``p``
+    at cell ``k``, ``relu(top - (mm + cx * wx + cy * wy - bias))`` (each operation rounded to
+    float32 in that order; ``cx``, ``cy`` the pillar's centre) into ``rows[offset + k]``,
+    as float32 or as bfloat16 bits (round to nearest even); ``occupied[offset + k]`` where a
+    value is not zero (when ``occupied`` has entries). No contraction: each product is
+    rounded before its sum, as the tensor code computes it."""
+    U = top.shape[0]
+    C = top.shape[1]
+    half = np.float32(0.5)
+    mark = occupied.shape[0] > 0
+    for p in range(U):
+        k = cells[p]
+        cx = (np.float32(k % nx) + half) * size + lo[0]
+        cy = (np.float32((k // nx) % ny) + half) * size + lo[1]
+        row = offset + k
+        any_set = False
+        for c in range(C):
+            per = ((mm[p, c] + cx * wx[c]) + cy * wy[c]) - bias[c]
+            v = max(np.float32(0.0), top[p, c] - per)       # ReLU (-0 and NaN give 0)
+            if to_bfloat16:
+                bits = np.float32(v).view(np.uint32)
+                b = np.uint16((bits + np.uint32(0x7FFF) + ((bits >> np.uint32(16))
+                                                           & np.uint32(1))) >> np.uint32(16))
+                rows[row, c] = b
+                any_set = any_set or b != 0
+            else:
+                rows[row, c] = v
+                any_set = any_set or v != 0
+        if mark:
+            occupied[row] = any_set
 
 
 def pillar_max(points: NDArray[np.float32], point_range: tuple[float, ...], size: float,
@@ -376,6 +429,39 @@ def sweep_histograms(pts: Any, idx: Any, starts: Any, geometry: Any, lags: Any, 
     return out, length
 
 
+def pillar_features(top: NDArray[np.float32], mean: NDArray[np.float32],
+                    cells: NDArray[np.int64], W: NDArray[np.float32],
+                    bias: NDArray[np.float32] | None, grid: tuple[float, float, float, int, int],
+                    rows: NDArray[Any], offset: int,
+                    occupied: NDArray[np.bool_] | None = None) -> None:
+    """The folded pillar encoder's output for :func:`pillar_max`'s pillars, written into the
+    pseudo-image (:meth:`suit_ros.model.pillars.PillarEncoder._per_pillar`, then the ReLU of
+    the max minus it, then the canvas dtype), in one pass and no temporaries but one product.
+
+    :param W: ``(C, 5 + 5)`` float32, the folded linear map (its columns 5-7 weigh a pillar's
+        mean xyz, 8-9 its centre x and y).
+    :param grid: ``(x0, y0, pillar size, nx, ny)``.
+    :param rows: ``(B * ny * nx, C)`` float32, or uint16 holding bfloat16 bits.
+    :param offset: the first row of this cloud's image; ``occupied`` ``(B * ny * nx,)`` gets
+        which cells have a non-zero feature.
+    """
+    C5 = W.shape[1] - 5
+    B = np.ascontiguousarray(W[:, C5:C5 + 3].T, np.float32)
+    wx = np.ascontiguousarray(W[:, C5 + 3], np.float32)
+    wy = np.ascontiguousarray(W[:, C5 + 4], np.float32)
+    b = (np.zeros(W.shape[0], np.float32) if bias is None
+         else np.ascontiguousarray(bias, np.float32))
+    x0, y0, size, nx, ny = grid
+    if rows.dtype not in (np.float32, np.uint16) or rows.shape[1] != W.shape[0]:
+        raise ValueError(f'pillar_features writes (cells, {W.shape[0]}) float32 or bfloat16 '
+                         f'bits, got {rows.dtype} {rows.shape}')
+    _pillar_features(top, _mean_product(np.ascontiguousarray(mean, np.float32), B),
+                     cells, int(nx), int(ny), np.array([x0, y0], np.float32), np.float32(size),
+                     wx, wy, b, rows, int(offset),
+                     np.zeros(0, np.bool_) if occupied is None else occupied,
+                     rows.dtype == np.uint16)
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel for the argument types of the node's
     step: float32 clouds of 4 (the sensor's) and 5 columns (the model input), xyz slices of
@@ -385,8 +471,13 @@ def warm_up() -> None:
     R, t, lag = np.eye(3, dtype=np.float32), np.zeros(3, np.float32), np.float32(0.0)
     transform_sweep(sweep, R, t, lag, model_input)
     transform_sweep(model_input, R, t, lag, model_input.copy())
-    pillar_max(model_input, (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0), 0.5, 4, 4,
-               np.zeros((5, 2), np.float32))
+    cells, mean, top = pillar_max(model_input, (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0), 0.5, 4, 4,
+                                  np.zeros((5, 2), np.float32))
+    W = np.zeros((2, 10), np.float32)
+    for rows in (np.zeros((16, 2), np.float32), np.zeros((16, 2), np.uint16)):
+        for occupied in (None, np.zeros(16, bool)):
+            pillar_features(top, mean, cells, W, W[:, 0], (-1.0, -1.0, 0.5, 4, 4), rows, 0,
+                            occupied)
     origin, shape, marked = np.zeros(2, np.int64), np.array([2, 2]), np.ones(4, bool)
     for xyz in (sweep[:, :3], model_input):
         order, keys = bucket_points(xyz, 1.0, origin, shape, marked)
