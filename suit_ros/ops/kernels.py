@@ -17,7 +17,9 @@ them bit for bit), so outputs do not change:
 - :func:`count_in_boxes`: the points inside each box (the node's ``num_points``);
 - :func:`sweep_histograms`: each vehicle's returns along its heading, per sweep (the tracker's
   velocity reading, :func:`suit_ros.tracking.sweep_velocities`);
-- :func:`distinct_values`: the distinct time lags of a model input.
+- :func:`distinct_values`: the distinct time lags of a model input;
+- :func:`paired_bev_iou`: rotated BEV IoU of box pairs (the NMS of the head and of the
+  significance sampling), a loop per pair instead of some 60 tensor operations.
 
 Compiled on first use (:func:`compiled`) and cached on disk; :func:`warm_up` compiles the
 types a detector step uses, as the node does at start.
@@ -462,6 +464,96 @@ def pillar_features(top: NDArray[np.float32], mean: NDArray[np.float32],
                      rows.dtype == np.uint16)
 
 
+@_jit
+def paired_bev_iou(boxes_a: Any, boxes_b: Any) -> Any:  # pragma: no cover
+    """Rotated BEV IoU of each pair ``(boxes_a[k], boxes_b[k])`` of ``(K, 7)`` float32 boxes,
+    as :func:`suit_ros.ops.iou.paired_bev_iou` computes it (float64 geometry, float32
+    result): the intersection polygon from the corners of each box inside the other (1e-6 m
+    tolerance) and the crossings of their edges (edges closer to parallel than 1e-12 m^2 do
+    not cross), ordered by angle around the candidates' mean, shoelace area. Sums are
+    taken in order, so a value may differ from the tensor code's in the last bits of the
+    float64 geometry (the tests bound it)."""
+    K = boxes_a.shape[0]
+    out = np.empty(K, np.float32)
+    pts = np.empty((24, 2), np.float64)
+    ang = np.empty(24, np.float64)
+    corners = np.empty((2, 4, 2), np.float64)
+    sx = np.array([1.0, -1.0, -1.0, 1.0])
+    sy = np.array([1.0, 1.0, -1.0, -1.0])
+    for k in range(K):
+        for m in range(2):
+            bx = boxes_a[k] if m == 0 else boxes_b[k]
+            x = np.float64(bx[0])
+            y = np.float64(bx[1])
+            hl = np.float64(bx[3]) * 0.5
+            hw = np.float64(bx[4]) * 0.5
+            c = np.cos(np.float64(bx[6]))
+            s = np.sin(np.float64(bx[6]))
+            for i in range(4):
+                dx = sx[i] * hl
+                dy = sy[i] * hw
+                corners[m, i, 0] = x + c * dx - s * dy
+                corners[m, i, 1] = y + s * dx + c * dy
+        n = 0
+        for m in range(2):                    # corners of box m inside the other box
+            ot = boxes_b[k] if m == 0 else boxes_a[k]
+            ox = np.float64(ot[0])
+            oy = np.float64(ot[1])
+            c = np.cos(np.float64(ot[6]))
+            s = np.sin(np.float64(ot[6]))
+            half_l = np.float64(ot[3]) * 0.5 + 1e-6
+            half_w = np.float64(ot[4]) * 0.5 + 1e-6
+            for i in range(4):
+                d0 = corners[m, i, 0] - ox
+                d1 = corners[m, i, 1] - oy
+                if abs(d0 * c + d1 * s) <= half_l and abs(d1 * c - d0 * s) <= half_w:
+                    pts[n, 0] = corners[m, i, 0]
+                    pts[n, 1] = corners[m, i, 1]
+                    n += 1
+        for i in range(4):                    # edge i of a against edge j of b
+            i1 = (i + 1) % 4
+            r0 = corners[0, i1, 0] - corners[0, i, 0]
+            r1 = corners[0, i1, 1] - corners[0, i, 1]
+            for j in range(4):
+                j1 = (j + 1) % 4
+                v0 = corners[1, j1, 0] - corners[1, j, 0]
+                v1 = corners[1, j1, 1] - corners[1, j, 1]
+                denom = r0 * v1 - r1 * v0
+                if abs(denom) < 1e-12:
+                    continue
+                q0 = corners[1, j, 0] - corners[0, i, 0]
+                q1 = corners[1, j, 1] - corners[0, i, 1]
+                t = (q0 * v1 - q1 * v0) / denom
+                u = (q0 * r1 - q1 * r0) / denom
+                if t >= 0.0 and t <= 1.0 and u >= 0.0 and u <= 1.0:
+                    pts[n, 0] = corners[0, i, 0] + t * r0
+                    pts[n, 1] = corners[0, i, 1] + t * r1
+                    n += 1
+        inter = 0.0
+        if n >= 3:
+            mx = 0.0
+            my = 0.0
+            for i in range(n):
+                mx += pts[i, 0]
+                my += pts[i, 1]
+            mx /= n
+            my /= n
+            for i in range(n):
+                ang[i] = np.arctan2(pts[i, 1] - my, pts[i, 0] - mx)
+            order = np.argsort(ang[:n])
+            acc = 0.0
+            for i in range(n):
+                p = order[i]
+                q = order[(i + 1) % n]
+                acc += pts[p, 0] * pts[q, 1] - pts[p, 1] * pts[q, 0]
+            inter = 0.5 * abs(acc)
+        area_a = np.float64(boxes_a[k, 3] * boxes_a[k, 4])
+        area_b = np.float64(boxes_b[k, 3] * boxes_b[k, 4])
+        iou = inter / max(area_a + area_b - inter, 1e-9)
+        out[k] = np.float32(min(max(iou, 0.0), 1.0))
+    return out
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel for the argument types of the node's
     step: float32 clouds of 4 (the sensor's) and 5 columns (the model input), xyz slices of
@@ -488,3 +580,4 @@ def warm_up() -> None:
     sweep_histograms(model_input, idx, starts, np.ones((1, 7), np.float32),
                      np.ones(1, np.float32), np.float32(0.1), np.ones(1, np.int64))
     distinct_values(model_input[:, 4])
+    paired_bev_iou(np.ones((1, 7), np.float32), np.ones((1, 7), np.float32))

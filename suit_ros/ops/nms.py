@@ -57,8 +57,17 @@ def rotated_suppression(b: Tensor, candidates: Tensor, iou_threshold: float) -> 
     i, j = torch.nonzero(torch.triu(near & candidates, diagonal=1), as_tuple=True)
     suppress = torch.zeros((N, N), dtype=torch.bool, device=b.device)
     if len(i):
-        suppress[i, j] = paired_bev_iou(b[i], b[j]) > iou_threshold
+        suppress[i, j] = pair_iou(b[i], b[j]) > iou_threshold
     return suppress
+
+
+def pair_iou(a: Tensor, b: Tensor) -> Tensor:
+    """:func:`~suit_ros.ops.iou.paired_bev_iou`, compiled for float32 boxes on the CPU
+    (:func:`suit_ros.ops.kernels.paired_bev_iou`)."""
+    if a.device.type == 'cpu' and a.dtype == torch.float32 and b.dtype == torch.float32:
+        from suit_ros.ops.kernels import paired_bev_iou as compiled_iou
+        return torch.from_numpy(compiled_iou(a.contiguous().numpy(), b.contiguous().numpy()))
+    return paired_bev_iou(a, b)
 
 
 def rotated_nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
