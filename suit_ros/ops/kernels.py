@@ -549,7 +549,8 @@ def paired_bev_iou(boxes_a: Any, boxes_b: Any) -> Any:  # pragma: no cover
             inter = 0.5 * abs(acc)
         area_a = np.float64(boxes_a[k, 3] * boxes_a[k, 4])
         area_b = np.float64(boxes_b[k, 3] * boxes_b[k, 4])
-        iou = inter / max(area_a + area_b - inter, 1e-9)
+        union = area_a + area_b - inter
+        iou = inter / (union if union > 1e-9 else 1e-9)
         out[k] = np.float32(min(max(iou, 0.0), 1.0))
     return out
 
