@@ -10,9 +10,11 @@ import numpy as np
 
 def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
                  seed: int = 7, workdir: str = 'out/demo', threads: int = 0,
-                 precision: str = 'auto', sensor: str = 'sim32') -> dict[str, Any]:
-    """Play the demo drive (as ``sensor`` sees it) at ``rate`` x 10 Hz into a fresh node;
-    measure cloud-received -> detections-received latency at a probe, the output rate, drops,
+                 precision: str = 'auto', sensor: str = 'sim32', densify: float = 1.0
+                 ) -> dict[str, Any]:
+    """Play the demo drive (as ``sensor`` sees it, ``densify`` x its points) at ``rate`` x
+    10 Hz into a fresh node; measure cloud-received -> detections-received latency at a probe
+    (and the node's own, stamp -> published, from its diagnostics), the output rate, drops,
     the node's overhead and its CPU use (cores: the process's CPU time over the playback).
 
     :param threads: the node's ``threads`` parameter (0: its default, all cores but one).
@@ -22,7 +24,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
     from suit_ros.harness import node_and_probe, play_into, wait_ready
     from suit_ros.rosenv import local_ros_env
     os.environ.update(local_ros_env())
-    bag = demo_bag(workdir, seed, frames, sensor)
+    bag = demo_bag(workdir, seed, frames, sensor, densify=densify)
     ckpt = checkpoint or str(default_checkpoint_path())
     with node_and_probe(ckpt, f'threads:={threads}', f'precision:={precision}',
                         name='suit_ros_bench_probe', quiet=True) as (node, probe):
@@ -34,7 +36,7 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
                   120, settle_s=0.0)
         probe.spin_for(2.5)
     return {'node_threads': threads, 'node_precision': precision, 'sensor': sensor,
-            'cpu_cores': rec.cores, **_summary(rec.clouds,
+            'densify': densify, 'cpu_cores': rec.cores, **_summary(rec.clouds,
                                                {k: t for k, (t, _) in rec.dets.items()},
                                                rec.diags[-1] if rec.diags else {})}
 
@@ -93,18 +95,20 @@ class OutputRecorder:
 
 
 def demo_bag(workdir: str, seed: int, frames: int, sensor: str = 'sim32',
-             progress: bool = False) -> str:
-    """The demo drive's bag as ``sensor`` sees it (written once, then reused)."""
+             progress: bool = False, densify: float = 1.0) -> str:
+    """The demo drive's bag as ``sensor`` sees it, ``densify`` x its points (written once,
+    then reused)."""
     from suit_ros.data.sim import preset
     from suit_ros.data.sim.recording import write_bag
     bag = os.path.join(workdir, f'demo-seed{seed}-{frames}f'
-                       + ('' if sensor == 'sim32' else f'-{sensor}'))
+                       + ('' if sensor == 'sim32' else f'-{sensor}')
+                       + ('' if densify == 1.0 else f'-x{densify:g}'))
     if not os.path.exists(bag):
         os.makedirs(workdir, exist_ok=True)
         if progress:
             print(f'[demo] simulating {frames} frames into {bag} ...', flush=True)
         write_bag(bag, preset('demo-real', frames=frames, sensor=sensor), seed, 'mcap',
-                  progress=progress)
+                  progress=progress, densify=densify)
     return bag
 
 
@@ -131,4 +135,6 @@ def _summary(clouds: dict[int, float], dets: dict[int, float], last: dict[str, s
             'rate_hz': len(dets) / span if span > 0 else 0.0,
             'latency_ms_p50': float(np.median(lat)) * 1e3 if lat else float('nan'),
             'latency_ms_p95': float(np.percentile(lat, 95)) * 1e3 if lat else float('nan'),
+            'node_latency_ms_p50': float(last.get('latency_ms_p50', 'nan')),
+            'node_latency_ms_p95': float(last.get('latency_ms_p95', 'nan')),
             'model_ms_p50': model, 'overhead_pct': 100.0 * overhead / model if model else 0.0}

@@ -16,4 +16,29 @@ def test_rate_and_latency_are_counted_over_the_playback():
     assert out['rate_hz'] == pytest.approx(9 / (0.9 + 0.06))
     assert out['latency_ms_p50'] == pytest.approx(50.0)
     assert out['overhead_pct'] == pytest.approx(10.0)
+    assert out['node_latency_ms_p95'] != out['node_latency_ms_p95']     # nan: not reported
+    own = _summary(clouds, dets, {'latency_ms_p50': '61.5', 'latency_ms_p95': '88.0'})
+    assert own['node_latency_ms_p50'] == 61.5 and own['node_latency_ms_p95'] == 88.0
     assert _summary({}, {}, {})['rate_hz'] == 0.0
+
+
+def test_a_densified_cloud_keeps_its_scan_order_and_fields():
+    """The 260k-point load test's clouds: factor x the rows, each copy near its original and
+    in the original's place in the scan; every field but x, y, z as it was."""
+    import numpy as np
+
+    from suit_ros.data.sim.recording import densified
+    n = 5000
+    cloud = np.zeros(n, dtype=[('x', 'f4'), ('y', 'f4'), ('z', 'f4'), ('intensity', 'f4'),
+                               ('ring', 'u2')])
+    az = np.linspace(-np.pi, np.pi, n, endpoint=False)
+    cloud['x'], cloud['y'], cloud['z'] = 20 * np.cos(az), 20 * np.sin(az), -1.5
+    cloud['intensity'] = np.arange(n)
+    cloud['ring'] = np.arange(n) % 64
+    out = densified(cloud, 2.3, np.random.default_rng(0))
+    assert len(out) == int(n * 2.3) and out.dtype == cloud.dtype
+    src = out['intensity'].astype(int)                  # each row's original
+    assert (np.diff(src) >= 0).all()                    # scan order kept
+    assert (out['ring'] == cloud['ring'][src]).all()
+    moved = np.hypot(out['x'] - cloud['x'][src], out['y'] - cloud['y'][src])
+    assert 0.01 < float(np.median(moved)) < 0.1

@@ -7,17 +7,26 @@ import sys
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from suit_ros import CLASS_NAMES
 
 
 def write_bag(path: str | os.PathLike[str], config: Any, seed: int, storage: str = 'mcap',
-              progress: bool = False) -> dict[str, Any]:
+              progress: bool = False, densify: float = 1.0) -> dict[str, Any]:
     """Simulate and write ``/points``, ``/odom``, ``/gt/objects``, ``/tf_static``.
 
     Clouds are recorded at their stamp + one sweep period (when a driver would publish the
     finished sweep), odometry and GT at their stamps. :return: a summary.
+
+    :param densify: > 1: each cloud gets that many times its points, jittered copies (3 cm)
+        beside their originals so the scan order stays, as a denser sensor would publish (a
+        64-beam drive x 2.3 has the size of a 128-beam one); for load tests, since the GT's
+        ``num_points`` still count the original returns.
     """
+    if not densify >= 1.0:
+        raise ValueError(f'densify must be >= 1, not {densify}')
+    dense_rng = np.random.default_rng([seed, 1])
     from tqdm import tqdm  # type: ignore[import-untyped]
 
     from suit_ros.data.bag import open_writer
@@ -64,16 +73,27 @@ def write_bag(path: str | os.PathLike[str], config: Any, seed: int, storage: str
                                covariance=cov))
                 bag.write('/odom', 'nav_msgs/msg/Odometry', stamp, msg)
             header = C.header(f.stamp_ns, 'lidar')
+            cloud = f.cloud if densify == 1.0 else densified(f.cloud, densify, dense_rng)
             bag.write('/points', 'sensor_msgs/msg/PointCloud2', f.stamp_ns + period_ns,
-                      array_to_pointcloud2(f.cloud, header, C, is_dense=True))
+                      array_to_pointcloud2(cloud, header, C, is_dense=True))
             gt = f.gt
             bag.write('/gt/objects', 'sensor_msgs/msg/PointCloud2', f.stamp_ns + period_ns,
                       detections_to_pointcloud2(gt.boxes, gt.velocities, gt.scores, gt.labels,
                                                 header, C, {'num_points': f.num_points,
                                                             'instance_id': f.instance_ids}))
-            points_per_frame.append(len(f.cloud))
+            points_per_frame.append(len(cloud))
             seen = f.num_points > 0
             objects.update(CLASS_NAMES[int(lab)] for lab in gt.labels[seen])
     n = config.frames
     return {'frames': n, 'points_per_frame_mean': float(np.mean(points_per_frame)),
             'objects_per_frame': {c: objects[c] / n for c in CLASS_NAMES}}
+
+
+def densified(cloud: NDArray[Any], factor: float, rng: np.random.Generator) -> NDArray[Any]:
+    """``factor`` x the points of a structured cloud: rows drawn at random and kept in scan
+    order, x, y and z jittered by 3 cm (:func:`write_bag`)."""
+    idx = np.sort(rng.integers(0, len(cloud), int(len(cloud) * factor)))
+    out = cloud[idx].copy()
+    for k in ('x', 'y', 'z'):
+        out[k] += rng.normal(0, 0.03, len(idx)).astype(out.dtype[k])
+    return out
