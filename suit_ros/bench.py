@@ -118,11 +118,13 @@ def _sensor_sizes(model_args: argparse.Namespace, n: int) -> dict[str, Any]:
     points a sweep) and a 64-beam sensor (hdl64e, about 114k) sees it, and the 64-beam sweeps
     densified 2.3x by jittered copies of their points (about 260k, an OS1-128 or AT128), each
     copy beside its original so the sweep keeps its scan order, as a driver publishes it
+    (:func:`~suit_ros.data.sim.recording.densified`)
     (shuffled, the same points cost 13-16% more: the per-point loops lose their locality).
     Three sweeps in each input, tracker on; the three step frame by frame in turn."""
     from dataclasses import replace
 
     from suit_ros.data.sequences import synthetic_sequence
+    from suit_ros.data.sim.recording import densified
     from suit_ros.evaluate import step_inputs
     from suit_ros.model.streaming import StreamingDetector
     from suit_ros.tracking import TrackerConfig
@@ -131,13 +133,7 @@ def _sensor_sizes(model_args: argparse.Namespace, n: int) -> dict[str, Any]:
     for name, sensor, factor in SENSOR_SIZES:
         frames = synthetic_sequence('demo-real', 7, max(n, 8), sensor=sensor)
         if factor != 1.0:
-            dense = []
-            for f in frames:
-                idx = np.sort(rng.integers(0, len(f.points), int(len(f.points) * factor)))
-                pts = f.points[idx].copy()
-                pts[:, :3] += rng.normal(0, 0.03, (len(idx), 3)).astype(np.float32)
-                dense.append(replace(f, points=pts))
-            frames = dense
+            frames = [replace(f, points=densified(f.points, factor, rng)) for f in frames]
         drives[name] = frames
     model = _model(model_args, 'suit')
     runners = {k: StreamingDetector(model, model_args.device, precision=model_args.precision,
@@ -286,7 +282,8 @@ def table(r: dict[str, Any]) -> str:
                          f'{v.get("node_precision", "float32")}) through DDS at {hz}: '
                          f'CPU {v.get("cpu_cores", float("nan")):.2f} cores, '
                          f'latency at a subscriber p50 {v["latency_ms_p50"]:.1f} ms, '
-                         f'p95 {v["latency_ms_p95"]:.1f} ms (in the node, stamp to published: '
+                         f'p95 {v["latency_ms_p95"]:.1f} ms (in the node, '
+                         f'{v.get("node_latency_from", "stamp")} to published: '
                          f'p50 {v.get("node_latency_ms_p50", float("nan")):.1f}, p95 '
                          f'{v.get("node_latency_ms_p95", float("nan")):.1f}), output '
                          f'{v["rate_hz"]:.1f} Hz, '

@@ -22,3 +22,10 @@ _worker = os.environ.get('PYTEST_XDIST_WORKER', '')
 if _worker.startswith('gw'):
     os.environ['ROS_DOMAIN_ID'] = str(
         (int(os.environ['ROS_DOMAIN_ID']) + int(_worker[2:])) % 100 + 1)
+
+# detect-bag and bench keep freed memory in their process as the node does (suit_ros.heap);
+# this pytest process runs them in-process among many tests, so it keeps glibc's defaults
+# (test/test_heap.py checks the setting in fresh processes).
+import suit_ros.heap  # noqa: E402
+
+suit_ros.heap.keep_freed_memory = lambda: False

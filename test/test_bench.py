@@ -17,14 +17,18 @@ def test_rate_and_latency_are_counted_over_the_playback():
     assert out['latency_ms_p50'] == pytest.approx(50.0)
     assert out['overhead_pct'] == pytest.approx(10.0)
     assert out['node_latency_ms_p95'] != out['node_latency_ms_p95']     # nan: not reported
-    own = _summary(clouds, dets, {'latency_ms_p50': '61.5', 'latency_ms_p95': '88.0'})
+    own = _summary(clouds, dets, {'latency_ms_p50': '61.5', 'latency_ms_p95': '88.0',
+                                  'latency_reference': 'header stamp'})
     assert own['node_latency_ms_p50'] == 61.5 and own['node_latency_ms_p95'] == 88.0
+    assert own['node_latency_from'] == 'stamp'
+    assert _summary(clouds, dets, {'latency_reference': 'receive time (header stamps 9e7 s '
+                                   'from the node clock)'})['node_latency_from'] == 'receipt'
     assert _summary({}, {}, {})['rate_hz'] == 0.0
 
 
-def test_a_densified_cloud_keeps_its_scan_order_and_fields():
-    """The 260k-point load test's clouds: factor x the rows, each copy near its original and
-    in the original's place in the scan; every field but x, y, z as it was."""
+def test_a_densified_cloud_keeps_every_point_and_its_scan_order():
+    """The 260k-point load test's clouds: every original point as it was, and jittered
+    copies each right after its original; the other fields copied; plain arrays alike."""
     import numpy as np
 
     from suit_ros.data.sim.recording import densified
@@ -39,6 +43,12 @@ def test_a_densified_cloud_keeps_its_scan_order_and_fields():
     assert len(out) == int(n * 2.3) and out.dtype == cloud.dtype
     src = out['intensity'].astype(int)                  # each row's original
     assert (np.diff(src) >= 0).all()                    # scan order kept
+    first = np.r_[True, np.diff(src) > 0]               # the first row of each point
+    assert first.sum() == n and (out[first] == cloud).all()     # every original, unchanged
     assert (out['ring'] == cloud['ring'][src]).all()
-    moved = np.hypot(out['x'] - cloud['x'][src], out['y'] - cloud['y'][src])
+    moved = np.hypot(out['x'] - cloud['x'][src], out['y'] - cloud['y'][src])[~first]
     assert 0.01 < float(np.median(moved)) < 0.1
+    plain = np.c_[cloud['x'], cloud['y'], cloud['z'], cloud['intensity']]
+    dense = densified(plain, 1.5, np.random.default_rng(1))
+    assert len(dense) == int(n * 1.5) and (np.diff(dense[:, 3]) >= 0).all()
+    assert len(np.unique(dense[:, 3])) == n

@@ -63,6 +63,23 @@ def test_the_encoder_takes_the_torch_path_when_training_or_with_gradients():
         assert not folded.compiled([cloud[0].double()])
 
 
+def test_pillar_features_refuses_writes_outside_the_image():
+    """The compiled loop does not check its indices: the wrapper refuses what would write
+    outside the image (a cell past the grid, an offset past the batch, mismatched sizes)."""
+    cells, mean, top = kernels.pillar_max(lidar_like(500, 4), (-20, -20, -3, 20, 20, 3), 0.5,
+                                          80, 80, np.ones((5, 4), np.float32))
+    W, grid = np.ones((4, 10), np.float32), (-20.0, -20.0, 0.5, 80, 80)
+    rows = np.zeros((2 * 80 * 80, 4), np.float32)
+    kernels.pillar_features(top, mean, cells, W, None, grid, rows, 80 * 80)
+    assert rows[80 * 80:].any() and not rows[:80 * 80].any()
+    for bad in ({'offset': 80 * 80 + 1}, {'cells': cells + 80 * 80}, {'mean': mean[:-1]},
+                {'occupied': np.zeros(5, bool)}, {'rows': np.zeros((80 * 80, 3), np.float32)}):
+        args = {'top': top, 'mean': mean, 'cells': cells, 'W': W, 'bias': None, 'grid': grid,
+                'rows': rows, 'offset': 0, 'occupied': None} | bad
+        with pytest.raises(ValueError):
+            kernels.pillar_features(**args)
+
+
 def test_pillar_max_refuses_other_feature_counts():
     with pytest.raises(ValueError, match=r'\(N, 5\)'):
         kernels.pillar_max(np.zeros((3, 4), np.float32), (-1, -1, -1, 1, 1, 1), 0.5, 4, 4,

@@ -457,6 +457,15 @@ def pillar_features(top: NDArray[np.float32], mean: NDArray[np.float32],
     if rows.dtype not in (np.float32, np.uint16) or rows.shape[1] != W.shape[0]:
         raise ValueError(f'pillar_features writes (cells, {W.shape[0]}) float32 or bfloat16 '
                          f'bits, got {rows.dtype} {rows.shape}')
+    # the compiled loop does not check its indices: everything it writes must exist
+    U = len(cells)
+    if (top.shape != (U, W.shape[0]) or mean.shape != (U, 3) or offset < 0
+            or offset + int(nx) * int(ny) > rows.shape[0]
+            or (occupied is not None and len(occupied) != rows.shape[0])
+            or (U and (int(cells.min()) < 0 or int(cells.max()) >= int(nx) * int(ny)))):
+        raise ValueError(f'pillar_features: {U} pillars, top {top.shape}, mean {mean.shape}, '
+                         f'offset {offset} + {nx}x{ny} cells, image {rows.shape}, occupied '
+                         f'{None if occupied is None else occupied.shape}: inconsistent')
     _pillar_features(top, _mean_product(np.ascontiguousarray(mean, np.float32), B),
                      cells, int(nx), int(ny), np.array([x0, y0], np.float32), np.float32(size),
                      wx, wy, b, rows, int(offset),

@@ -66,7 +66,8 @@ def pair_iou(a: Tensor, b: Tensor) -> Tensor:
     (:func:`suit_ros.ops.kernels.paired_bev_iou`)."""
     if a.device.type == 'cpu' and a.dtype == torch.float32 and b.dtype == torch.float32:
         from suit_ros.ops.kernels import paired_bev_iou as compiled_iou
-        return torch.from_numpy(compiled_iou(a.contiguous().numpy(), b.contiguous().numpy()))
+        return torch.from_numpy(compiled_iou(a.detach().contiguous().numpy(),
+                                             b.detach().contiguous().numpy()))
     return paired_bev_iou(a, b)
 
 

@@ -11,7 +11,13 @@ from dataclasses import replace
 import glob
 
 import numpy as np
-import torch
+
+try:                                   # the allocator as the node of that commit sets it
+    from suit_ros.heap import keep_freed_memory
+    keep_freed_memory()
+except ImportError:                    # commits before suit_ros/heap.py
+    pass
+import torch  # noqa: E402
 
 from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
 from suit_ros.data.sequences import load_sequence

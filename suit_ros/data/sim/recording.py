@@ -90,10 +90,20 @@ def write_bag(path: str | os.PathLike[str], config: Any, seed: int, storage: str
 
 
 def densified(cloud: NDArray[Any], factor: float, rng: np.random.Generator) -> NDArray[Any]:
-    """``factor`` x the points of a structured cloud: rows drawn at random and kept in scan
-    order, x, y and z jittered by 3 cm (:func:`write_bag`)."""
-    idx = np.sort(rng.integers(0, len(cloud), int(len(cloud) * factor)))
-    out = cloud[idx].copy()
-    for k in ('x', 'y', 'z'):
-        out[k] += rng.normal(0, 0.03, len(idx)).astype(out.dtype[k])
+    """``factor`` x the points of a cloud: every original point, and ``factor - 1`` x as many
+    copies of points drawn at random, each jittered by 3 cm in x, y and z and placed right
+    after its original (scan order kept, as a denser sensor publishes). ``cloud``: a
+    structured array with x, y, z fields, or ``(N, >= 3)`` with x, y, z first."""
+    n = len(cloud)
+    extra = rng.integers(0, n, max(int(n * factor) - n, 0))
+    idx = np.r_[np.arange(n), extra]
+    order = np.argsort(idx, kind='stable')          # originals first within each point
+    out: NDArray[Any] = cloud[idx[order]].copy()
+    copy = order >= n
+    jitter = rng.normal(0, 0.03, (int(copy.sum()), 3))
+    if out.dtype.names:
+        for i, k in enumerate(('x', 'y', 'z')):
+            out[k][copy] += jitter[:, i].astype(out.dtype[k])
+    else:
+        out[copy, :3] += jitter.astype(out.dtype)
     return out
