@@ -23,6 +23,7 @@ from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
 from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_to_ns
 from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
 from suit_ros.ops.geometry import pose_from_xyz_rpy
+from suit_ros.ops.kernels import in_range
 from suit_ros.params import DetectorParams
 from suit_ros.structures import Detections
 from suit_ros.tracking import TrackerConfig
@@ -256,12 +257,14 @@ class DetectionPipeline:
             out.warnings['no_intensity'] = ('cloud has no intensity field (intensity, i or '
                                             'reflectivity): intensity set to 0, detections '
                                             'degrade')
-        if len(points):
+        if len(points) and p.ego_box_enabled:
             r = np.hypot(points[:, 0], points[:, 1])
             keep = (r >= p.min_range) & (r <= p.max_range)
-            if p.ego_box_enabled:
-                keep &= ~self._in_ego_box(points)
+            keep &= ~self._in_ego_box(points)
             points = points[keep]
+        elif len(points):             # the same range filter in one compiled pass
+            points = in_range(np.ascontiguousarray(points, np.float32), np.float32(p.min_range),
+                              np.float32(p.max_range))
         if xyzi.has_intensity and len(points):
             self._check_intensity(points[:, 3], out)
             if p.intensity_scale != 1.0:

@@ -80,6 +80,21 @@ def test_pillar_features_refuses_writes_outside_the_image():
             kernels.pillar_features(**args)
 
 
+def test_the_range_filter_keeps_what_the_array_mask_keeps():
+    """The node's range filter: the rows the array code's mask keeps, in order, points on the
+    limits (float32 ranges) included, empty clouds and clouds with nothing in range."""
+    cloud = lidar_like(20000, 7)[:, :4].copy()
+    cloud[:5, :2] = [[0.5, 0.0], [0.0, -0.5], [80.0, 0.0], [3.0, 4.0], [48.0, 64.0]]
+    for lo, hi in ((0.5, 80.0), (5.0, 5.0), (0.0, 1e9), (200.0, 300.0)):
+        r = np.hypot(cloud[:, 0], cloud[:, 1])
+        want = cloud[(r >= lo) & (r <= hi)]
+        got = kernels.in_range(cloud, np.float32(lo), np.float32(hi))
+        assert got.shape == want.shape and got.tobytes() == want.tobytes()
+    assert kernels.in_range(np.zeros((3, 4), np.float32), np.float32(0.0),
+                            np.float32(1.0)).shape == (3, 4)
+    assert kernels.in_range(cloud[:0], np.float32(0.0), np.float32(1.0)).shape == (0, 4)
+
+
 def test_pillar_max_refuses_other_feature_counts():
     with pytest.raises(ValueError, match=r'\(N, 5\)'):
         kernels.pillar_max(np.zeros((3, 4), np.float32), (-1, -1, -1, 1, 1, 1), 0.5, 4, 4,

@@ -7,6 +7,7 @@ does the step's work without them. Each kernel computes what the array code it r
 computed, in the same floating-point operations and order (test/test_kernels.py compares
 them bit for bit), so outputs do not change:
 
+- :func:`in_range`: the node's range filter of an incoming cloud;
 - :func:`transform_sweep`: a sweep moved into base_link and tagged with its time lag
   (:func:`suit_ros.model.sweeps.accumulate_sweeps`);
 - :func:`pillar_max`: dynamic pillarization and the folded pillar encoder's per-pillar max
@@ -564,6 +565,23 @@ def paired_bev_iou(boxes_a: Any, boxes_b: Any) -> Any:  # pragma: no cover
     return out
 
 
+@_jit
+def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
+    """The rows of ``(N, 4)`` float32 ``points`` whose horizontal range ``hypot(x, y)``
+    (float32) lies in ``[r_min, r_max]`` (float32), copied in order: one pass for
+    ``points[(r >= r_min) & (r <= r_max)]`` (the node's range filter)."""
+    n = points.shape[0]
+    out = np.empty((n, 4), np.float32)
+    m = 0
+    for i in range(n):
+        r = np.hypot(points[i, 0], points[i, 1])
+        if r >= r_min and r <= r_max:
+            for j in range(4):
+                out[m, j] = points[i, j]
+            m += 1
+    return out[:m]
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel for the argument types of the node's
     step: float32 clouds of 4 (the sensor's) and 5 columns (the model input), xyz slices of
@@ -571,6 +589,7 @@ def warm_up() -> None:
     sweep = np.zeros((4, 4), np.float32)
     model_input = np.zeros((4, 5), np.float32)
     R, t, lag = np.eye(3, dtype=np.float32), np.zeros(3, np.float32), np.float32(0.0)
+    in_range(sweep, np.float32(1.0), np.float32(2.0))
     transform_sweep(sweep, R, t, lag, model_input)
     transform_sweep(model_input, R, t, lag, model_input.copy())
     cells, mean, top = pillar_max(model_input, (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0), 0.5, 4, 4,
