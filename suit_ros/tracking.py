@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.ops.geometry import CellIndex
-from suit_ros.ops.kernels import as_float, distinct_values, sweep_histograms
+from suit_ros.ops.kernels import as_float, distinct_values, sweep_histograms_by_cell
 from suit_ros.structures import Detections
 
 
@@ -347,14 +347,19 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     index = CellIndex(pts, bp[:, :2] - r[:, None], bp[:, :2] + r[:, None], 2.0,
                       z_range=(0.3, 5.0), oriented=band)
     # each box's returns projected on its heading and histogrammed per sweep, in one
-    # compiled pass (in the cloud's dtype, as numpy computes an array against float scalars)
+    # compiled pass over the points, each against the boxes of its cell (in the cloud's
+    # dtype, as numpy computes an array against float scalars)
     cos, sin = np.cos(bp[:, 6]), np.sin(bp[:, 6])
     geometry = np.stack([bp[:, 0], bp[:, 1], cos, sin, half, across,
                          bp[:, 2] + 0.5 * bp[:, 5] + 0.3], axis=1)
     n_bins = (2 * half / bin_m).astype(np.int64) + 1
-    idx, starts = index.select_all()
-    hist, length = sweep_histograms(pts, idx, starts, geometry.astype(pts.dtype),
-                                    past_lags, pts.dtype.type(bin_m), n_bins)
+    start, owners = index.box_lists()
+    dt = pts.dtype.type
+    zlo, zhi = index.z_range or (-np.inf, np.inf)
+    hist, length = sweep_histograms_by_cell(pts, index.inv_cell, index.origin, index.shape,
+                                            dt(zlo), dt(zhi), start, owners,
+                                            geometry.astype(pts.dtype), past_lags, dt(bin_m),
+                                            n_bins)
     for n, j in enumerate(picked):
         current = hist[n, 0, :length[n]]
         if current.sum() < min_points:

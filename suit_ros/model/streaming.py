@@ -249,7 +249,8 @@ class StreamingDetector:
         det = boxes_to_lidar(det, T_bl)
         # the returns of this cloud in each box, counted on the input as it came (LiDAR
         # frame), not on the accumulated sweeps
-        this_sweep = pts if pts.shape[1] == 4 else pts[pts[:, 4] == 0]
+        this_sweep = (pts if pts.shape[1] == 4 or not pts[:, 4].any()
+                      else pts[pts[:, 4] == 0])
         num_points = count_points_in_boxes(this_sweep[:, :3], det.boxes)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,

@@ -6,7 +6,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.kernels import as_float, bucket_points, count_in_boxes, gather_cells
+from suit_ros.ops.kernels import as_float, bucket_points, count_in_box_cells, gather_cells
 
 
 def se3_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -92,11 +92,13 @@ def points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[A
 
 
 class CellIndex:
-    """The points of a cloud that lie near some rectangles, bucketed by a coarse BEV grid.
+    """The points of a cloud that lie near some rectangles, by a coarse BEV grid.
 
-    Built in time linear in the points: a grid of ``cell`` m over the rectangles' cells marks
-    the cells each rectangle touches; only the points in marked cells are kept and sorted by
-    cell. :meth:`select_all` then gives each rectangle's points by binary search.
+    A grid of ``cell`` m over the rectangles' cells marks the cells each rectangle touches.
+    Either each point is tested against the rectangles of its cell in one pass
+    (:meth:`box_lists` for the compiled loops of :func:`count_points_in_boxes` and the
+    tracker), or the points in marked cells are sorted by cell and :meth:`select_all` gives
+    each rectangle's points.
 
     :param xy: ``(N, >= 2)`` points (x, y first).
     :param lo, hi: ``(M, 2)`` each rectangle's lower and upper corner (m).
@@ -113,11 +115,13 @@ class CellIndex:
                  oriented: NDArray[np.floating[Any]] | None = None) -> None:
         lo_c = np.floor(np.asarray(lo, np.float64).reshape(-1, 2) / cell).astype(np.int64)
         hi_c = np.floor(np.asarray(hi, np.float64).reshape(-1, 2) / cell).astype(np.int64)
-        self.order = np.zeros(0, np.int64)
-        self.keys = np.zeros(0, np.int64)
+        self.points = as_float(xy)
+        self.cell = cell
+        self.z_range = z_range
         self.cells: list[NDArray[np.int64]] = []
-        p = np.asarray(xy)
-        if len(lo_c) == 0 or len(p) == 0:
+        self.origin = np.zeros(2, np.int64)
+        self.shape = np.zeros(2, np.int64)
+        if len(lo_c) == 0 or len(self.points) == 0:
             self.cells = [np.zeros(0, np.int64)] * len(lo_c)
             return
         origin = lo_c.min(0)
@@ -134,27 +138,50 @@ class CellIndex:
                 flat = flat[(np.abs(dx * c + dy * s) <= hl + margin)
                             & (np.abs(-dx * s + dy * c) <= hw + margin)]
             self.cells.append(flat)
-        marked = np.zeros(int(shape[0]) * int(shape[1]), bool)
-        marked[np.concatenate(self.cells)] = True
-        # one compiled pass: the points in marked cells, sorted by cell (counting sort)
-        self.order, self.keys = bucket_points(p, cell, origin, shape, marked, z_range)
+        self.origin, self.shape = origin, shape
+
+    @property
+    def inv_cell(self) -> np.floating[Any]:
+        """``1 / cell`` in the points' dtype (the kernels scale the points by it)."""
+        return self.points.dtype.type(1.0 / self.cell)
+
+    def box_lists(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+        """For each cell of the grid (row-major), the rectangles that touch it: ``boxes[
+        start[k]:start[k + 1]]`` with ``start`` ``(cells + 1,)``."""
+        n_cells = int(self.shape[0]) * int(self.shape[1])
+        sizes = [len(c) for c in self.cells]
+        if not sum(sizes):
+            return np.zeros(n_cells + 1, np.int64), np.zeros(0, np.int64)
+        flat = np.concatenate(self.cells)
+        owner = np.repeat(np.arange(len(self.cells), dtype=np.int64), sizes)
+        order = np.argsort(flat, kind='stable')
+        start = np.zeros(n_cells + 1, np.int64)
+        np.cumsum(np.bincount(flat, minlength=n_cells), out=start[1:])
+        return start, owner[order]
 
     def select_all(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """The indices (into the cloud) of the points in the cells each rectangle touches,
-        concatenated, and where each rectangle's run starts ``(M + 1,)`` (one compiled
-        pass)."""
+        concatenated, and where each rectangle's run starts ``(M + 1,)`` (the points in
+        marked cells sorted by cell in one compiled pass, a counting sort, then gathered)."""
         if not self.cells:
             return np.zeros(0, np.int64), np.zeros(1, np.int64)
         offsets = np.zeros(len(self.cells) + 1, np.int64)
         np.cumsum([len(c) for c in self.cells], out=offsets[1:])
-        idx, starts = gather_cells(self.order, self.keys, np.concatenate(self.cells), offsets)
+        if not offsets[-1]:
+            return np.zeros(0, np.int64), offsets
+        marked = np.zeros(int(self.shape[0]) * int(self.shape[1]), bool)
+        marked[np.concatenate(self.cells)] = True
+        order, keys = bucket_points(self.points, self.cell, self.origin, self.shape, marked,
+                                    self.z_range)
+        idx, starts = gather_cells(order, keys, np.concatenate(self.cells), offsets)
         return idx, starts
 
 
 def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],
                           cell: float = 2.0) -> NDArray[np.uint32]:
     """Number of points inside each ``(M, 7)`` box (the rule of :func:`points_in_boxes`),
-    linear in the points (:class:`CellIndex` over the boxes' bounding squares)."""
+    in one pass over the points (each tested against the boxes of its :class:`CellIndex`
+    cell; the boxes' bounding squares)."""
     b = np.asarray(boxes, np.float64).reshape(-1, 7)
     out = np.zeros(len(b), np.uint32)
     p = as_float(xyz)
@@ -162,9 +189,10 @@ def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floa
         return out
     r = 0.5 * np.hypot(b[:, 3], b[:, 4])
     index = CellIndex(p, b[:, :2] - r[:, None], b[:, :2] + r[:, None], cell)
-    idx, starts = index.select_all()
-    counts: NDArray[np.uint32] = count_in_boxes(p, idx, starts, b, np.cos(b[:, 6]),
-                                                np.sin(b[:, 6]))
+    start, owners = index.box_lists()
+    counts: NDArray[np.uint32] = count_in_box_cells(
+        p, index.inv_cell, index.origin, index.shape, start, owners, b, np.cos(b[:, 6]),
+        np.sin(b[:, 6]))
     return counts
 
 

@@ -15,9 +15,11 @@ them bit for bit), so outputs do not change:
   :func:`pillar_features`: its pillar features written into the pseudo-image;
 - :func:`bucket_points` and :func:`gather_cells`: the points in marked cells of a coarse grid,
   sorted by cell, and each rectangle's share of them (:class:`suit_ros.ops.geometry.CellIndex`);
-- :func:`count_in_boxes`: the points inside each box (the node's ``num_points``);
-- :func:`sweep_histograms`: each vehicle's returns along its heading, per sweep (the tracker's
-  velocity reading, :func:`suit_ros.tracking.sweep_velocities`);
+- :func:`count_in_box_cells`: the points inside each box (the node's ``num_points``) and
+  :func:`sweep_histograms_by_cell`: each vehicle's returns along its heading, per sweep (the
+  tracker's velocity reading, :func:`suit_ros.tracking.sweep_velocities`), each in one pass
+  over the points, every point tested against the boxes of its grid cell
+  (:meth:`suit_ros.ops.geometry.CellIndex.box_lists`);
 - :func:`distinct_values`: the distinct time lags of a model input;
 - :func:`paired_bev_iou`: rotated BEV IoU of box pairs (the NMS of the head and of the
   significance sampling), a loop per pair instead of some 60 tensor operations.
@@ -356,82 +358,6 @@ def gather_cells(order: Any, keys: Any, cells: Any, offsets: Any
     return idx, starts
 
 
-@_jit
-def count_in_boxes(xyz: Any, idx: Any, starts: Any, boxes: Any, cos: Any, sin: Any
-                   ) -> Any:  # pragma: no cover
-    """Per box ``k``, how many of the points ``idx[starts[k]:starts[k + 1]]`` lie inside it,
-    the rule and float64 arithmetic of :func:`suit_ros.ops.geometry.points_in_boxes`
-    (``cos``/``sin`` of the yaws given, computed by numpy)."""
-    M = boxes.shape[0]
-    out = np.zeros(M, np.uint32)
-    for k in range(M):
-        hl = boxes[k, 3] / 2
-        hw = boxes[k, 4] / 2
-        hh = boxes[k, 5] / 2
-        c = cos[k]
-        s = sin[k]
-        n = 0
-        for j in range(starts[k], starts[k + 1]):
-            i = idx[j]
-            dx = np.float64(xyz[i, 0]) - boxes[k, 0]
-            dy = np.float64(xyz[i, 1]) - boxes[k, 1]
-            dz = np.float64(xyz[i, 2]) - boxes[k, 2]
-            if (abs(dx * c + dy * s) <= hl and abs(-dx * s + dy * c) <= hw
-                    and abs(dz) <= hh):
-                n += 1
-        out[k] = n
-    return out
-
-
-@_jit
-def sweep_histograms(pts: Any, idx: Any, starts: Any, geometry: Any, lags: Any, bin_m: Any,
-                     n_bins: Any) -> tuple[Any, Any]:  # pragma: no cover
-    """Per box, the histograms along its heading of its returns, one per sweep (row 0 the
-    current sweep, row ``1 + l`` the sweep of lag ``lags[l]``), for
-    :func:`suit_ros.tracking.sweep_velocities`.
-
-    float32 arithmetic throughout, as numpy computes a float32 cloud against float scalars:
-    ``geometry`` is ``(M, 7)`` float32: centre x, y, cos, sin, half the search length, half
-    the width plus margin, the top (centre z + half height + margin).
-    :return: ``(M, 1 + L, width)`` counts and each box's histogram length (its ``n_bins``,
-        or more where a bin rounded up past it, as ``np.bincount`` would return).
-    """
-    M = geometry.shape[0]
-    L = lags.shape[0]
-    # numpy's bincount grows past n_bins if a float32 bin rounds up to n_bins: room for it
-    width = (n_bins.max() if M else 0) + 2
-    out = np.zeros((M, L + 1, width), np.float64)
-    length = n_bins.copy()
-    for k in range(M):
-        cx = geometry[k, 0]
-        cy = geometry[k, 1]
-        c = geometry[k, 2]
-        s = geometry[k, 3]
-        half = geometry[k, 4]
-        across_max = geometry[k, 5]
-        top = geometry[k, 6]
-        for j in range(starts[k], starts[k + 1]):
-            # without branches on the points (see _bucket); a point outside adds 0
-            i = idx[j]
-            dx = pts[i, 0] - cx
-            dy = pts[i, 1] - cy
-            u = dx * c + dy * s
-            inside = (abs(u) < half) & (abs(-dx * s + dy * c) < across_max) & (pts[i, 2] < top)
-            lag = pts[i, 4]
-            row = 0
-            valid = lag == 0
-            for q in range(L):
-                same = lags[q] == lag
-                row = 1 + q if same else row
-                valid |= same
-            inside &= valid
-            b = np.int64((u + half) / bin_m) if inside else 0
-            b = min(b, width - 1)
-            out[k, row, b] += inside
-            length[k] = max(length[k], (b + 1) * inside)
-    return out, length
-
-
 def pillar_features(top: NDArray[np.float32], mean: NDArray[np.float32],
                     cells: NDArray[np.int64], W: NDArray[np.float32],
                     bias: NDArray[np.float32] | None, grid: tuple[float, float, float, int, int],
@@ -582,6 +508,105 @@ def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
     return out[:m]
 
 
+@numba.njit(inline='always', nogil=True)
+def _grid_cell(x: Any, y: Any, inv_cell: Any, origin: Any, shape: Any) -> int:  # pragma: no cover
+    """The flat cell ``ix * shape[1] + iy`` of ``floor((x, y) * inv_cell) - origin`` (the
+    product in the points' dtype), or -1 outside the grid or not finite: :func:`_bucket`'s
+    rule."""
+    x = x * inv_cell
+    y = y * inv_cell
+    if not (abs(x) < 1e15 and abs(y) < 1e15):
+        return -1
+    ix = np.int64(x)
+    ix -= ix > x
+    iy = np.int64(y)
+    iy -= iy > y
+    ix -= origin[0]
+    iy -= origin[1]
+    if ix < 0 or ix >= shape[0] or iy < 0 or iy >= shape[1]:
+        return -1
+    return int(ix * shape[1] + iy)
+
+
+@_jit
+def count_in_box_cells(xyz: Any, inv_cell: Any, origin: Any, shape: Any, cell_start: Any,
+                       cell_boxes: Any, boxes: Any, cos: Any, sin: Any) -> Any:  # pragma: no cover
+    """Per box, how many points lie inside it (the rule and float64 arithmetic of
+    :func:`suit_ros.ops.geometry.points_in_boxes`; ``cos``/``sin`` of the yaws given, computed
+    by numpy), in one pass over the points without bucketing them: each point is tested
+    against the boxes listed for its grid cell (``cell_boxes[cell_start[k]:cell_start[k +
+    1]]``, :meth:`suit_ros.ops.geometry.CellIndex.box_lists`)."""
+    M = boxes.shape[0]
+    out = np.zeros(M, np.uint32)
+    for i in range(xyz.shape[0]):
+        k = _grid_cell(xyz[i, 0], xyz[i, 1], inv_cell, origin, shape)
+        if k < 0:
+            continue
+        for j in range(cell_start[k], cell_start[k + 1]):
+            b = cell_boxes[j]
+            dx = np.float64(xyz[i, 0]) - boxes[b, 0]
+            dy = np.float64(xyz[i, 1]) - boxes[b, 1]
+            dz = np.float64(xyz[i, 2]) - boxes[b, 2]
+            if (abs(dx * cos[b] + dy * sin[b]) <= boxes[b, 3] / 2
+                    and abs(-dx * sin[b] + dy * cos[b]) <= boxes[b, 4] / 2
+                    and abs(dz) <= boxes[b, 5] / 2):
+                out[b] += 1
+    return out
+
+
+@_jit
+def sweep_histograms_by_cell(pts: Any, inv_cell: Any, origin: Any, shape: Any, zlo: Any,
+                             zhi: Any, cell_start: Any, cell_boxes: Any, geometry: Any,
+                             lags: Any, bin_m: Any, n_bins: Any
+                             ) -> tuple[Any, Any]:  # pragma: no cover
+    """Per box, the histograms along its heading of its returns, one per sweep (row 0 the
+    current sweep, row ``1 + l`` the sweep of lag ``lags[l]``), for
+    :func:`suit_ros.tracking.sweep_velocities`, in one pass over the points with
+    ``zlo < z < zhi``, each tested against the boxes listed for its grid cell (as
+    :func:`count_in_box_cells`).
+
+    float32 arithmetic throughout, as numpy computes a float32 cloud against float scalars:
+    ``geometry`` is ``(M, 7)`` float32: centre x, y, cos, sin, half the search length, half
+    the width plus margin, the top (centre z + half height + margin).
+    :return: ``(M, 1 + L, width)`` counts and each box's histogram length (its ``n_bins``,
+        or more where a bin rounded up past it, as ``np.bincount`` would return).
+    """
+    M = geometry.shape[0]
+    L = lags.shape[0]
+    width = (n_bins.max() if M else 0) + 2
+    out = np.zeros((M, L + 1, width), np.float64)
+    length = n_bins.copy()
+    for i in range(pts.shape[0]):
+        z = pts[i, 2]
+        if not (z > zlo and z < zhi):
+            continue
+        k = _grid_cell(pts[i, 0], pts[i, 1], inv_cell, origin, shape)
+        if k < 0:
+            continue
+        lag = pts[i, 4]
+        row = 0
+        valid = lag == 0
+        for q in range(L):
+            if lags[q] == lag:
+                row = 1 + q
+                valid = True
+        if not valid:
+            continue
+        for j in range(cell_start[k], cell_start[k + 1]):
+            b = cell_boxes[j]
+            dx = pts[i, 0] - geometry[b, 0]
+            dy = pts[i, 1] - geometry[b, 1]
+            c = geometry[b, 2]
+            s = geometry[b, 3]
+            half = geometry[b, 4]
+            u = dx * c + dy * s
+            if abs(u) < half and abs(-dx * s + dy * c) < geometry[b, 5] and z < geometry[b, 6]:
+                h = min(np.int64((u + half) / bin_m), width - 1)
+                out[b, row, h] += 1.0
+                length[b] = max(length[b], h + 1)
+    return out, length
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel for the argument types of the node's
     step: float32 clouds of 4 (the sensor's) and 5 columns (the model input), xyz slices of
@@ -603,10 +628,13 @@ def warm_up() -> None:
     for xyz in (sweep[:, :3], model_input):
         order, keys = bucket_points(xyz, 1.0, origin, shape, marked)
         bucket_points(xyz, 1.0, origin, shape, marked, (0.0, 1.0))
-    idx, starts = gather_cells(order, keys, np.zeros(1, np.int64), np.array([0, 1]))
-    boxes = np.ones((1, 7))
-    count_in_boxes(sweep[:, :3], idx, starts, boxes, np.ones(1), np.zeros(1))
-    sweep_histograms(model_input, idx, starts, np.ones((1, 7), np.float32),
-                     np.ones(1, np.float32), np.float32(0.1), np.ones(1, np.int64))
+    gather_cells(order, keys, np.zeros(1, np.int64), np.array([0, 1]))
+    start, owners = np.array([0, 1, 1, 1, 1]), np.zeros(1, np.int64)
+    for xyz in (sweep[:, :3], model_input):
+        count_in_box_cells(xyz, np.float32(0.5), origin, shape, start, owners, np.ones((1, 7)),
+                           np.ones(1), np.zeros(1))
+    sweep_histograms_by_cell(model_input, np.float32(0.5), origin, shape, np.float32(0.3),
+                             np.float32(5.0), start, owners, np.ones((1, 7), np.float32),
+                             np.ones(1, np.float32), np.float32(0.1), np.ones(1, np.int64))
     distinct_values(model_input[:, 4])
     paired_bev_iou(np.ones((1, 7), np.float32), np.ones((1, 7), np.float32))
