@@ -280,7 +280,8 @@ def table(r: dict[str, Any]) -> str:
         for hz, v in r['node'].items():
             lines.append(f'node (threads:={v.get("node_threads", 2)}, precision:='
                          f'{v.get("node_precision", "float32")}) through DDS at {hz}: '
-                         f'CPU {v.get("cpu_cores", float("nan")):.2f} cores, '
+                         f'CPU {v.get("cpu_cores", float("nan")):.2f} cores (steal '
+                         f'{v.get("cpu_steal_pct", float("nan")):.1f}% of the machine), '
                          f'latency at a subscriber p50 {v["latency_ms_p50"]:.1f} ms, '
                          f'p95 {v["latency_ms_p95"]:.1f} ms (in the node, '
                          f'{v.get("node_latency_from", "stamp")} to published: '

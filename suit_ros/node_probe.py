@@ -32,12 +32,17 @@ def node_latency(checkpoint: str = '', rate: float = 1.0, frames: int = 100,
         rec = OutputRecorder(probe.node)
         wait_ready(probe, node, lambda: bool(rec.diags), 90)
         rec.pid = node.pid
+        before = cpu_jiffies()
         play_into(probe, bag, ['--rate', str(rate), '--start-delay', '1.0',
                                '--wait-subscribers', '20', '--topics', '/points', '/odom'],
                   120, settle_s=0.0)
         probe.spin_for(2.5)
+        after = cpu_jiffies()
     return {'node_threads': threads, 'node_precision': precision, 'sensor': sensor,
-            'densify': densify, 'cpu_cores': rec.cores, **_summary(rec.clouds,
+            'densify': densify, 'cpu_cores': rec.cores,
+            # the share of the machine's CPU time the hypervisor gave to others (a virtual
+            # machine's steal): above a few percent the node's tail latency is not its own
+            'cpu_steal_pct': steal_pct(before, after), **_summary(rec.clouds,
                                                {k: t for k, (t, _) in rec.dets.items()},
                                                rec.diags[-1] if rec.diags else {})}
 
@@ -111,6 +116,24 @@ def demo_bag(workdir: str, seed: int, frames: int, sensor: str = 'sim32',
         write_bag(bag, preset('demo-real', frames=frames, sensor=sensor), seed, 'mcap',
                   progress=progress, densify=densify)
     return bag
+
+
+def cpu_jiffies() -> tuple[int, int]:
+    """The machine's steal and total CPU time so far (jiffies, ``/proc/stat``; zeros
+    elsewhere)."""
+    try:
+        with open('/proc/stat', encoding='ascii') as f:
+            fields = [int(v) for v in f.readline().split()[1:]]
+    except (OSError, ValueError):
+        return 0, 0
+    return (fields[7] if len(fields) > 7 else 0), sum(fields[:8])
+
+
+def steal_pct(before: tuple[int, int], after: tuple[int, int]) -> float:
+    """Steal over the window between two :func:`cpu_jiffies` readings, percent of all CPU
+    time (nan when unknown)."""
+    total = after[1] - before[1]
+    return 100.0 * (after[0] - before[0]) / total if total > 0 else float('nan')
 
 
 def process_cpu_s(pid: int) -> float:

@@ -52,3 +52,11 @@ def test_a_densified_cloud_keeps_every_point_and_its_scan_order():
     dense = densified(plain, 1.5, np.random.default_rng(1))
     assert len(dense) == int(n * 1.5) and (np.diff(dense[:, 3]) >= 0).all()
     assert len(np.unique(dense[:, 3])) == n
+
+
+def test_steal_is_the_share_of_all_cpu_time_between_two_readings():
+    from suit_ros.node_probe import cpu_jiffies, steal_pct
+    assert steal_pct((10, 1000), (60, 2000)) == 5.0
+    assert steal_pct((10, 1000), (10, 1000)) != steal_pct((10, 1000), (10, 1000))   # nan
+    steal, total = cpu_jiffies()
+    assert 0 <= steal <= total
