@@ -152,21 +152,27 @@ def test_ego_transform_static_object():
     np.testing.assert_allclose(se3_inverse(p0) @ p0, np.eye(4), atol=1e-12)
 
 
-def test_cell_index_selects_exactly_the_points_of_the_touched_cells():
-    """A rectangle's selection is every point whose cell its corners span, no other."""
+def test_cell_index_lists_each_rectangle_in_exactly_the_cells_it_spans():
+    """A rectangle is listed in every cell its corners span, and in no other."""
     from suit_ros.ops.geometry import CellIndex
     rng = np.random.default_rng(3)
     xy = rng.uniform(-30, 30, (5000, 2))
     lo = np.array([[-10.0, -3.0], [5.0, 5.0], [100.0, 100.0]])
     hi = np.array([[-4.0, 7.5], [5.5, 20.0], [101.0, 101.0]])
-    idx, starts = CellIndex(xy, lo, hi, 2.0).select_all()
-    cells = np.floor(xy / 2.0)
+    index = CellIndex(xy, lo, hi, 2.0)
+    start, owners = index.box_lists()
+    assert len(start) == index.shape[0] * index.shape[1] + 1
+    cell_of_entry = np.repeat(np.arange(len(start) - 1), np.diff(start))
     for k in range(3):
-        inside = (cells >= np.floor(lo[k] / 2)) & (cells <= np.floor(hi[k] / 2))
-        want = np.flatnonzero(np.all(inside, axis=1))
-        np.testing.assert_array_equal(np.sort(idx[starts[k]:starts[k + 1]]), want)
-    idx, starts = CellIndex(xy[:0], lo, hi, 2.0).select_all()
-    assert len(idx) == 0 and len(starts) == 4
+        cells = cell_of_entry[owners == k]
+        ix = cells // index.shape[1] + index.origin[0]
+        iy = cells % index.shape[1] + index.origin[1]
+        x0, y0 = np.floor(lo[k] / 2).astype(int)
+        x1, y1 = np.floor(hi[k] / 2).astype(int)
+        want = {(a, b) for a in range(x0, x1 + 1) for b in range(y0, y1 + 1)}
+        assert len(cells) == len(want) and set(zip(ix.tolist(), iy.tolist())) == want
+    empty = CellIndex(xy[:0], lo, hi, 2.0)
+    assert len(empty.box_lists()[1]) == 0
 
 
 def test_count_points_in_boxes_matches_the_dense_membership_on_a_large_cloud():
@@ -177,3 +183,9 @@ def test_count_points_in_boxes_matches_the_dense_membership_on_a_large_cloud():
                   rng.uniform(0.5, 3, 30), rng.uniform(1, 3, 30), rng.uniform(-3, 3, 30)]
     np.testing.assert_array_equal(count_points_in_boxes(xyz, boxes),
                                   points_in_boxes(xyz, boxes).sum(0))
+    # non-finite and far points are in no box, in float32 clouds as in float64 ones
+    xyz[:50, 0], xyz[50:60, 1], xyz[60:70] = np.nan, np.inf, -1e20
+    for cloud in (xyz, xyz.astype(np.float32)):
+        with np.errstate(invalid='ignore'):
+            want = points_in_boxes(cloud.astype(np.float64), boxes).sum(0)
+        np.testing.assert_array_equal(count_points_in_boxes(cloud, boxes), want)

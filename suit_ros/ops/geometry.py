@@ -6,7 +6,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.kernels import as_float, bucket_points, count_in_box_cells, gather_cells
+from suit_ros.ops.kernels import as_float, count_in_box_cells
 
 
 def se3_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -94,11 +94,9 @@ def points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[A
 class CellIndex:
     """The points of a cloud that lie near some rectangles, by a coarse BEV grid.
 
-    A grid of ``cell`` m over the rectangles' cells marks the cells each rectangle touches.
-    Either each point is tested against the rectangles of its cell in one pass
-    (:meth:`box_lists` for the compiled loops of :func:`count_points_in_boxes` and the
-    tracker), or the points in marked cells are sorted by cell and :meth:`select_all` gives
-    each rectangle's points.
+    A grid of ``cell`` m over the rectangles' cells lists the rectangles each cell touches
+    (:meth:`box_lists`); the compiled loops of :func:`count_points_in_boxes` and the tracker
+    test each point against the rectangles of its cell, in one pass over the points.
 
     :param xy: ``(N, >= 2)`` points (x, y first).
     :param lo, hi: ``(M, 2)`` each rectangle's lower and upper corner (m).
@@ -158,23 +156,6 @@ class CellIndex:
         start = np.zeros(n_cells + 1, np.int64)
         np.cumsum(np.bincount(flat, minlength=n_cells), out=start[1:])
         return start, owner[order]
-
-    def select_all(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-        """The indices (into the cloud) of the points in the cells each rectangle touches,
-        concatenated, and where each rectangle's run starts ``(M + 1,)`` (the points in
-        marked cells sorted by cell in one compiled pass, a counting sort, then gathered)."""
-        if not self.cells:
-            return np.zeros(0, np.int64), np.zeros(1, np.int64)
-        offsets = np.zeros(len(self.cells) + 1, np.int64)
-        np.cumsum([len(c) for c in self.cells], out=offsets[1:])
-        if not offsets[-1]:
-            return np.zeros(0, np.int64), offsets
-        marked = np.zeros(int(self.shape[0]) * int(self.shape[1]), bool)
-        marked[np.concatenate(self.cells)] = True
-        order, keys = bucket_points(self.points, self.cell, self.origin, self.shape, marked,
-                                    self.z_range)
-        idx, starts = gather_cells(order, keys, np.concatenate(self.cells), offsets)
-        return idx, starts
 
 
 def count_points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],

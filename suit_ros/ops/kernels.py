@@ -13,8 +13,6 @@ them bit for bit), so outputs do not change:
 - :func:`pillar_max`: dynamic pillarization and the folded pillar encoder's per-pillar max
   and mean (:class:`suit_ros.model.pillars.PillarEncoder`, inference), and
   :func:`pillar_features`: its pillar features written into the pseudo-image;
-- :func:`bucket_points` and :func:`gather_cells`: the points in marked cells of a coarse grid,
-  sorted by cell, and each rectangle's share of them (:class:`suit_ros.ops.geometry.CellIndex`);
 - :func:`count_in_box_cells`: the points inside each box (the node's ``num_points``) and
   :func:`sweep_histograms_by_cell`: each vehicle's returns along its heading, per sweep (the
   tracker's velocity reading, :func:`suit_ros.tracking.sweep_velocities`), each in one pass
@@ -217,81 +215,11 @@ def pillar_max(points: NDArray[np.float32], point_range: tuple[float, ...], size
     return cells, mean, top
 
 
-@_jit
-def _bucket(p: Any, inv_cell: Any, origin: Any, shape: Any, marked: Any, zlo: Any, zhi: Any,
-            z_col: int) -> tuple[Any, Any]:  # pragma: no cover
-    """The points in marked cells, counting-sorted by cell (stable: a cell's points in cloud
-    order). Every point is written at the end of the kept ones, and the end moves on only
-    when it is kept."""
-    n = p.shape[0]
-    flat = np.empty(n + 1, np.int64)
-    idx = np.empty(n + 1, np.int64)
-    cells = shape[0] * shape[1]
-    counts = np.zeros(cells + 1, np.int64)
-    use_z = z_col >= 0
-    zc = z_col if use_z else 0
-    m = 0
-    for i in range(n):
-        x = p[i, 0] * inv_cell
-        y = p[i, 1] * inv_cell
-        finite = abs(x) < 1e15 and abs(y) < 1e15      # NaN, inf: in no cell
-        x = x if finite else 0.0
-        y = y if finite else 0.0
-        # floor, without a libm call
-        ix = np.int64(x)
-        ix -= ix > x
-        iy = np.int64(y)
-        iy -= iy > y
-        ix -= origin[0]
-        iy -= origin[1]
-        inside = finite & (ix >= 0) & (ix < shape[0]) & (iy >= 0) & (iy < shape[1])
-        if use_z:
-            z = p[i, zc]
-            inside &= (z > zlo) & (z < zhi)
-        k = ix * shape[1] + iy if inside else 0
-        keep = inside & marked[k]
-        idx[m] = i
-        flat[m] = k
-        counts[k + 1] += keep
-        m += keep
-    for k in range(1, counts.shape[0]):
-        counts[k] += counts[k - 1]
-    order = np.empty(m, np.int64)
-    keys = np.empty(m, np.int64)
-    for j in range(m):
-        k = flat[j]
-        pos = counts[k]
-        order[pos] = idx[j]
-        keys[pos] = k
-        counts[k] = pos + 1
-    return order, keys
-
-
 def as_float(points: NDArray[Any]) -> NDArray[np.floating[Any]]:
     """``points`` as the kernels take them: float32 or float64 as they are, anything else
     (float16 training drives, integers) as float64."""
     p = np.asarray(points)
     return p if p.dtype in (np.float32, np.float64) else p.astype(np.float64)
-
-
-def bucket_points(xy: NDArray[np.floating[Any]], cell: float, origin: NDArray[np.int64],
-                  shape: NDArray[np.int64], marked: NDArray[np.bool_],
-                  z_range: tuple[float, float] | None = None, z_column: int = 2
-                  ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
-    """The points whose cell ``floor(xy / cell) - origin`` lies in the grid ``shape`` and is
-    ``marked`` (row-major flat index ``ix * shape[1] + iy``), sorted by cell, stably.
-
-    :param xy: ``(N, >= 2)`` float32 or float64 points; the product ``xy * (1 / cell)`` is
-        taken in their dtype, as numpy does.
-    :param z_range: keep only points with ``lo < p[:, z_column] < hi``.
-    :return: the points' indices into ``xy`` and their cells, both ``(K,)``.
-    """
-    p = as_float(xy)
-    zlo, zhi = z_range if z_range is not None else (0.0, 0.0)
-    dt = p.dtype.type
-    return _bucket(p, dt(1.0 / cell), np.asarray(origin, np.int64), np.asarray(shape, np.int64),
-                   np.ascontiguousarray(marked, np.bool_), dt(zlo), dt(zhi),
-                   z_column if z_range is not None else -1)
 
 
 @_jit
@@ -327,35 +255,6 @@ def distinct_values(values: NDArray[Any], limit: int = 64) -> NDArray[Any]:
     if len(out) == 0:
         out = np.unique(v[~np.isnan(v)]) if v.dtype.kind == 'f' else np.unique(v)
     return out
-
-
-@_jit
-def gather_cells(order: Any, keys: Any, cells: Any, offsets: Any
-                 ) -> tuple[Any, Any]:  # pragma: no cover
-    """The points of each rectangle of a :class:`~suit_ros.ops.geometry.CellIndex`: for
-    rectangle ``r``, its cells are ``cells[offsets[r]:offsets[r + 1]]``; the points of a cell
-    are the run of ``keys == cell`` in the sorted ``keys`` (``order`` gives their indices).
-
-    :return: the indices of every rectangle's points, concatenated, and where each
-        rectangle's run starts ``(R + 1,)``.
-    """
-    R = offsets.shape[0] - 1
-    starts = np.zeros(R + 1, np.int64)
-    lo = np.searchsorted(keys, cells, 'left')
-    hi = np.searchsorted(keys, cells, 'right')
-    for r in range(R):
-        n = 0
-        for j in range(offsets[r], offsets[r + 1]):
-            n += hi[j] - lo[j]
-        starts[r + 1] = starts[r] + n
-    idx = np.empty(starts[R], np.int64)
-    for r in range(R):
-        m = starts[r]
-        for j in range(offsets[r], offsets[r + 1]):
-            for q in range(lo[j], hi[j]):
-                idx[m] = order[q]
-                m += 1
-    return idx, starts
 
 
 def pillar_features(top: NDArray[np.float32], mean: NDArray[np.float32],
@@ -511,8 +410,8 @@ def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
 @numba.njit(inline='always', nogil=True)
 def _grid_cell(x: Any, y: Any, inv_cell: Any, origin: Any, shape: Any) -> int:  # pragma: no cover
     """The flat cell ``ix * shape[1] + iy`` of ``floor((x, y) * inv_cell) - origin`` (the
-    product in the points' dtype), or -1 outside the grid or not finite: :func:`_bucket`'s
-    rule."""
+    product in the points' dtype, as numpy computes it), or -1 outside the grid or not
+    finite."""
     x = x * inv_cell
     y = y * inv_cell
     if not (abs(x) < 1e15 and abs(y) < 1e15):
@@ -624,11 +523,7 @@ def warm_up() -> None:
         for occupied in (None, np.zeros(16, bool)):
             pillar_features(top, mean, cells, W, W[:, 0], (-1.0, -1.0, 0.5, 4, 4), rows, 0,
                             occupied)
-    origin, shape, marked = np.zeros(2, np.int64), np.array([2, 2]), np.ones(4, bool)
-    for xyz in (sweep[:, :3], model_input):
-        order, keys = bucket_points(xyz, 1.0, origin, shape, marked)
-        bucket_points(xyz, 1.0, origin, shape, marked, (0.0, 1.0))
-    gather_cells(order, keys, np.zeros(1, np.int64), np.array([0, 1]))
+    origin, shape = np.zeros(2, np.int64), np.array([2, 2])
     start, owners = np.array([0, 1, 1, 1, 1]), np.zeros(1, np.int64)
     for xyz in (sweep[:, :3], model_input):
         count_in_box_cells(xyz, np.float32(0.5), origin, shape, start, owners, np.ones((1, 7)),
