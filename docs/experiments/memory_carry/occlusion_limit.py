@@ -8,8 +8,6 @@ occluded 3-10 frames (no returns now, returns 3-10 frames before) by each model
 No tracker. Run from the repository root: prints one line per model."""
 from __future__ import annotations
 
-import numpy as np
-
 from suit_ros.checkpoint import load_checkpoint, published_thresholds
 from suit_ros.data.sequences import synthetic_split
 from suit_ros.evaluate import run_model
