@@ -257,14 +257,11 @@ class DetectionPipeline:
             out.warnings['no_intensity'] = ('cloud has no intensity field (intensity, i or '
                                             'reflectivity): intensity set to 0, detections '
                                             'degrade')
-        if len(points) and p.ego_box_enabled:
-            r = np.hypot(points[:, 0], points[:, 1])
-            keep = (r >= p.min_range) & (r <= p.max_range)
-            keep &= ~self._in_ego_box(points)
-            points = points[keep]
-        elif len(points):             # the same range filter in one compiled pass
+        if len(points):               # the range filter in one compiled pass
             points = in_range(np.ascontiguousarray(points, np.float32), np.float32(p.min_range),
                               np.float32(p.max_range))
+            if p.ego_box_enabled and len(points):
+                points = points[~self._in_ego_box(points)]
         if xyzi.has_intensity and len(points):
             self._check_intensity(points[:, 3], out)
             if p.intensity_scale != 1.0:

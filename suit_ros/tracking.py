@@ -334,7 +334,7 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     past_lags = lags[lags > 0]
     if len(past_lags) == 0:
         return vel, ok
-    # only the points above the ground near the boxes' search areas, bucketed by a coarse
+    # only the points above the ground near the boxes' search areas, by a coarse
     # grid (each box reads the cells its area touches)
     speeds = np.arange(-max_speed, max_speed + 1e-9, 0.25)
     reach = max_speed * float(past_lags.max())
@@ -345,7 +345,7 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     across = 0.5 * bp[:, 4] + 0.3
     band = np.stack([bp[:, 0], bp[:, 1], half, across, bp[:, 6]], axis=1)
     index = CellIndex(pts, bp[:, :2] - r[:, None], bp[:, :2] + r[:, None], 2.0,
-                      z_range=(0.3, 5.0), oriented=band)
+                      oriented=band)
     # each box's returns projected on its heading and histogrammed per sweep, in one
     # compiled pass over the points, each against the boxes of its cell (in the cloud's
     # dtype, as numpy computes an array against float scalars)
@@ -355,9 +355,8 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     n_bins = (2 * half / bin_m).astype(np.int64) + 1
     start, owners = index.box_lists()
     dt = pts.dtype.type
-    zlo, zhi = index.z_range or (-np.inf, np.inf)
     hist, length = sweep_histograms_by_cell(pts, index.inv_cell, index.origin, index.shape,
-                                            dt(zlo), dt(zhi), start, owners,
+                                            dt(0.3), dt(5.0), start, owners,   # above ground
                                             geometry.astype(pts.dtype), past_lags, dt(bin_m),
                                             n_bins)
     for n, j in enumerate(picked):

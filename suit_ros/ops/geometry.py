@@ -100,7 +100,6 @@ class CellIndex:
 
     :param xy: ``(N, >= 2)`` points (x, y first).
     :param lo, hi: ``(M, 2)`` each rectangle's lower and upper corner (m).
-    :param z_range: only the points with ``lo < z < hi`` (third column).
     :param oriented: ``(M, 5)`` centre x, y, half length, half width and yaw of a rotated
         rectangle inside each axis-aligned one: a rectangle then keeps only the cells that its
         rotated rectangle can touch (a cell whose centre lies within half a cell diagonal of
@@ -109,13 +108,11 @@ class CellIndex:
 
     def __init__(self, xy: NDArray[np.floating[Any]], lo: NDArray[np.floating[Any]],
                  hi: NDArray[np.floating[Any]], cell: float,
-                 z_range: tuple[float, float] | None = None,
                  oriented: NDArray[np.floating[Any]] | None = None) -> None:
         lo_c = np.floor(np.asarray(lo, np.float64).reshape(-1, 2) / cell).astype(np.int64)
         hi_c = np.floor(np.asarray(hi, np.float64).reshape(-1, 2) / cell).astype(np.int64)
         self.points = as_float(xy)
         self.cell = cell
-        self.z_range = z_range
         self.cells: list[NDArray[np.int64]] = []
         self.origin = np.zeros(2, np.int64)
         self.shape = np.zeros(2, np.int64)

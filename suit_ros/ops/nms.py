@@ -12,6 +12,7 @@ import torch
 from torch import Tensor
 
 from suit_ros.ops.iou import paired_bev_iou
+from suit_ros.ops.kernels import paired_bev_iou as compiled_iou
 
 
 def greedy_suppression(suppress: Tensor, order: Tensor) -> Tensor:
@@ -65,7 +66,6 @@ def pair_iou(a: Tensor, b: Tensor) -> Tensor:
     """:func:`~suit_ros.ops.iou.paired_bev_iou`, compiled for float32 boxes on the CPU
     (:func:`suit_ros.ops.kernels.paired_bev_iou`)."""
     if a.device.type == 'cpu' and a.dtype == torch.float32 and b.dtype == torch.float32:
-        from suit_ros.ops.kernels import paired_bev_iou as compiled_iou
         return torch.from_numpy(compiled_iou(a.detach().contiguous().numpy(),
                                              b.detach().contiguous().numpy()))
     return paired_bev_iou(a, b)
