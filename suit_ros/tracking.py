@@ -173,7 +173,8 @@ class Tracker:
         return match
 
     def update(self, det: Detections, stamp_ns: int, T_odom_frame: NDArray[np.float64],
-               swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None
+               swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None,
+               carried: NDArray[np.bool_] | None = None
                ) -> tuple[Detections, NDArray[np.int64]]:
         """Filter one frame's detections.
 
@@ -182,6 +183,12 @@ class Tracker:
         :param swept: velocities read from the sweeps (:func:`sweep_velocities`, in the
             detections' frame) and where they could be read; fused with the head's velocity
             when ``sweep_sigma`` is set.
+        :param carried: ``(N,)`` the detections a memory holds where the cloud has no returns
+            (a carry branch's). Such a detection continues its track and is scored with the
+            track's running score like any other, but it does not lower that score: an object
+            the memory holds through an occlusion keeps the confidence it was tracked with,
+            while its carried boxes last (``sampling.carry_frames``). Without a carry branch
+            (None, or none carried) nothing changes.
         :return: the detections with filtered velocities and smoothed scores, and their track
             ids (0, the measured velocity and the model's score, for a detection below
             ``birth_score`` that no track took).
@@ -218,7 +225,10 @@ class Tracker:
         if hit.any():
             t = match[hit]
             scores[hit] = (1 - cfg.score_mix) * scores[hit] + cfg.score_mix * self.score[t]
-            self.score[t] = 0.5 * (self.score[t] + det.scores[hit])
+            # a carried detection holds its track's score (see ``carried``)
+            seen_now = hit if carried is None else hit & ~np.asarray(carried, bool)
+            t_seen = match[seen_now]
+            self.score[t_seen] = 0.5 * (self.score[t_seen] + det.scores[seen_now])
         seen = np.zeros(len(self.x), bool)
         seen[match[hit]] = True
         self.misses = np.where(seen, 0, self.misses + 1)
@@ -289,19 +299,21 @@ class Tracker:
 
 def track_step(tracks: Tracker, det: Detections, stamp_ns: int,
                T_odom_base: NDArray[np.float64], model_points: NDArray[np.floating[Any]] | None,
-               swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None
+               swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None,
+               carried: NDArray[np.bool_] | None = None
                ) -> tuple[Detections, NDArray[np.int64]]:
     """The streaming detector's tracking step: read the vehicles' velocities from the sweeps
     (when the config asks for it; ``swept`` given: already read), then update the tracks.
 
     :param det: the frame's detections in base_link (the model frame).
     :param model_points: the model input ``(N, 5)`` in base_link.
+    :param carried: which detections a memory carries (:meth:`Tracker.update`).
     """
     fc = tracks.config
     if swept is None and fc.sweep_sigma is not None and model_points is not None:
         swept = sweep_velocities(model_points, det.boxes,
                                  fc.sweep_targets(det, tracks.class_names))
-    return tracks.update(det, stamp_ns, T_odom_base, swept)
+    return tracks.update(det, stamp_ns, T_odom_base, swept, carried)
 
 
 def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],

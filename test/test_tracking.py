@@ -145,6 +145,34 @@ def test_scores_are_smoothed_over_the_track():
     assert ids.tolist() == [0] and out.scores.tolist() == pytest.approx([0.1])   # untracked
 
 
+
+def test_a_carried_detection_keeps_its_tracks_score():
+    """An object the memory holds where the cloud has no returns (a carry branch's box) is
+    scored with its track's confidence, which its low carried scores do not wear down; a box
+    seen in the cloud again updates the track as before."""
+    mix = 0.7
+    held, plain = Tracker(TrackerConfig(score_mix=mix)), Tracker(TrackerConfig(score_mix=mix))
+    T = np.eye(4)
+    for trk in (held, plain):
+        trk.update(frame([[10, 0]], [[0, 0]], scores=[0.8]), 0, T)
+    for k in range(1, 6):                                    # five occluded frames at 0.15
+        a, ida = held.update(frame([[10, 0]], [[0, 0]], scores=[0.15]), k * DT_NS, T,
+                             carried=np.array([True]))
+        b, idb = plain.update(frame([[10, 0]], [[0, 0]], scores=[0.15]), k * DT_NS, T)
+        assert ida.tolist() == idb.tolist() == [1]             # the same track continues
+        assert a.scores.tolist() == pytest.approx([(1 - mix) * 0.15 + mix * 0.8])
+    assert b.scores[0] < 0.25 < a.scores[0]                  # plain: worn down to ~0.15
+    out, _ = held.update(frame([[10, 0]], [[0, 0]], scores=[0.6]), 6 * DT_NS, T,
+                         carried=np.array([False]))          # seen again
+    assert out.scores.tolist() == pytest.approx([(1 - mix) * 0.6 + mix * 0.8])
+    out, _ = held.update(frame([[10, 0]], [[0, 0]], scores=[0.6]), 7 * DT_NS, T)
+    assert out.scores.tolist() == pytest.approx([(1 - mix) * 0.6 + mix * 0.7])
+    # a carried box that starts no track is published at its own score
+    out, ids = held.update(frame([[10, 0], [40, 0]], [[0, 0], [0, 0]], scores=[0.6, 0.5]),
+                           8 * DT_NS, T, carried=np.array([False, True]))
+    assert ids[1] > 1 and out.scores[1] == pytest.approx(0.5)
+
+
 def car_points(centre, yaw, speed, lags, rng, n=60):
     """Returns on the visible outline of a 4.5 x 1.9 m car moving ``speed`` m/s along its
     heading, one cloud per time lag (the car was ``speed x lag`` behind then), ground at z 0."""

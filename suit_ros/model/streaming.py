@@ -241,7 +241,8 @@ class StreamingDetector:
         carried = out['carried'].cpu().numpy()
         ids = np.zeros(len(det), np.int64)
         if self.tracks is not None and T_odom_base is not None:
-            det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points)
+            det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points,
+                                  carried=carried)
         published = det.scores >= np.where(carried, self.carry_thresholds[det.labels],
                                            self.score_thresholds[det.labels])
         if not published.all():
