@@ -12,12 +12,12 @@ import math
 from pathlib import Path
 import sys
 import time
-from typing import Any
+from typing import Any, get_args
 
 import numpy as np
 
 from suit_ros.errors import BagError, ConfigError
-from suit_ros.params import DetectorParams
+from suit_ros.params import DetectorParams, GroundParam
 
 DET_TOPIC = '/detector/detections'
 MARKER_TOPIC = '/detector/markers'
@@ -38,6 +38,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--device', default=None, choices=['auto', 'cpu', 'cuda'])
     parser.add_argument('--precision', default=None, choices=['auto', 'float32', 'bfloat16'],
                         help='default: auto (bfloat16 on a CPU with bfloat16 units)')
+    parser.add_argument('--ground', default=None, choices=get_args(GroundParam),
+                        help="the input's height reference (the node's ground parameter)")
     parser.add_argument('--intensity-scale', type=float,
                         help='intensity / scale -> 0..1 (1 for 0..1 reflectance)')
     parser.add_argument('--score-threshold', type=float, nargs='+', metavar='T',
@@ -58,6 +60,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 FLAG_PARAMS = {'checkpoint': 'checkpoint', 'device': 'device', 'precision': 'precision',
+               'ground': 'ground',
                'points_topic': 'points_topic',
                'odom_topic': 'odom_topic', 'intensity_scale': 'intensity_scale',
                'intensity_field': 'intensity_field',

@@ -21,6 +21,7 @@ from suit_ros import CLASS_NAMES
 from suit_ros.structures import Detections, Frame
 
 if TYPE_CHECKING:
+    from suit_ros.ground import GroundMode
     from suit_ros.model.inference import PrecisionChoice
     from suit_ros.tracking import TrackerConfig
 
@@ -379,7 +380,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               history: int | None = None, drop_memory: bool = False,
               transform: Callable[[Frame], Frame] | None = None,
               precision: PrecisionChoice = 'float32',
-              tracker: TrackerConfig | None = None) -> ModelRun:
+              tracker: TrackerConfig | None = None, ground: GroundMode = 'as_given') -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -391,11 +392,12 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param precision: of the streaming detector (:mod:`suit_ros.model.inference`).
     :param tracker: the streaming detector's (:mod:`suit_ros.tracking`); None: the
         head's velocities.
+    :param ground: the input's height reference (:mod:`suit_ros.ground`).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
     runner = StreamingDetector(model, device, precision=precision,
-                               tracker=tracker)
+                               tracker=tracker, ground=ground)
     out = ModelRun([], [], [], [], [], {})
     for drive, seq in enumerate(sequences):
         runner.reset('new sequence')

@@ -21,6 +21,7 @@ from suit_ros.errors import ConfigError
 PointsQoS = Literal['auto', 'sensor_data', 'reliable']
 Device = Literal['auto', 'cpu', 'cuda']
 PrecisionParam = Literal['auto', 'float32', 'bfloat16']
+GroundParam = Literal['as_given', 'local']       # suit_ros.ground.GroundMode
 Vector3 = tuple[float, float, float]
 
 
@@ -79,6 +80,11 @@ class DetectorParams:
     track_score_mix: float = field(default=0.7, metadata=_spec(
         "with tracking: a tracked detection's score is (1 - mix) x its own + mix x its "
         "track's running score; 0: the model's scores", lo=0.0, hi=1.0))
+    ground: GroundParam = field(default='as_given', metadata=_spec(
+        "as_given | local: the input's heights as base_link has them, or leveled to the "
+        'ground estimated around each point (sloped roads, an extrinsic height a little off; '
+        'boxes put back on the road); a change resets the memory',
+        choices=get_args(GroundParam)))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
     max_range: float = field(default=80.0, metadata=_spec(

@@ -137,6 +137,10 @@ class DetectionPipeline:
             TrackerConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix)
             if params.tracking else None)
         self.detector.sweeps.max_age_s = params.max_gap_s     # one staleness threshold
+        if params.ground != self.detector.ground:
+            self.detector.set_ground(params.ground)
+            if self.last_stamp_ns is not None:      # the memory was made on other heights
+                self.reset('ground changed')
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,

@@ -76,7 +76,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
-                       'intensity_field', 'tracking', 'track_score_mix',
+                       'intensity_field', 'tracking', 'track_score_mix', 'ground',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -310,6 +310,32 @@ def test_extrinsic_change_resets_and_moves_the_model_input(model, classes):
     assert np.arctan2(pipe.T_base_lidar[1, 0], pipe.T_base_lidar[0, 0]) == pytest.approx(0.5)
     pipe.process(cloud(classes, T0 + 2 * S // 10))
     assert np.arctan2(pipe.last_pose[1, 0], pipe.last_pose[0, 0]) == pytest.approx(yaw0)
+
+
+def test_ground_local_levels_the_input_and_a_change_resets(model, classes, scene):
+    """``ground: local``: a cloud lowered by 0.6 m (an extrinsic height 0.6 m off) gives the
+    boxes of the true cloud, 0.6 m lower; switching the mode forgets the memory."""
+    def boxes(ground, dz):
+        pipe = make_pipeline(model, classes, ground=ground, score_thresholds=(0.3,))
+        lowered = scene.copy()
+        lowered['z'] -= dz
+        return pipe, pipe.process(cloud(classes, T0, lowered)).detections.boxes
+
+    pipe, true = boxes('local', 0.0)
+    _, low = boxes('local', 0.6)
+    assert pipe.detector.ground == 'local' and len(true) >= 3
+    # the ground is found in 5 cm bins: a box or two near the cut may differ
+    d = np.hypot(*(true[:, None, :2] - low[None, :, :2]).transpose(2, 0, 1))
+    found = d.min(axis=1) < 0.3
+    assert found.mean() >= 0.8
+    dz = low[d.argmin(axis=1)[found], 2] - true[found, 2]
+    assert np.median(dz) == pytest.approx(-0.6, abs=0.06)
+    resets = pipe.resets
+    pipe.configure(replace(pipe.params, ground='as_given'))
+    assert pipe.resets == resets + 1 and pipe.last_reset_reason == 'ground changed'
+    assert pipe.detector.ground == 'as_given' and len(pipe.detector.sweeps) == 0
+    with pytest.raises(Exception, match='ground must be one of'):
+        pipe.configure(replace(pipe.params, ground='flat'))
 
 
 def test_odometry_tolerance_and_buffer(model, classes):

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 import torch
 
+from suit_ros.ground import GROUND_MODES, GroundMode, LocalGround
 from suit_ros.model.detector import Memory, SUITDetector
 from suit_ros.model.fusion import BranchTerms, PastTerm
 from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
@@ -62,13 +63,16 @@ class StreamingDetector:
         units); the one chosen is :attr:`precision`.
     :param tracker: when given, the detections' velocities are filtered over frames
         (:mod:`suit_ros.tracking`) and each gets a track id; None: the head's velocities.
+    :param ground: ``as_given``: the input's heights as they come (base_link's ground plane);
+        ``local``: leveled to the ground estimated under each point before the model sees
+        them, the boxes put back on it (:mod:`suit_ros.ground`).
     """
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
                  score_thresholds: list[float] | None = None,
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
                  candidates: int | None = None, precision: PrecisionChoice = 'float32',
-                 tracker: TrackerConfig | None = None) -> None:
+                 tracker: TrackerConfig | None = None, ground: GroundMode = 'as_given') -> None:
         self.device = torch.device(device) if device is not None else model.device
         self.precision = resolve_precision(precision, self.device)
         # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
@@ -78,6 +82,7 @@ class StreamingDetector:
         # the memory sampled at the last frame: the next frame fuses it
         self._memory: Memory | None = None
         self.sweeps = SweepBuffer(self.cfg.sweeps)
+        self.set_ground(ground)
         self.tracks = (None if tracker is None
                        else Tracker(tracker, self.cfg.class_names))
         self.last_reset_reason = 'start'
@@ -122,6 +127,14 @@ class StreamingDetector:
         self.candidates = self.cfg.head.top_k if candidates is None else int(candidates)
         if self.candidates < 1:
             raise ValueError(f'candidates must be >= 1, got {self.candidates}')
+
+    def set_ground(self, ground: GroundMode) -> None:
+        """Choose how the input's heights are referenced (see ``ground``)."""
+        if ground not in GROUND_MODES:
+            raise ValueError(f'ground must be one of {GROUND_MODES}, got {ground!r}')
+        self.ground: GroundMode = ground
+        self._ground = (LocalGround(self.cfg.pillars.point_range) if ground == 'local'
+                        else None)
 
     def set_tracker(self, config: TrackerConfig | None) -> None:
         """Turn the tracker on (with ``config``; tracks kept when it is unchanged) or
@@ -210,6 +223,8 @@ class StreamingDetector:
             self.reset('no pose')
         T_ol = None if T_odom_base is None else np.asarray(T_odom_base, np.float64) @ T_bl
         model_points = self.sweeps.push(pts, T_ol, stamp_ns, T_bl)
+        if self._ground is not None:
+            model_points = self._ground.level(model_points)
         tensor = torch.from_numpy(model_points).to(self.device)
         t1 = self._sync()
         current, observed = m.encode_observed([tensor])
@@ -239,6 +254,8 @@ class StreamingDetector:
                          out['velocities'].float().cpu().numpy(),
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
         carried = out['carried'].cpu().numpy()
+        if self._ground is not None and len(det):
+            det.boxes[:, 2] += self._ground.under(det.boxes[:, :2])   # back on the road
         ids = np.zeros(len(det), np.int64)
         if self.tracks is not None and T_odom_base is not None:
             det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points,

@@ -20,7 +20,10 @@ them bit for bit), so outputs do not change:
   (:meth:`suit_ros.ops.geometry.CellIndex.box_lists`);
 - :func:`distinct_values`: the distinct time lags of a model input;
 - :func:`paired_bev_iou`: rotated BEV IoU of box pairs (the NMS of the head and of the
-  significance sampling), a loop per pair instead of some 60 tensor operations.
+  significance sampling), a loop per pair instead of some 60 tensor operations;
+- :func:`height_histograms` and :func:`level_heights`: the local ground under a model input
+  and the input leveled to it (:mod:`suit_ros.ground`, ``ground: local``; new computations,
+  tested against numpy).
 
 Compiled on first use (:func:`compiled`) and cached on disk; :func:`warm_up` compiles the
 types a detector step uses, as the node does at start.
@@ -506,6 +509,55 @@ def sweep_histograms_by_cell(pts: Any, inv_cell: Any, origin: Any, shape: Any, z
     return out, length
 
 
+GROUND_BIN_M = 0.05     # the ground estimate's height bin (m)
+
+
+@_jit
+def height_histograms(points: Any, x0: float, y0: float, cell: float, nx: int, ny: int,
+                      zlo: float, n_bins: int) -> Any:  # pragma: no cover
+    """Per cell of an ``(ny, nx)`` grid of ``cell`` m from ``(x0, y0)``, a histogram of its
+    points' heights in ``GROUND_BIN_M`` bins from ``zlo`` (points outside the grid or the band
+    left out; :class:`suit_ros.ground.LocalGround`)."""
+    out = np.zeros((nx * ny, n_bins), np.int32)
+    inv = 1.0 / cell
+    for i in range(points.shape[0]):
+        fx = (points[i, 0] - x0) * inv
+        fy = (points[i, 1] - y0) * inv
+        fz = (points[i, 2] - zlo) * (1.0 / GROUND_BIN_M)
+        if not (fx >= 0 and fx < nx and fy >= 0 and fy < ny and fz >= 0 and fz < n_bins):
+            continue
+        out[int(fy) * nx + int(fx), int(fz)] += 1
+    return out
+
+
+@_jit
+def level_heights(points: Any, ground: Any, x0: float, y0: float, cell: float,
+                  out: Any) -> None:  # pragma: no cover
+    """``out = points`` with z minus the ground under each point: bilinear between the cell
+    centres of ``ground`` ``(ny, nx)``, clamped at the grid's edge."""
+    ny, nx = ground.shape
+    inv = 1.0 / cell
+    for i in range(points.shape[0]):
+        u = (points[i, 0] - x0) * inv - 0.5
+        v = (points[i, 1] - y0) * inv - 0.5
+        u = min(max(u, 0.0), nx - 1.0)
+        v = min(max(v, 0.0), ny - 1.0)
+        if not (u == u and v == v):                    # not finite: left as it is
+            g = 0.0
+        else:
+            ix = min(int(u), nx - 2) if nx > 1 else 0
+            iy = min(int(v), ny - 2) if ny > 1 else 0
+            a = u - ix
+            b = v - iy
+            ix1 = min(ix + 1, nx - 1)
+            iy1 = min(iy + 1, ny - 1)
+            g = ((1 - a) * (1 - b) * ground[iy, ix] + a * (1 - b) * ground[iy, ix1]
+                 + (1 - a) * b * ground[iy1, ix] + a * b * ground[iy1, ix1])
+        for j in range(points.shape[1]):
+            out[i, j] = points[i, j]
+        out[i, 2] = points[i, 2] - g
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel for the argument types of the node's
     step: float32 clouds of 4 (the sensor's) and 5 columns (the model input), xyz slices of
@@ -532,4 +584,7 @@ def warm_up() -> None:
                              np.float32(5.0), start, owners, np.ones((1, 7), np.float32),
                              np.ones(1, np.float32), np.float32(0.1), np.ones(1, np.int64))
     distinct_values(model_input[:, 4])
+    height_histograms(model_input, -1.0, -1.0, 1.0, 2, 2, -1.0, 4)
+    level_heights(model_input, np.zeros((2, 2), np.float32), -1.0, -1.0, 1.0,
+                  model_input.copy())
     paired_bev_iou(np.ones((1, 7), np.float32), np.ones((1, 7), np.float32))
