@@ -58,8 +58,8 @@ class LocalGround:
             raise ValueError(f'LocalGround: cell > 0, a band lo < hi and a percentile in '
                              f'(0, 1) needed, got {cell}, {band}, {percentile}')
         self.x0, self.y0, self.cell = x0, y0, float(cell)
-        self.nx = max(1, int(np.ceil((x1 - x0) / cell)))
-        self.ny = max(1, int(np.ceil((y1 - y0) / cell)))
+        self.nx = max(2, int(np.ceil((x1 - x0) / cell)))
+        self.ny = max(2, int(np.ceil((y1 - y0) / cell)))
         self.zlo = float(band[0])
         self.n_bins = int(np.ceil((band[1] - band[0]) / BIN_M))
         self.percentile, self.min_points, self.max_step = percentile, min_points, max_step
@@ -113,13 +113,13 @@ def _neighbour_median(z: NDArray[np.float64]) -> NDArray[np.float64]:
     """Per cell, the median of the finite values among its 8 neighbours (NaN: none)."""
     ny, nx = z.shape
     pad = np.pad(z, 1, constant_values=np.nan)
-    stack = np.stack([pad[1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
-                      for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx])
-    with np.errstate(all='ignore'):
-        import warnings
-        with warnings.catch_warnings():
-            warnings.simplefilter('ignore', RuntimeWarning)
-            out: NDArray[np.float64] = np.nanmedian(stack, axis=0)
+    stack = np.sort(np.stack([pad[1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
+                              for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]),
+                    axis=0)                                      # NaNs sort last
+    n = np.isfinite(stack).sum(axis=0)
+    lo = np.take_along_axis(stack, np.maximum(n - 1, 0)[None] // 2, axis=0)[0]
+    hi = np.take_along_axis(stack, (n // 2)[None], axis=0)[0]
+    out: NDArray[np.float64] = np.where(n > 0, 0.5 * (lo + hi), np.nan)
     return out
 
 

@@ -238,9 +238,20 @@ class SUITDetector(nn.Module):
             return preds
         seen = observed[:, None]
         if isinstance(past, BranchTerms) and self.carry is not None:
+            carry_term = gate_past(past.carry, observed)
             carry_input = (past.carry_input if past.carry_input is not None
-                           else self.fusion(current, gate_past(past.carry, observed)))
-            carried: dict[str, Tensor] = self.carry.head(carry_input)
+                           else self.fusion(current, carry_term))
+            if self.training or not isinstance(carry_term, PastTerm):
+                carried: dict[str, Tensor] = self.carry.head(carry_input)
+            else:
+                # inference: the carry head only where its output is read (cells without
+                # returns) and can differ from the model's own head (within its two-cell
+                # receptive field of the carry term); the own outputs elsewhere
+                B, _, H, W = carry_input.shape
+                touched = torch.zeros(B * H * W, dtype=torch.bool, device=observed.device)
+                touched[carry_term.index] = True
+                near = F.max_pool2d(touched.view(B, 1, H, W).float(), 5, 1, 2)[:, 0] > 0
+                carried = self.carry.head.forward_tiles(carry_input, near & ~observed, preds)
             merged = {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
             merged.update({OWN + k: v for k, v in preds.items()})
             return merged

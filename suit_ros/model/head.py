@@ -10,6 +10,7 @@ import typing
 
 import torch
 from torch import Tensor, nn
+import torch.nn.functional as F
 
 from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.nms import batched_nms
@@ -98,6 +99,45 @@ class CenterHead(nn.Module):
         out = {'heatmap': self.heatmap(s)}
         for name, (a, b) in REG_SLICES.items():
             out[name] = reg[:, a:b]
+        return out
+
+    def forward_tiles(self, x: Tensor, needed: Tensor, elsewhere: dict[str, Tensor],
+                      tile: int = 32) -> dict[str, Tensor]:
+        """:meth:`forward` on the ``tile`` x ``tile`` cell tiles that hold a ``needed`` cell
+        (``(B, H, W)`` bool), ``elsewhere``'s maps on the rest (a carry branch's head reads
+        only the few cells where the memory holds what the cloud does not show).
+
+        The head's receptive field is two cells (two 3 x 3 convolutions), so each tile is
+        computed with a two-cell halo and its shared layer's output is zeroed outside the
+        map, as the full map's padding has it: inside a tile the values are :meth:`forward`'s
+        (up to the convolution's rounding at another input size).
+        """
+        B, C, H, W = x.shape
+        halo = 2
+        occ = F.max_pool2d(needed[:, None].float(), tile, tile, ceil_mode=True)[:, 0] > 0
+        which = torch.nonzero(occ)                                   # (n, 3): b, ty, tx
+        out = {k: v.clone() for k, v in elsewhere.items()}
+        if len(which) == 0:
+            return out
+        ty_n, tx_n = occ.shape[1:]
+        pad = (halo, halo + tx_n * tile - W, halo, halo + ty_n * tile - H)
+        xp = F.pad(x, pad)
+        valid = F.pad(x.new_ones(1, 1, H, W), pad)
+        size = tile + 2 * halo
+        rows = [(int(b), int(ty) * tile, int(tx) * tile) for b, ty, tx in which.tolist()]
+        crops = torch.stack([xp[b, :, y:y + size, c:c + size] for b, y, c in rows])
+        mask = torch.stack([valid[0, :, y:y + size, c:c + size] for _, y, c in rows])
+        if x.is_contiguous(memory_format=torch.channels_last):
+            crops = crops.contiguous(memory_format=torch.channels_last)
+        s = self.shared(crops) * mask
+        maps = {'heatmap': self.heatmap(s)}
+        reg = self.regression(s)
+        for name, (a, b) in REG_SLICES.items():
+            maps[name] = reg[:, a:b]
+        for k, (b, y, c) in enumerate(rows):
+            h, w = min(tile, H - y), min(tile, W - c)
+            for name, v in maps.items():
+                out[name][b, :, y:y + h, c:c + w] = v[k, :, halo:halo + h, halo:halo + w]
         return out
 
     # ------------------------------------------------------------------ targets and loss

@@ -534,27 +534,26 @@ def height_histograms(points: Any, x0: float, y0: float, cell: float, nx: int, n
 def level_heights(points: Any, ground: Any, x0: float, y0: float, cell: float,
                   out: Any) -> None:  # pragma: no cover
     """``out = points`` with z minus the ground under each point: bilinear between the cell
-    centres of ``ground`` ``(ny, nx)``, clamped at the grid's edge."""
+    centres of ``ground`` ``(ny, nx)`` (at least 2 x 2), clamped at the grid's edge; a point
+    with a coordinate that is not finite keeps its z."""
     ny, nx = ground.shape
     inv = 1.0 / cell
+    umax = nx - 1.0
+    vmax = ny - 1.0
+    out[:] = points
     for i in range(points.shape[0]):
         u = (points[i, 0] - x0) * inv - 0.5
         v = (points[i, 1] - y0) * inv - 0.5
-        u = min(max(u, 0.0), nx - 1.0)
-        v = min(max(v, 0.0), ny - 1.0)
-        if not (u == u and v == v):                    # not finite: left as it is
-            g = 0.0
-        else:
-            ix = min(int(u), nx - 2) if nx > 1 else 0
-            iy = min(int(v), ny - 2) if ny > 1 else 0
-            a = u - ix
-            b = v - iy
-            ix1 = min(ix + 1, nx - 1)
-            iy1 = min(iy + 1, ny - 1)
-            g = ((1 - a) * (1 - b) * ground[iy, ix] + a * (1 - b) * ground[iy, ix1]
-                 + (1 - a) * b * ground[iy1, ix] + a * b * ground[iy1, ix1])
-        for j in range(points.shape[1]):
-            out[i, j] = points[i, j]
+        if not (abs(u) < 1e9 and abs(v) < 1e9):        # NaN or infinite
+            continue
+        u = min(max(u, 0.0), umax)
+        v = min(max(v, 0.0), vmax)
+        ix = min(int(u), nx - 2)
+        iy = min(int(v), ny - 2)
+        a = u - ix
+        b = v - iy
+        g = ((1 - a) * (1 - b) * ground[iy, ix] + a * (1 - b) * ground[iy, ix + 1]
+             + (1 - a) * b * ground[iy + 1, ix] + a * b * ground[iy + 1, ix + 1])
         out[i, 2] = points[i, 2] - g
 
 
