@@ -78,10 +78,11 @@ def test_decode_turns_moving_boxes_to_face_their_velocity():
 
 
 
-@pytest.mark.parametrize('channels_last', [False, True])
-def test_the_head_on_tiles_equals_the_head_where_it_is_read(channels_last):
-    """A carry branch's head runs only on the tiles holding the cells it is read at: there it
-    gives the full map's values (the map's edges included), elsewhere the given maps."""
+@pytest.mark.parametrize('copy', [None, 'float32', 'bfloat16'])
+def test_the_head_at_cells_equals_the_head_where_it_is_read(copy):
+    """A carry branch's head runs only at the cells it is read at: there it gives the full
+    map's values (the map's edges included), elsewhere the given maps; on the training module
+    and on inference copies (folded norms, bfloat16 casts)."""
     from suit_ros.model.inference import inference_copy
     torch.manual_seed(0)
     head = CenterHead(16, 4, GRID, head_channels=8).eval()
@@ -89,25 +90,27 @@ def test_the_head_on_tiles_equals_the_head_where_it_is_read(channels_last):
         if isinstance(m, torch.nn.BatchNorm2d):        # statistics that are not the identity
             m.running_mean.uniform_(-0.5, 0.5)
             m.running_var.uniform_(0.5, 2.0)
-    if channels_last:
-        head = inference_copy(head)
-    H, W = 70, 45                                     # not a multiple of the tile
+    if copy is not None:               # as in a detector's inference copy (its head attribute)
+        holder = torch.nn.Module()
+        holder.head = head
+        head = inference_copy(holder, precision=copy).head
+    H, W = 70, 45
     x = torch.randn(2, 16, H, W)
-    if channels_last:
+    if copy is not None:
         x = x.contiguous(memory_format=torch.channels_last)
-    needed = torch.zeros(2, H, W, dtype=torch.bool)
-    needed[0, 0, 0] = needed[0, 40, 44] = needed[1, 69, 3] = needed[1, 33, 20] = True
-    elsewhere = {k: torch.full_like(v, 7.0) for k, v in head(x).items()}
+    if copy == 'bfloat16':
+        x = x.to(torch.bfloat16)
+    needed = torch.rand(2, H, W) < 0.05
+    needed[0, 0, 0] = needed[0, 69, 44] = needed[1, 69, 0] = needed[1, 0, 44] = True  # corners
     with torch.no_grad():
         full = head(x)
-        tiled = head.forward_tiles(x, needed, elsewhere, tile=16)
-    computed = torch.zeros(2, H, W, dtype=torch.bool)
-    for b, y, c in [(0, 0, 0), (0, 32, 32), (1, 64, 0), (1, 32, 16)]:
-        computed[b, y:y + 16, c:c + 16] = True
+        elsewhere = {k: torch.full_like(v, 7.0) for k, v in full.items()}
+        got = head.forward_at(x, needed, elsewhere)
+    tol = {'rtol': 2e-2, 'atol': 2e-2} if copy == 'bfloat16' else {'rtol': 1e-5, 'atol': 1e-5}
     for k in full:
-        assert tiled[k].shape == full[k].shape
-        got, want = tiled[k].permute(0, 2, 3, 1), full[k].permute(0, 2, 3, 1)
-        torch.testing.assert_close(got[computed], want[computed], rtol=1e-5, atol=1e-5)
-        assert (got[~computed] == 7.0).all()
-    nothing = head.forward_tiles(x, torch.zeros_like(needed), elsewhere)
+        assert got[k].shape == full[k].shape and got[k].dtype == full[k].dtype
+        g, w = got[k].permute(0, 2, 3, 1), full[k].permute(0, 2, 3, 1)
+        torch.testing.assert_close(g[needed], w[needed], **tol)
+        assert (g[~needed] == 7.0).all()
+    nothing = head.forward_at(x, torch.zeros_like(needed), elsewhere)
     assert all(torch.equal(nothing[k], elsewhere[k]) for k in elsewhere)

@@ -246,12 +246,12 @@ class SUITDetector(nn.Module):
             else:
                 # inference: the carry head only where its output is read (cells without
                 # returns) and can differ from the model's own head (within its two-cell
-                # receptive field of the carry term); the own outputs elsewhere
+                # receptive field of the carry term), gathered; the own outputs elsewhere
                 B, _, H, W = carry_input.shape
                 touched = torch.zeros(B * H * W, dtype=torch.bool, device=observed.device)
                 touched[carry_term.index] = True
                 near = F.max_pool2d(touched.view(B, 1, H, W).float(), 5, 1, 2)[:, 0] > 0
-                carried = self.carry.head.forward_tiles(carry_input, near & ~observed, preds)
+                carried = self.carry.head.forward_at(carry_input, near & ~observed, preds)
             merged = {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
             merged.update({OWN + k: v for k, v in preds.items()})
             return merged

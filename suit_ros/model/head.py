@@ -101,43 +101,39 @@ class CenterHead(nn.Module):
             out[name] = reg[:, a:b]
         return out
 
-    def forward_tiles(self, x: Tensor, needed: Tensor, elsewhere: dict[str, Tensor],
-                      tile: int = 32) -> dict[str, Tensor]:
-        """:meth:`forward` on the ``tile`` x ``tile`` cell tiles that hold a ``needed`` cell
-        (``(B, H, W)`` bool), ``elsewhere``'s maps on the rest (a carry branch's head reads
-        only the few cells where the memory holds what the cloud does not show).
+    def forward_at(self, x: Tensor, needed: Tensor, elsewhere: dict[str, Tensor]
+                   ) -> dict[str, Tensor]:
+        """:meth:`forward`'s values at the ``needed`` cells (``(B, H, W)`` bool), ``elsewhere``'s
+        on the rest: a carry branch's head is read only at the few cells where the memory holds
+        what the cloud does not show (a few percent of the map).
 
-        The head's receptive field is two cells (two 3 x 3 convolutions), so each tile is
-        computed with a two-cell halo and its shared layer's output is zeroed outside the
-        map, as the full map's padding has it: inside a tile the values are :meth:`forward`'s
-        (up to the convolution's rounding at another input size).
+        The two 3 x 3 layers run as gathered products at just the cells they feed (the shared
+        layer at the needed cells and their neighbours, the branches at the needed cells), the
+        shared layer's output zero off the map as the full map's padding has it; the values are
+        :meth:`forward`'s up to the summation order (the tests compare them). Works on the
+        training module and on an inference copy (folded norms, low-precision casts).
         """
-        B, C, H, W = x.shape
-        halo = 2
-        occ = F.max_pool2d(needed[:, None].float(), tile, tile, ceil_mode=True)[:, 0] > 0
-        which = torch.nonzero(occ)                                   # (n, 3): b, ty, tx
+        B, _, H, W = x.shape
         out = {k: v.clone() for k, v in elsewhere.items()}
-        if len(which) == 0:
+        cells = torch.nonzero(needed)                                    # (M, 3): b, y, x
+        if len(cells) == 0:
             return out
-        ty_n, tx_n = occ.shape[1:]
-        pad = (halo, halo + tx_n * tile - W, halo, halo + ty_n * tile - H)
-        xp = F.pad(x, pad)
-        valid = F.pad(x.new_ones(1, 1, H, W), pad)
-        size = tile + 2 * halo
-        rows = [(int(b), int(ty) * tile, int(tx) * tile) for b, ty, tx in which.tolist()]
-        crops = torch.stack([xp[b, :, y:y + size, c:c + size] for b, y, c in rows])
-        mask = torch.stack([valid[0, :, y:y + size, c:c + size] for _, y, c in rows])
-        if x.is_contiguous(memory_format=torch.channels_last):
-            crops = crops.contiguous(memory_format=torch.channels_last)
-        s = self.shared(crops) * mask
-        maps = {'heatmap': self.heatmap(s)}
-        reg = self.regression(s)
+        near = F.max_pool2d(needed[:, None].float(), 3, 1, 1)[:, 0] > 0
+        feeding = torch.nonzero(near)
+        shared = _at_cells(self.shared, _padded_rows(x), feeding, H, W)
+        rows = shared.new_zeros(B * (H + 2) * (W + 2), shared.shape[1])  # zero off the map
+        rows.index_copy_(0, (feeding[:, 0] * (H + 2) + feeding[:, 1] + 1) * (W + 2)
+                         + feeding[:, 2] + 1, shared)
+        maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W)}
+        reg = _at_cells(self.regression, rows, cells, H, W)
         for name, (a, b) in REG_SLICES.items():
             maps[name] = reg[:, a:b]
-        for k, (b, y, c) in enumerate(rows):
-            h, w = min(tile, H - y), min(tile, W - c)
+        for b in range(B):
+            mine = cells[:, 0] == b
+            flat = cells[mine, 1] * W + cells[mine, 2]
             for name, v in maps.items():
-                out[name][b, :, y:y + h, c:c + w] = v[k, :, halo:halo + h, halo:halo + w]
+                o = out[name][b]
+                o.view(o.shape[0], H * W).index_copy_(1, flat, v[mine].t().to(o.dtype))
         return out
 
     # ------------------------------------------------------------------ targets and loss
@@ -248,3 +244,63 @@ class CenterHead(nn.Module):
                         'labels': lab[kept], 'cells': cells[kept]})
         return out
 
+
+
+def _padded_rows(x: Tensor) -> Tensor:
+    """``(B, C, H, W)`` as ``(B * (H + 2) * (W + 2), C)`` rows of the zero-padded map."""
+    return F.pad(x, (1, 1, 1, 1)).permute(0, 2, 3, 1).reshape(-1, x.shape[1])
+
+
+def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:
+    """A head layer stack (a 3 x 3 conv, then norms, ReLUs, 1 x 1 convs, dtype casts: the
+    training module or its inference copy) at ``cells`` ``(M, 3)`` (b, y, x) of a map given as
+    the padded rows of :func:`_padded_rows`; :return: ``(M, out channels)``."""
+    from suit_ros.model.inference import Cast
+    ops: list[tuple[str, typing.Any]] = []
+
+    def flatten(m: nn.Module) -> None:
+        if isinstance(m, Cast):
+            ops.append(('cast', m.dtype))
+            flatten(m.inner)
+            ops.append(('cast', m.out_dtype))
+        elif isinstance(m, nn.Sequential):
+            for child in m:
+                flatten(child)
+        elif not isinstance(m, nn.Identity):
+            ops.append(('layer', m))
+    flatten(layers)
+    b, y, x = cells[:, 0], cells[:, 1], cells[:, 2]
+    v: Tensor | None = None
+    dtype = rows.dtype
+    for kind, op in ops:
+        if kind == 'cast':
+            dtype = op
+            if v is not None:
+                v = v.to(op)
+        elif isinstance(op, nn.Conv2d) and op.kernel_size == (3, 3):
+            if v is not None:
+                raise ValueError('a head layer stack holds one 3x3 conv, first')
+            offsets = [(dy, dx) for dy in (0, 1, 2) for dx in (0, 1, 2)]
+            index = torch.stack([(b * (H + 2) + y + dy) * (W + 2) + x + dx
+                                 for dy, dx in offsets], dim=1)          # (M, 9)
+            patches = torch.index_select(rows, 0, index.view(-1))        # (9 M, C)
+            patches = patches.view(len(cells), -1).to(dtype)             # (M, 9 C)
+            w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).to(dtype)
+            v = patches @ w.t()
+            if op.bias is not None:
+                v = v + op.bias.to(dtype)
+        elif isinstance(op, nn.Conv2d):                                  # 1 x 1
+            assert v is not None
+            w1 = op.weight.reshape(op.out_channels, -1).to(v.dtype)
+            v = v @ w1.t() + (op.bias.to(v.dtype) if op.bias is not None else 0)
+        elif isinstance(op, nn.BatchNorm2d):
+            assert v is not None and op.running_var is not None and op.running_mean is not None
+            scale = op.weight / torch.sqrt(op.running_var + op.eps)
+            v = (v - op.running_mean.to(v.dtype)) * scale.to(v.dtype) + op.bias.to(v.dtype)
+        elif isinstance(op, nn.ReLU):
+            assert v is not None
+            v = torch.relu(v)
+        else:
+            raise ValueError(f'a head layer of type {type(op).__name__} cannot run at cells')
+    assert v is not None
+    return v
