@@ -118,3 +118,30 @@ def test_precision_auto_follows_the_cpu_flags(tmp_path, monkeypatch):
     runner = StreamingDetector(SUITDetector(small_config()), precision='bfloat16')
     assert runner.precision == 'bfloat16'
 
+
+
+@pytest.mark.parametrize('precision', ['float32', 'bfloat16'])
+def test_an_identity_current_conv_is_skipped_with_the_same_values(precision):
+    """A fusion whose W1 is still the identity (never trained) skips the conv in an inference
+    copy, with the conv's values bit for bit; a trained W1 keeps it."""
+    from suit_ros.model.fusion import PastTerm
+    from suit_ros.model.inference import inference_copy
+    torch.manual_seed(0)
+    model = SUITDetector(small_config()).eval()
+    fast = inference_copy(model, precision=precision)
+    assert fast.fusion.identity_current
+    current = torch.randn(1, model.backbone.out_channels, 32, 32).contiguous(
+        memory_format=torch.channels_last)
+    if precision == 'bfloat16':
+        current = current.to(torch.bfloat16)
+    C = current.shape[1]
+    term = PastTerm(torch.tensor([0, 5, 5, 700]), torch.randn(4, C), (1, C, 32, 32))
+    with torch.no_grad():
+        skipped = fast.fusion(current, term)
+        fast.fusion.identity_current = False
+        conv = fast.fusion(current, term)
+    assert skipped.dtype == conv.dtype and torch.equal(skipped, conv)
+    assert skipped.is_contiguous(memory_format=torch.channels_last)
+    with torch.no_grad():
+        model.fusion.current.weight[0, 1] += 0.1
+    assert not inference_copy(model, precision=precision).fusion.identity_current

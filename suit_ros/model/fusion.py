@@ -20,6 +20,7 @@ initialised from.
 from __future__ import annotations
 
 from dataclasses import dataclass
+import typing
 
 import numpy as np
 from numpy.typing import NDArray
@@ -71,6 +72,31 @@ class TemporalFusion(nn.Module):
             assert self.current.bias is not None
             self.current.bias.zero_()
             self.past.weight.zero_()
+        # set by an inference copy whose W1 is still the identity (a model whose fusion was
+        # never trained, as a carry branch on the single-frame model): W1 F_t is F_t itself,
+        # exactly (products by 1 and 0, sums with 0), so the conv is skipped for a copy
+        self.identity_current = False
+
+    def mark_identity(self) -> bool:
+        """Set :attr:`identity_current` when W1 is the identity and its bias zero (inference
+        copies only: a trained W1 moves); :return: whether it is."""
+        conv = self.current
+        while not isinstance(conv, nn.Conv2d):          # an inference copy's dtype wrapper
+            conv = typing.cast(nn.Module, conv.inner)
+        w = conv.weight.detach().float()[:, :, 0, 0]
+        bias = conv.bias
+        self.identity_current = bool(
+            w.shape[0] == w.shape[1] and torch.equal(w, torch.eye(w.shape[0]))
+            and (bias is None or not bias.detach().any()))
+        return self.identity_current
+
+    def _current(self, current: Tensor) -> Tensor:
+        """W1 F_t, as a fresh tensor (the past term is added into it in place)."""
+        if self.identity_current:
+            dtype = getattr(self.current, 'out_dtype', current.dtype)
+            return current.to(dtype, copy=True)
+        out: Tensor = self.current(current)
+        return out
 
     def past_dense(self, warped: Tensor) -> Tensor:
         """Apply W2 to a dense ``(B, C, H, W)`` map."""
@@ -78,7 +104,7 @@ class TemporalFusion(nn.Module):
 
     def forward(self, current: Tensor, past_term: Tensor | PastTerm | None) -> Tensor:
         """Fuse ``(B, C, H, W)`` current features with an already W2-projected past term."""
-        out: Tensor = self.current(current)
+        out = self._current(current)
         # in place: the conv's output is fresh (and autograd does not need it for the conv);
         # in the conv's dtype (bfloat16 in a bfloat16 inference copy)
         return out if past_term is None else _add(out, past_term)
@@ -87,7 +113,7 @@ class TemporalFusion(nn.Module):
                          ) -> tuple[Tensor, Tensor]:
         """``forward(current, own)`` and ``forward(current, carry)`` with W1 applied once
         (the same values, bit for bit)."""
-        out: Tensor = self.current(current)
+        out = self._current(current)
         other = _add(out.clone(), carry)
         return own.add_to(out), other
 

@@ -183,4 +183,8 @@ def inference_copy(model: nn.Module, channels_last: bool = True,
         for m in copied.modules():
             if isinstance(m, nn.Conv2d | nn.ConvTranspose2d):
                 m.weight.data = m.weight.data.contiguous(memory_format=torch.channels_last)
+    from suit_ros.model.fusion import TemporalFusion
+    for m in copied.modules():
+        if isinstance(m, TemporalFusion):
+            m.mark_identity()
     return copied
