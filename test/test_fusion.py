@@ -322,3 +322,39 @@ def _check_decode(branch, plain, got, ref):
     assert not bool(plain_out['carried'].any())
     assert torch.equal(plain_out['boxes'], plain.head.decode(rp, 200, thr, 'rotated', 0.2, None,
                                                              200)[0]['boxes'])
+
+
+def test_a_carry_branch_on_a_single_frame_base_decodes_its_seen_cells_as_the_base():
+    """A carry branch on a model whose own fusion never trained (W1 the identity, own W2
+    zero: docs/experiments/memory_carry, run 10): the observed cells' outputs are the
+    single-frame model's; the inference copy skips the identity conv and the zero own term
+    with the same values as computing them."""
+    from suit_ros.model.inference import inference_copy
+    torch.manual_seed(0)
+    cfg = replace(small_config('suit'), fusion_gate='carry_branch',
+                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
+    branch = SUITDetector(cfg).eval()
+    single = SUITDetector(replace(cfg, temporal='none', fusion_gate='none',
+                                  sampling=replace(cfg.sampling, carry_frames=0))).eval()
+    single.load_state_dict({k: v for k, v in branch.state_dict().items()
+                            if k in single.state_dict()})
+    with torch.no_grad():
+        branch.carry.past.weight.normal_(0, 0.2)
+    clouds = []
+    for t in range(6):
+        f = frame(t)
+        pts = f.points if t < 2 or t > 4 else f.points[f.points[:, 0] < 0]   # x > 0 lost
+        clouds.append((pts, f))
+    fast = inference_copy(branch)
+    assert fast.fusion.identity_current and fast.fusion.zero_past
+    slow = inference_copy(branch)
+    slow.fusion.identity_current = slow.fusion.zero_past = False
+    got, ref, base = _stream(fast, clouds), _stream(slow, clouds), _stream(single, clouds)
+    for (gp, obs, gm), (rp, _, rm), (sp, _, _) in zip(got, ref, base):
+        for key in gp:
+            assert torch.equal(gp[key], rp[key]), key
+        for key in sp:
+            seen = obs[0]
+            torch.testing.assert_close(gp[key][0, :, seen], sp[key][0, :, seen],
+                                       rtol=1e-4, atol=1e-4)
+        assert torch.equal(gm.features, rm.features)

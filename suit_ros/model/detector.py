@@ -189,8 +189,12 @@ class SUITDetector(nn.Module):
         if self.carry is None:
             return sparse_past_term(feats, probs, mask, positions, bi, disp, q,
                                     self.fusion.past, self.grid, B, prune), aux
-        # the model's own term from its own samples (as without a carry), the carry's from all
+        # the model's own term from its own samples (as without a carry), the carry's from all;
+        # an inference copy whose own W2 is zero (a carry branch on the single-frame model)
+        # has no own term to compute
         own = torch.nonzero(sub.owned(), as_tuple=True)[0]
+        if self.fusion.zero_past:
+            own = own[:0]
         return BranchTerms(
             sparse_past_term(feats[own], probs[own], mask[own], positions[own], bi[own],
                              disp[own], q[own], self.fusion.past, self.grid, B, prune),

@@ -76,10 +76,13 @@ class TemporalFusion(nn.Module):
         # never trained, as a carry branch on the single-frame model): W1 F_t is F_t itself,
         # exactly (products by 1 and 0, sums with 0), so the conv is skipped for a copy
         self.identity_current = False
+        # likewise, set when W2 is zero: the past term adds nothing and is not computed
+        self.zero_past = False
 
     def mark_identity(self) -> bool:
-        """Set :attr:`identity_current` when W1 is the identity and its bias zero (inference
-        copies only: a trained W1 moves); :return: whether it is."""
+        """Set :attr:`identity_current` when W1 is the identity and its bias zero, and
+        :attr:`zero_past` when W2 is zero (inference copies only: trained weights move);
+        :return: whether W1 is the identity."""
         conv = self.current
         while not isinstance(conv, nn.Conv2d):          # an inference copy's dtype wrapper
             conv = typing.cast(nn.Module, conv.inner)
@@ -88,6 +91,7 @@ class TemporalFusion(nn.Module):
         self.identity_current = bool(
             w.shape[0] == w.shape[1] and torch.equal(w, torch.eye(w.shape[0]))
             and (bias is None or not bias.detach().any()))
+        self.zero_past = not bool(self.past.weight.detach().any())
         return self.identity_current
 
     def _current(self, current: Tensor) -> Tensor:
