@@ -540,11 +540,23 @@ def level_heights(points: Any, ground: Any, x0: float, y0: float, cell: float,
     inv = 1.0 / cell
     umax = nx - 1.0
     vmax = ny - 1.0
-    out[:] = points
+    ncol = points.shape[1]
     for i in range(points.shape[0]):
-        u = (points[i, 0] - x0) * inv - 0.5
-        v = (points[i, 1] - y0) * inv - 0.5
+        px = points[i, 0]
+        py = points[i, 1]
+        pz = points[i, 2]
+        out[i, 0] = px
+        out[i, 1] = py
+        if ncol == 5:                                   # a model input: the common case
+            out[i, 3] = points[i, 3]
+            out[i, 4] = points[i, 4]
+        else:
+            for j in range(3, ncol):
+                out[i, j] = points[i, j]
+        u = (px - x0) * inv - 0.5
+        v = (py - y0) * inv - 0.5
         if not (abs(u) < 1e9 and abs(v) < 1e9):        # NaN or infinite
+            out[i, 2] = pz
             continue
         u = min(max(u, 0.0), umax)
         v = min(max(v, 0.0), vmax)
@@ -554,7 +566,7 @@ def level_heights(points: Any, ground: Any, x0: float, y0: float, cell: float,
         b = v - iy
         g = ((1 - a) * (1 - b) * ground[iy, ix] + a * (1 - b) * ground[iy, ix + 1]
              + (1 - a) * b * ground[iy + 1, ix] + a * b * ground[iy + 1, ix + 1])
-        out[i, 2] = points[i, 2] - g
+        out[i, 2] = pz - g
 
 
 def warm_up() -> None:
