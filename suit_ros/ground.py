@@ -109,13 +109,17 @@ class LocalGround:
         return -out[:, 2]
 
 
-def _neighbour_median(z: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Per cell, the median of the finite values among its 8 neighbours (NaN: none)."""
+def _neighbours(z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(8, ny, nx)``: each cell's 8 neighbours (NaN off the grid)."""
     ny, nx = z.shape
     pad = np.pad(z, 1, constant_values=np.nan)
-    stack = np.sort(np.stack([pad[1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
-                              for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]),
-                    axis=0)                                      # NaNs sort last
+    return np.stack([pad[1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
+                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx])
+
+
+def _neighbour_median(z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Per cell, the median of the finite values among its 8 neighbours (NaN: none)."""
+    stack = np.sort(_neighbours(z), axis=0)                        # NaNs sort last
     n = np.isfinite(stack).sum(axis=0)
     lo = np.take_along_axis(stack, np.maximum(n - 1, 0)[None] // 2, axis=0)[0]
     hi = np.take_along_axis(stack, (n // 2)[None], axis=0)[0]
@@ -127,14 +131,11 @@ def _fill(z: NDArray[np.float64], rounds: int = 4) -> NDArray[np.float64]:
     """NaN cells take the mean of their finite neighbours, growing inwards ``rounds`` times;
     what is still unknown after that is 0 (the vehicle's ground plane)."""
     z = z.copy()
-    ny, nx = z.shape
     for _ in range(rounds):
         missing = ~np.isfinite(z)
         if not missing.any():
             break
-        pad = np.pad(z, 1, constant_values=np.nan)
-        stack = np.stack([pad[1 + dy:1 + dy + ny, 1 + dx:1 + dx + nx]
-                          for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx])
+        stack = _neighbours(z)
         n = np.isfinite(stack).sum(axis=0)
         s = np.nansum(stack, axis=0)
         grow = missing & (n > 0)
