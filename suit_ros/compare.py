@@ -13,7 +13,10 @@ checkpoint changed in one way:
 - ``tracking``: the node's tracker over the detections (velocities, scores, ids);
 - ``overhead``: the drives with canopies and awnings over their objects
   (:func:`suit_ros.data.overhead.overhead_drives`, fixed draws);
-- ``ground local``: the input leveled to its local ground (:mod:`suit_ros.ground`).
+- ``ground local``: the input leveled to its local ground (:mod:`suit_ros.ground`);
+- ``overhang drop``: the returns that hang over a gap in their column dropped
+  (:mod:`suit_ros.overhang`), and ``overhead, overhang drop``: the same on the drives with
+  canopies and awnings.
 
 Paired differences (same drive resamples): every checkpoint against the first, each variant
 against its checkpoint (``memory dropped`` and ``zero displacement`` as checkpoint minus
@@ -40,7 +43,7 @@ from suit_ros.model.inference import PrecisionChoice
 from suit_ros.structures import Frame
 
 VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking',
-            'overhead', 'ground local')
+            'overhead', 'ground local', 'overhang drop', 'overhead, overhang drop')
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
@@ -83,6 +86,10 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
     if variant == 'overhead':
         from suit_ros.data.overhead import overhead_drives
         return run_model(model, overhead_drives(sequences), **kwargs)
+    if variant in ('overhang drop', 'overhead, overhang drop'):
+        from suit_ros.data.overhead import overhead_drives
+        drives = sequences if variant == 'overhang drop' else overhead_drives(sequences)
+        return run_model(model, drives, overhang='drop', **kwargs)
     if variant == 'ground local':
         return run_model(model, sequences, ground='local', **kwargs)
     raise ValueError(f'unknown variant {variant!r}; choose from {", ".join(VARIANTS)}')

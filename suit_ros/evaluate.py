@@ -22,6 +22,7 @@ from suit_ros.structures import Detections, Frame
 
 if TYPE_CHECKING:
     from suit_ros.ground import GroundMode
+    from suit_ros.overhang import OverhangMode
     from suit_ros.model.inference import PrecisionChoice
     from suit_ros.tracking import TrackerConfig
 
@@ -380,7 +381,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               history: int | None = None, drop_memory: bool = False,
               transform: Callable[[Frame], Frame] | None = None,
               precision: PrecisionChoice = 'float32',
-              tracker: TrackerConfig | None = None, ground: GroundMode = 'as_given') -> ModelRun:
+              tracker: TrackerConfig | None = None, ground: GroundMode = 'as_given',
+              overhang: OverhangMode = 'keep') -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -393,11 +395,12 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param tracker: the streaming detector's (:mod:`suit_ros.tracking`); None: the
         head's velocities.
     :param ground: the input's height reference (:mod:`suit_ros.ground`).
+    :param overhang: keep or drop the returns that hang (:mod:`suit_ros.overhang`).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
     runner = StreamingDetector(model, device, precision=precision,
-                               tracker=tracker, ground=ground)
+                               tracker=tracker, ground=ground, overhang=overhang)
     out = ModelRun([], [], [], [], [], {})
     for drive, seq in enumerate(sequences):
         runner.reset('new sequence')

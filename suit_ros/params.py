@@ -22,6 +22,7 @@ PointsQoS = Literal['auto', 'sensor_data', 'reliable']
 Device = Literal['auto', 'cpu', 'cuda']
 PrecisionParam = Literal['auto', 'float32', 'bfloat16']
 GroundParam = Literal['as_given', 'local']       # suit_ros.ground.GroundMode
+OverhangParam = Literal['keep', 'drop']          # suit_ros.overhang.OverhangMode
 Vector3 = tuple[float, float, float]
 
 

@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from suit_ros.errors import ConfigError, DatasetError
 from suit_ros.ground import GROUND_MODES
+from suit_ros.overhang import OVERHANG_MODES
 from suit_ros.structures import Detections
 
 SWEEP = tuple(round(0.1 + 0.05 * i, 2) for i in range(18))     # 0.10 .. 0.95
@@ -281,6 +282,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="the model's own output (the node tracks by default)")
     parser.add_argument('--ground', choices=list(GROUND_MODES), default='as_given',
                         help="the input's height reference (the node's `ground` parameter)")
+    parser.add_argument('--overhang', choices=list(OVERHANG_MODES), default='keep',
+                        help='keep or drop the returns that hang over a gap in their column '
+                        "(the node's `overhang` parameter)")
     parser.add_argument('--max-range', type=float, default=50.0, help='scored range (m)')
     parser.add_argument('--match-dist', type=float, default=2.0, help='BEV centre distance (m)')
     parser.add_argument('--pictures', type=int, default=50,
@@ -333,11 +337,14 @@ def run(args: argparse.Namespace) -> int:
     if not seqs or not any(len(s) for s in seqs):
         raise DatasetError('the dataset holds no frame')
     filt = None if args.no_tracking else TrackerConfig()
-    result = run_model(model, seqs, tracker=filt, ground=args.ground)
+    result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang)
     notes = ['as the node by default: 3 sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.ground != 'as_given':
         notes.append(f'input heights: ground {args.ground} (suit_ros/ground.py)')
+    if args.overhang != 'keep':
+        notes.append(f'overhang {args.overhang}: the returns that hang over a gap in their '
+                     'column (suit_ros/overhang.py)')
     if args.kitti:
         from suit_ros.data.kitti import camera_fov_run
         result = camera_fov_run(result, seqs)
