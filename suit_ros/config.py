@@ -13,6 +13,7 @@ import yaml
 
 from suit_ros import CLASS_NAMES
 from suit_ros.errors import ConfigError
+from suit_ros.params import OverhangParam
 
 TemporalMode = Literal['none', 'dense', 'sparse', 'sparse_velocity', 'suit']
 Relaxation = Literal['square', 'circle', 'rectangle']
@@ -49,6 +50,9 @@ class PillarConfig:
     # deterministic pseudo-random subset of this expected size, as PointPillars caps its
     # pillars; the near field of a 64-beam sensor holds hundreds of points per pillar
     max_points_per_pillar: int = 0
+    # keep: every return; drop: the returns that hang over a gap in their column (canopies,
+    # awnings) removed before the encoder, in training and inference (suit_ros/overhang.py)
+    overhang: OverhangParam = 'keep'
 
 
 @dataclass(frozen=True)

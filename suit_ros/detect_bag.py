@@ -17,7 +17,7 @@ from typing import Any, get_args
 import numpy as np
 
 from suit_ros.errors import BagError, ConfigError
-from suit_ros.params import DetectorParams, GroundParam
+from suit_ros.params import DetectorParams, GroundParam, OverhangChoice
 
 DET_TOPIC = '/detector/detections'
 MARKER_TOPIC = '/detector/markers'
@@ -40,6 +40,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='default: auto (bfloat16 on a CPU with bfloat16 units)')
     parser.add_argument('--ground', default=None, choices=get_args(GroundParam),
                         help="the input's height reference (the node's ground parameter)")
+    parser.add_argument('--overhang', default=None, choices=get_args(OverhangChoice),
+                        help="the returns that hang over a gap in their column (the node's "
+                        'overhang parameter)')
     parser.add_argument('--intensity-scale', type=float,
                         help='intensity / scale -> 0..1 (1 for 0..1 reflectance)')
     parser.add_argument('--score-threshold', type=float, nargs='+', metavar='T',
@@ -60,7 +63,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 FLAG_PARAMS = {'checkpoint': 'checkpoint', 'device': 'device', 'precision': 'precision',
-               'ground': 'ground',
+               'ground': 'ground', 'overhang': 'overhang',
                'points_topic': 'points_topic',
                'odom_topic': 'odom_topic', 'intensity_scale': 'intensity_scale',
                'intensity_field': 'intensity_field',

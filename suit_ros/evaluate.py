@@ -22,8 +22,8 @@ from suit_ros.structures import Detections, Frame
 
 if TYPE_CHECKING:
     from suit_ros.ground import GroundMode
-    from suit_ros.overhang import OverhangMode
     from suit_ros.model.inference import PrecisionChoice
+    from suit_ros.overhang import OverhangMode
     from suit_ros.tracking import TrackerConfig
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
@@ -382,7 +382,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               transform: Callable[[Frame], Frame] | None = None,
               precision: PrecisionChoice = 'float32',
               tracker: TrackerConfig | None = None, ground: GroundMode = 'as_given',
-              overhang: OverhangMode = 'keep') -> ModelRun:
+              overhang: OverhangMode | None = None) -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -395,7 +395,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param tracker: the streaming detector's (:mod:`suit_ros.tracking`); None: the
         head's velocities.
     :param ground: the input's height reference (:mod:`suit_ros.ground`).
-    :param overhang: keep or drop the returns that hang (:mod:`suit_ros.overhang`).
+    :param overhang: keep or drop the returns that hang (:mod:`suit_ros.overhang`; None: as
+        the checkpoint says).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training

@@ -8,13 +8,14 @@ one heatmap peak from 0.10 to 0.42, and a synthetic pedestrian that scores 0.46-
 0.05-0.22 under one real pedestrian's canopy (docs/experiments/overhead). The synthetic world
 the model learned from has nothing over its sidewalks.
 
-``overhang: drop`` removes, before the model, the returns that hang over a vertical gap in
-their column: per column of the model's pillar grid, a return at or above ``z_drop`` (2.0 m
-above base_link's ground plane: higher than a pedestrian, a cyclist or a car) is dropped when
-its column has ``gap`` metres without returns between ``z_from`` (0.3 m, above the road and
-the curbs) and it. What stands on the ground keeps every return (a wall, a truck's side, a
-pole: no gap); what floats goes (a canopy over a pedestrian, an awning over a parked car, a
-tree's crown over the road, an overhead sign). The ground is the one the model sees: with
+``overhang: drop`` removes, before the model, the returns that float: per column of the
+model's pillar grid, its returns are split into stacks wherever ``gap`` (0.5 m) of height has
+none, and the returns of a stack that starts ``height`` (2.0 m) or more above base_link's
+ground plane are dropped: higher than a pedestrian, a cyclist or a car reaches, so nothing
+the model detects starts there. What stands on the ground keeps every return (a wall, a
+pole, a truck's side, a trailer over its open underside: stacks that start low); what hangs
+goes (a canopy or an awning over a pedestrian or a parked car, a tree's crown over the road,
+an overhead sign, a bus roof above its windows). The ground is the one the model sees: with
 ``ground: local`` the input is leveled first.
 
 What it costs in accuracy and what it gains, on the synthetic validation drives with and
@@ -40,31 +41,30 @@ class Overhang:
     :param point_range: the model's ``x0, y0, z0, x1, y1, z1`` (the columns span its xy; the
         heights its z).
     :param size: column size (m): the model's pillar size.
-    :param z_from: gaps count from this height up (m).
-    :param gap: metres without returns below a return that make it hang.
-    :param z_drop: returns below this height are always kept (m).
+    :param gap: metres without returns that split a column's returns into stacks.
+    :param height: a stack that starts this high (m) or higher is dropped.
     """
 
     def __init__(self, point_range: tuple[float, ...] | list[float], size: float,
-                 z_from: float = 0.3, gap: float = 0.5, z_drop: float = 2.0) -> None:
+                 gap: float = 0.5, height: float = 2.0) -> None:
         x0, y0, z0, x1, y1, z1 = (float(v) for v in point_range)
-        if not size > 0 or not gap > 0 or not z_drop > z_from:
-            raise ValueError(f'Overhang: size > 0, gap > 0 and z_drop > z_from needed, got '
-                             f'{size}, {gap}, {z_drop} and {z_from}')
+        if not size > 0 or not gap > 0 or not z0 < height < z1:
+            raise ValueError(f'Overhang: size > 0, gap > 0 and a height within the range '
+                             f'({z0}, {z1}) needed, got {size}, {gap} and {height}')
         self.x0, self.y0, self.size = x0, y0, float(size)
         self.nx = max(1, int(np.ceil((x1 - x0) / size)))
         self.ny = max(1, int(np.ceil((y1 - y0) / size)))
         self.zlo = max(z0, z1 - 64 * OVERHANG_BIN_M)     # the top 6.4 m (below: the road)
         self.n_bins = max(1, int(np.ceil((z1 - self.zlo) / OVERHANG_BIN_M)))
-        self.z_from, self.z_drop = float(z_from), float(z_drop)
         self.gap_bins = max(1, int(round(gap / OVERHANG_BIN_M)))
+        self.height = float(height)
+        self.b_float = max(0, int(round((height - self.zlo) / OVERHANG_BIN_M)))
         self.dropped = 0            # returns the last call dropped
 
     def keep(self, points: NDArray[np.float32]) -> NDArray[np.bool_]:
         """``(N,)`` bool: the returns of ``(N, >= 3)`` points that do not hang."""
         keep, dropped = overhang_keep(points, self.x0, self.y0, self.size, self.nx, self.ny,
-                                      self.zlo, self.n_bins, self.z_from, self.gap_bins,
-                                      self.z_drop)
+                                      self.zlo, self.n_bins, self.gap_bins, self.b_float)
         self.dropped = int(dropped)
         return np.asarray(keep)
 

@@ -23,6 +23,7 @@ Device = Literal['auto', 'cpu', 'cuda']
 PrecisionParam = Literal['auto', 'float32', 'bfloat16']
 GroundParam = Literal['as_given', 'local']       # suit_ros.ground.GroundMode
 OverhangParam = Literal['keep', 'drop']          # suit_ros.overhang.OverhangMode
+OverhangChoice = Literal['checkpoint', 'keep', 'drop']   # the node's: 'checkpoint' as it says
 Vector3 = tuple[float, float, float]
 
 
@@ -86,6 +87,11 @@ class DetectorParams:
         'ground estimated around each point (sloped roads, an extrinsic height a little off; '
         'boxes put back on the road); a change resets the memory',
         choices=get_args(GroundParam)))
+    overhang: OverhangChoice = field(default='checkpoint', metadata=_spec(
+        'checkpoint | keep | drop: the returns that hang over a gap in their column '
+        "(canopies, awnings, signal arms over the objects) as the checkpoint's config says, "
+        'kept, or dropped before the model; a change resets the memory',
+        choices=get_args(OverhangChoice)))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
     max_range: float = field(default=80.0, metadata=_spec(
@@ -166,6 +172,11 @@ class DetectorParams:
     def ego_box_enabled(self) -> bool:
         """Whether the ego crop box is a real box."""
         return all(hi > lo for lo, hi in zip(self.ego_box_min, self.ego_box_max))
+
+    def overhang_mode(self) -> OverhangParam | None:
+        """``overhang`` for :class:`~suit_ros.model.streaming.StreamingDetector` (None: the
+        checkpoint's)."""
+        return None if self.overhang == 'checkpoint' else self.overhang
 
     def class_thresholds(self, num_classes: int) -> list[float] | None:
         """Per-class thresholds for ``StreamingDetector.set_thresholds`` (None: default)."""

@@ -53,7 +53,8 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
            or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
     from suit_ros.checkpoint import published_thresholds
     model, cfg, meta = load_checkpoint(params.checkpoint, dev)
-    runner = StreamingDetector(model, dev, precision=params.precision)
+    runner = StreamingDetector(model, dev, precision=params.precision,
+                               overhang=params.overhang_mode())
     # the first clouds are not slower than the rest (compiled kernels, oneDNN primitives)
     runner.warm_up()
     runner.published_thresholds = published_thresholds(meta, cfg.class_names)
@@ -141,6 +142,11 @@ class DetectionPipeline:
             self.detector.set_ground(params.ground)
             if self.last_stamp_ns is not None:      # the memory was made on other heights
                 self.reset('ground changed')
+        if params.overhang != old.overhang:
+            before = self.detector.overhang
+            self.detector.set_overhang(params.overhang_mode())
+            if self.detector.overhang != before and self.last_stamp_ns is not None:
+                self.reset('overhang changed')
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,

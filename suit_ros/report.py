@@ -282,9 +282,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="the model's own output (the node tracks by default)")
     parser.add_argument('--ground', choices=list(GROUND_MODES), default='as_given',
                         help="the input's height reference (the node's `ground` parameter)")
-    parser.add_argument('--overhang', choices=list(OVERHANG_MODES), default='keep',
+    parser.add_argument('--overhang', choices=list(OVERHANG_MODES), default=None,
                         help='keep or drop the returns that hang over a gap in their column '
-                        "(the node's `overhang` parameter)")
+                        "(the node's `overhang` parameter; default: as the checkpoint says)")
     parser.add_argument('--max-range', type=float, default=50.0, help='scored range (m)')
     parser.add_argument('--match-dist', type=float, default=2.0, help='BEV centre distance (m)')
     parser.add_argument('--pictures', type=int, default=50,
@@ -342,7 +342,7 @@ def run(args: argparse.Namespace) -> int:
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.ground != 'as_given':
         notes.append(f'input heights: ground {args.ground} (suit_ros/ground.py)')
-    if args.overhang != 'keep':
+    if args.overhang is not None:
         notes.append(f'overhang {args.overhang}: the returns that hang over a gap in their '
                      'column (suit_ros/overhang.py)')
     if args.kitti:

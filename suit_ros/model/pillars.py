@@ -14,6 +14,7 @@ import torch
 from torch import Tensor, nn
 
 from suit_ros.model.grid import BEVGrid
+from suit_ros.overhang import OVERHANG_MODES, Overhang, OverhangMode
 
 
 class PillarEncoder(nn.Module):
@@ -26,13 +27,16 @@ class PillarEncoder(nn.Module):
     :param time_scale: the time lag (input channel 4) is multiplied by this; applied to the
         linear layer's lag column, so it costs nothing per point. A checkpoint trained at
         another scale is moved to this one by :meth:`rescale_time_weights`.
+    :param overhang: ``drop``: the returns that hang over a gap in their column are removed
+        from every cloud before it is encoded (:mod:`suit_ros.overhang`); ``keep``: none.
     """
 
     TIME_CHANNEL = 4
     CHUNK = 32768                # points per product in the inference path (see _folded_pillars)
 
     def __init__(self, grid: BEVGrid, in_channels: int = 5, channels: int = 32,
-                 time_scale: float = 1.0, max_points: int = 0) -> None:
+                 time_scale: float = 1.0, max_points: int = 0,
+                 overhang: OverhangMode = 'keep') -> None:
         super().__init__()
         self.max_points = max_points
         self.grid = grid
@@ -45,6 +49,25 @@ class PillarEncoder(nn.Module):
         # the pseudo-image's dtype (None: the pillar features'); an inference copy that runs
         # the backbone in bfloat16 writes it in bfloat16 directly
         self.canvas_dtype: torch.dtype | None = None
+        self.set_overhang(overhang)
+
+    def set_overhang(self, overhang: OverhangMode) -> None:
+        """Keep or drop the returns that hang over a gap in their column (see ``overhang``)."""
+        if overhang not in OVERHANG_MODES:
+            raise ValueError(f'overhang must be one of {OVERHANG_MODES}, got {overhang!r}')
+        self.overhang: OverhangMode = overhang
+        self._overhang = (Overhang(self.grid.point_range, self.grid.pillar_size)
+                          if overhang == 'drop' else None)
+
+    def unhung(self, cloud: Tensor) -> Tensor:
+        """``cloud`` ``(N, >= 3)`` without the returns that hang (itself with ``keep``, or
+        when none hang)."""
+        if self._overhang is None or not len(cloud):
+            return cloud
+        keep = self._overhang.keep(cloud.detach().cpu().float().numpy())
+        if self._overhang.dropped == 0:
+            return cloud
+        return cloud.index_select(0, torch.from_numpy(np.flatnonzero(keep)).to(cloud.device))
 
     # (layer, norm) attribute pairs an inference copy may fold (suit_ros.model.inference)
     fold_pairs = (('linear', 'norm'),)
@@ -157,6 +180,7 @@ class PillarEncoder(nn.Module):
         (the tests compare), which every other case runs.
         """
         g = self.grid
+        clouds = [self.unhung(c) for c in clouds]
         if not self.compiled(clouds):
             rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
                     for i, pts in enumerate(clouds)]

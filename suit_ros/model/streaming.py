@@ -14,12 +14,12 @@ from numpy.typing import NDArray
 import torch
 
 from suit_ros.ground import GROUND_MODES, GroundMode, LocalGround
-from suit_ros.overhang import OVERHANG_MODES, Overhang, OverhangMode
 from suit_ros.model.detector import Memory, SUITDetector
 from suit_ros.model.fusion import BranchTerms, PastTerm
 from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
 from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
 from suit_ros.ops.geometry import count_points_in_boxes
+from suit_ros.overhang import OverhangMode
 from suit_ros.structures import Detections
 from suit_ros.tracking import Tracker, TrackerConfig, track_step
 
@@ -68,7 +68,8 @@ class StreamingDetector:
         ``local``: leveled to the ground estimated under each point before the model sees
         them, the boxes put back on it (:mod:`suit_ros.ground`).
     :param overhang: ``keep``: every return; ``drop``: the returns that hang over a gap in
-        their column (canopies, awnings) removed before the model (:mod:`suit_ros.overhang`).
+        their column (canopies, awnings) removed before the model (:mod:`suit_ros.overhang`);
+        None: as the checkpoint's config says (``pillars.overhang``).
     """
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
@@ -76,7 +77,7 @@ class StreamingDetector:
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
                  candidates: int | None = None, precision: PrecisionChoice = 'float32',
                  tracker: TrackerConfig | None = None, ground: GroundMode = 'as_given',
-                 overhang: OverhangMode = 'keep') -> None:
+                 overhang: OverhangMode | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
         self.precision = resolve_precision(precision, self.device)
         # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
@@ -141,14 +142,16 @@ class StreamingDetector:
         self._ground = (LocalGround(self.cfg.pillars.point_range) if ground == 'local'
                         else None)
 
-    def set_overhang(self, overhang: OverhangMode) -> None:
-        """Keep or drop the returns that hang over a gap in their column (see ``overhang``)."""
-        if overhang not in OVERHANG_MODES:
-            raise ValueError(f'overhang must be one of {OVERHANG_MODES}, got {overhang!r}')
-        self.overhang: OverhangMode = overhang
-        p = self.cfg.pillars
-        self._overhang = (Overhang(p.point_range, p.pillar_size) if overhang == 'drop'
-                          else None)
+    def set_overhang(self, overhang: OverhangMode | None) -> None:
+        """Keep or drop the returns that hang over a gap in their column (see ``overhang``;
+        None: the checkpoint's choice)."""
+        self.model.pillars.set_overhang(self.cfg.pillars.overhang if overhang is None
+                                        else overhang)
+
+    @property
+    def overhang(self) -> OverhangMode:
+        """Whether the returns that hang are kept or dropped now."""
+        return self.model.pillars.overhang
 
     def set_tracker(self, config: TrackerConfig | None) -> None:
         """Turn the tracker on (with ``config``; tracks kept when it is unchanged) or
@@ -239,8 +242,6 @@ class StreamingDetector:
         model_points = self.sweeps.push(pts, T_ol, stamp_ns, T_bl)
         if self._ground is not None:
             model_points = self._ground.level(model_points)
-        if self._overhang is not None:
-            model_points = self._overhang(model_points)
         tensor = torch.from_numpy(model_points).to(self.device)
         t1 = self._sync()
         current, observed = m.encode_observed([tensor])

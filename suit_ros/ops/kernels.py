@@ -574,20 +574,22 @@ OVERHANG_BIN_M = 0.1     # the overhang filter's height bin (m); 64 bins a colum
 
 @_jit
 def overhang_keep(points: Any, x0: float, y0: float, size: float, nx: int, ny: int,
-                  zlo: float, n_bins: int, z_from: float, gap_bins: int,
-                  z_drop: float) -> Any:  # pragma: no cover
-    """Which points to keep when returns that hang over a gap in their column are dropped
+                  zlo: float, n_bins: int, gap_bins: int, b_float: int
+                  ) -> Any:  # pragma: no cover
+    """Which points to keep when the returns that hang are dropped
     (:class:`suit_ros.overhang.Overhang`): per column of a ``(ny, nx)`` grid of ``size`` m
-    from ``(x0, y0)``, the occupied ``OVERHANG_BIN_M`` height bins from ``zlo`` (``n_bins``
-    <= 64, one bit each); a point at or above ``z_drop`` is dropped when its column has
-    ``gap_bins`` empty bins in a row between ``z_from`` and the point. Points outside the
-    grid or the bins are kept. :return: ``(N,)`` bool, and the number dropped."""
+    from ``(x0, y0)``, its occupied ``OVERHANG_BIN_M`` height bins from ``zlo`` (``n_bins``
+    <= 64, one bit each) split into stacks at every ``gap_bins`` empty bins in a row; a point
+    is dropped when its stack starts at bin ``b_float`` or higher. Points outside the grid or
+    the bins (or not finite) are kept. :return: ``(N,)`` bool, and the number dropped."""
     n = points.shape[0]
     occ = np.zeros(nx * ny, np.uint64)
     cell = np.full(n, -1, np.int64)
+    level = np.zeros(n, np.int64)
     inv = 1.0 / size
     inv_bin = 1.0 / OVERHANG_BIN_M
-    tall = False
+    one = np.uint64(1)
+    high = False
     for i in range(n):
         fx = (points[i, 0] - x0) * inv
         fy = (points[i, 1] - y0) * inv
@@ -595,36 +597,39 @@ def overhang_keep(points: Any, x0: float, y0: float, size: float, nx: int, ny: i
         if not (fx >= 0 and fx < nx and fy >= 0 and fy < ny and fz >= 0 and fz < n_bins):
             continue
         c = int(fy) * nx + int(fx)
+        b = int(fz)
         cell[i] = c
-        occ[c] |= np.uint64(1) << np.uint64(int(fz))
-        if points[i, 2] >= z_drop:
-            tall = True
+        level[i] = b
+        occ[c] |= one << np.uint64(b)
+        if b >= b_float:
+            high = True
     keep = np.ones(n, np.bool_)
-    if not tall:
+    if not high:
         return keep, 0
-    b_from = max(0, int(np.ceil((z_from - zlo) * inv_bin)))
-    # per column, the first bin above ``gap_bins`` empty ones that start at or above
-    # ``b_from`` (n_bins: none); computed for the columns a tall point is in
-    cut = np.full(nx * ny, -1, np.int64)
+    # per column, the bins whose stack starts at b_float or higher (one bit each); built
+    # for the columns a high point is in
+    floating = np.zeros(nx * ny, np.uint64)
+    done = np.zeros(nx * ny, np.bool_)
     dropped = 0
     for i in range(n):
         c = cell[i]
-        if c < 0 or points[i, 2] < z_drop:
+        if c < 0 or level[i] < b_float:
             continue
-        if cut[c] < 0:
+        if not done[c]:
+            done[c] = True
             bits = occ[c]
-            run = 0
-            first = n_bins
-            for b in range(b_from, n_bins):
-                if (bits >> np.uint64(b)) & np.uint64(1):
-                    if run >= gap_bins:
-                        first = b
-                        break
-                    run = 0
-                else:
-                    run += 1
-            cut[c] = first
-        if int((points[i, 2] - zlo) * inv_bin) >= cut[c]:
+            start = -1
+            last = -n_bins - 1
+            mask = np.uint64(0)
+            for b in range(n_bins):
+                if (bits >> np.uint64(b)) & one:
+                    if b - last - 1 >= gap_bins:
+                        start = b
+                    last = b
+                    if start >= b_float:
+                        mask |= one << np.uint64(b)
+            floating[c] = mask
+        if (floating[c] >> np.uint64(level[i])) & one:
             keep[i] = False
             dropped += 1
     return keep, dropped
@@ -659,5 +664,5 @@ def warm_up() -> None:
     height_histograms(model_input, -1.0, -1.0, 1.0, 2, 2, -1.0, 4)
     level_heights(model_input, np.zeros((2, 2), np.float32), -1.0, -1.0, 1.0,
                   model_input.copy())
-    overhang_keep(model_input, -1.0, -1.0, 0.5, 4, 4, -1.0, 20, 0.3, 5, 2.0)
+    overhang_keep(model_input, -1.0, -1.0, 0.5, 4, 4, -1.0, 20, 5, 10)
     paired_bev_iou(np.ones((1, 7), np.float32), np.ones((1, 7), np.float32))
