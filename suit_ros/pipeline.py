@@ -142,11 +142,10 @@ class DetectionPipeline:
             self.detector.set_ground(params.ground)
             if self.last_stamp_ns is not None:      # the memory was made on other heights
                 self.reset('ground changed')
-        if params.overhang != old.overhang:
-            before = self.detector.overhang
-            self.detector.set_overhang(params.overhang_mode())
-            if self.detector.overhang != before and self.last_stamp_ns is not None:
-                self.reset('overhang changed')
+        before = self.detector.overhang
+        self.detector.set_overhang(params.overhang_mode())
+        if self.detector.overhang != before and self.last_stamp_ns is not None:
+            self.reset('overhang changed')     # the memory was made of other returns
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,

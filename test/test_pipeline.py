@@ -76,7 +76,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
-                       'intensity_field', 'tracking', 'track_score_mix', 'ground',
+                       'intensity_field', 'tracking', 'track_score_mix', 'ground', 'overhang',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -336,6 +336,42 @@ def test_ground_local_levels_the_input_and_a_change_resets(model, classes, scene
     assert pipe.detector.ground == 'as_given' and len(pipe.detector.sweeps) == 0
     with pytest.raises(Exception, match='ground must be one of'):
         pipe.configure(replace(pipe.params, ground='flat'))
+
+
+def test_overhang_drop_removes_a_canopy_and_a_change_resets(model, classes, scene):
+    """``overhang: drop``: a canopy over the scene's objects changes nothing the model sees;
+    ``keep`` lets it through; switching resets the memory; 'checkpoint' is the config's."""
+    # canopies over the columns (0.4 m, base_link: the LiDAR at 0.9, 0, 1.8) whose returns
+    # all lie below 1.3 m: 2.8-3.2 m up, clear of everything that stands
+    x, y, z = scene['x'] + 0.9, scene['y'], scene['z'] + 1.8
+    col = np.floor(np.c_[x, y] / 0.4).astype(int)
+    tall = {tuple(c) for c in col[z >= 1.3]}
+    low = np.array(sorted({tuple(c) for c in col} - tall))
+    rng = np.random.default_rng(0)
+    at = low[rng.integers(0, len(low), 4000)]
+    canopy = np.zeros(4000, scene.dtype)
+    canopy['x'], canopy['y'] = ((at + rng.uniform(0.05, 0.95, at.shape)) * 0.4).T
+    canopy['x'] -= 0.9
+    canopy['z'] = rng.uniform(2.8, 3.2, 4000) - 1.8
+    covered = np.concatenate([scene, canopy])
+
+    def boxes(overhang, array):
+        pipe = make_pipeline(model, classes, overhang=overhang, score_thresholds=(0.3,))
+        return pipe, pipe.process(cloud(classes, T0, array)).detections.boxes
+
+    pipe, clear = boxes('drop', scene)
+    assert pipe.detector.overhang == 'drop' and len(clear) >= 3
+    _, dropped = boxes('drop', covered)
+    _, kept = boxes('keep', covered)
+    np.testing.assert_array_equal(dropped, clear)
+    assert kept.shape != clear.shape or not np.array_equal(kept, clear)
+    resets = pipe.resets
+    pipe.configure(replace(pipe.params, overhang='keep'))
+    assert pipe.resets == resets + 1 and pipe.last_reset_reason == 'overhang changed'
+    pipe.configure(replace(pipe.params, overhang='checkpoint'))
+    assert pipe.detector.overhang == model.cfg.pillars.overhang
+    with pytest.raises(Exception, match='overhang must be one of'):
+        pipe.configure(replace(pipe.params, overhang='cut'))
 
 
 def test_odometry_tolerance_and_buffer(model, classes):
