@@ -184,8 +184,8 @@ class PillarEncoder(nn.Module):
         (the tests compare), which every other case runs.
         """
         g = self.grid
-        clouds = [self.unhung(c) for c in clouds]
         if not self.compiled(clouds):
+            clouds = [self.unhung(c) for c in clouds]
             rows = [torch.cat([pts.new_full((pts.shape[0], 1), float(i)), pts], dim=1)
                     for i, pts in enumerate(clouds)]
             bev: Tensor = self(torch.cat(rows, dim=0), len(clouds))
@@ -203,8 +203,12 @@ class PillarEncoder(nn.Module):
                 if canvas.dtype == torch.bfloat16 else canvas.numpy())
         occupied = torch.zeros(len(clouds) * cells, dtype=torch.bool) if occupancy else None
         for b, pts in enumerate(clouds):
-            keys, mean, top = pillar_max(pts.numpy(), g.point_range, g.pillar_size, g.nx, g.ny,
-                                         A)
+            points = pts.numpy()
+            # the returns that hang are left out of the pillars, not copied out of the cloud
+            keep = (self._overhang.keep(points)
+                    if self._overhang is not None and len(points) else None)
+            keys, mean, top = pillar_max(points, g.point_range, g.pillar_size, g.nx, g.ny, A,
+                                         keep)
             pillar_features(top, mean, keys, W, bias,
                             (g.point_range[0], g.point_range[1], g.pillar_size, g.nx, g.ny),
                             image, b * cells, None if occupied is None else occupied.numpy())

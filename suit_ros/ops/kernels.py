@@ -80,11 +80,12 @@ def transform_sweep(src: Any, R: Any, t: Any, lag: Any, out: Any) -> None:  # pr
 
 
 @_jit
-def _pillar_ids(points: Any, lo: Any, hi: Any, size: Any, nx: int, ny: int
+def _pillar_ids(points: Any, lo: Any, hi: Any, size: Any, nx: int, ny: int, keep: Any
                 ) -> tuple[Any, Any]:  # pragma: no cover
-    """Each point's pillar (-1 out of range; pillars numbered in order of first appearance)
-    and each pillar's cell ``iy * nx + ix``."""
+    """Each point's pillar (-1 out of range, or not kept where ``keep`` has entries; pillars
+    numbered in order of first appearance) and each pillar's cell ``iy * nx + ix``."""
     n = points.shape[0]
+    masked = keep.shape[0] > 0
     cell_pillar = np.full(nx * ny, -1, np.int32)
     pid = np.empty(n, np.int32)
     U = 0
@@ -94,6 +95,8 @@ def _pillar_ids(points: Any, lo: Any, hi: Any, size: Any, nx: int, ny: int
         y = points[i, 1]
         z = points[i, 2]
         pid[i] = -1
+        if masked and not keep[i]:
+            continue
         if x >= l0 and x < h0 and y >= l1 and y < h1 and z >= l2 and z < h2:
             k = min(int((y - l1) / size), ny - 1) * nx + min(int((x - l0) / size), nx - 1)
             if cell_pillar[k] < 0:
@@ -199,13 +202,14 @@ def _pillar_features(top: Any, mm: Any, cells: Any, nx: int, ny: int, lo: Any, s
 
 
 def pillar_max(points: NDArray[np.float32], point_range: tuple[float, ...], size: float,
-               nx: int, ny: int, A: NDArray[np.float32]
+               nx: int, ny: int, A: NDArray[np.float32], keep: NDArray[np.bool_] | None = None
                ) -> tuple[NDArray[np.int64], NDArray[np.float32], NDArray[np.float32]]:
     """Pillarize one cloud and reduce it per pillar, in two passes over its points.
 
     :param points: ``(N, 5)`` float32: x, y, z, intensity, time lag.
     :param point_range: x0, y0, z0, x1, y1, z1; a point is in range when ``lo <= p < hi``.
     :param A: ``(5, C)`` float32, the per-point linear map.
+    :param keep: ``(N,)`` bool: only these points (the same result as ``points[keep]``).
     :return: each occupied pillar's cell ``iy * nx + ix`` ``(U,)``, its points' mean xyz
         ``(U, 3)`` and ``max_i points[i] @ A`` over its points ``(U, C)``, pillars in order
         of first appearance.
@@ -215,7 +219,10 @@ def pillar_max(points: NDArray[np.float32], point_range: tuple[float, ...], size
     if pts.ndim != 2 or pts.shape[1] != 5 or A.shape[0] != 5:
         raise ValueError(f'pillar_max takes (N, 5) points and a (5, C) map, got {pts.shape} '
                          f'and {A.shape}')
-    pid, cells = _pillar_ids(pts, r[:3], r[3:], np.float32(size), int(nx), int(ny))
+    if keep is not None and len(keep) != len(pts):
+        raise ValueError(f'pillar_max: {len(keep)} keep flags for {len(pts)} points')
+    pid, cells = _pillar_ids(pts, r[:3], r[3:], np.float32(size), int(nx), int(ny),
+                             np.zeros(0, np.bool_) if keep is None else keep)
     mean, top = _pillar_reduce(pts, pid, len(cells), np.ascontiguousarray(A, np.float32))
     return cells, mean, top
 
@@ -663,6 +670,8 @@ def warm_up() -> None:
     transform_sweep(model_input, R, t, lag, model_input.copy())
     cells, mean, top = pillar_max(model_input, (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0), 0.5, 4, 4,
                                   np.zeros((5, 2), np.float32))
+    pillar_max(model_input, (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0), 0.5, 4, 4,
+               np.zeros((5, 2), np.float32), np.ones(4, np.bool_))
     W = np.zeros((2, 10), np.float32)
     for rows in (np.zeros((16, 2), np.float32), np.zeros((16, 2), np.uint16)):
         for occupied in (None, np.zeros(16, bool)):
