@@ -31,6 +31,10 @@ def test_flags_override_the_yaml_which_overrides_defaults(tmp_path):
     assert p.extrinsic_rpy == (0.0, 0.1, 0.0)
     assert p.precision == 'auto'
     assert params_from_args(parse('--precision', 'float32')).precision == 'float32'
+    assert params_from_args(parse()).overhang == 'checkpoint'
+    assert params_from_args(parse('--overhang', 'drop', '--ground', 'local')).overhang == 'drop'
+    with pytest.raises(SystemExit):
+        parse('--overhang', 'cut')
     with pytest.raises(SystemExit):
         parse('--precision', 'float16')
     with pytest.raises(ConfigError, match='min_range'):
