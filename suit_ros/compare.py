@@ -83,13 +83,12 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         return run_model(model, sequences, precision='bfloat16')
     if variant == 'tracking':
         return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
-    if variant == 'overhead':
+    if variant in ('overhead', 'overhang drop', 'overhead, overhang drop'):
         from suit_ros.data.overhead import overhead_drives
-        return run_model(model, overhead_drives(sequences), **kwargs)
-    if variant in ('overhang drop', 'overhead, overhang drop'):
-        from suit_ros.data.overhead import overhead_drives
-        drives = sequences if variant == 'overhang drop' else overhead_drives(sequences)
-        return run_model(model, drives, overhang='drop', **kwargs)
+        drives = overhead_drives(sequences) if variant.startswith('overhead') else sequences
+        if 'overhang drop' in variant:
+            kwargs['overhang'] = 'drop'
+        return run_model(model, drives, **kwargs)
     if variant == 'ground local':
         return run_model(model, sequences, ground='local', **kwargs)
     raise ValueError(f'unknown variant {variant!r}; choose from {", ".join(VARIANTS)}')

@@ -28,7 +28,7 @@ from typing import TypeAlias, get_args
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.kernels import OVERHANG_BIN_M, kept_rows, overhang_keep
+from suit_ros.ops.kernels import OVERHANG_BIN_M, overhang_keep
 from suit_ros.params import OverhangParam
 
 OverhangMode: TypeAlias = OverhangParam     # one definition: the node parameter's
@@ -71,7 +71,4 @@ class Overhang:
     def __call__(self, points: NDArray[np.float32]) -> NDArray[np.float32]:
         """The points without the returns that hang (the same array when none do)."""
         keep = self.keep(points)
-        if self.dropped == 0:
-            return points
-        rows: NDArray[np.float32] = kept_rows(points, keep, len(points) - self.dropped)
-        return rows
+        return points if self.dropped == 0 else points[keep]

@@ -64,10 +64,6 @@ class PillarEncoder(nn.Module):
         when none hang)."""
         if self._overhang is None or not len(cloud):
             return cloud
-        if cloud.device.type == 'cpu' and cloud.dtype == torch.float32 and not cloud.requires_grad:
-            points = cloud.contiguous().numpy()
-            kept = self._overhang(points)
-            return cloud if kept is points else torch.from_numpy(kept)
         keep = self._overhang.keep(cloud.detach().cpu().float().numpy())
         if self._overhang.dropped == 0:
             return cloud
