@@ -53,6 +53,10 @@ class PillarConfig:
     # keep: every return; drop: the returns that hang over a gap in their column (canopies,
     # awnings) removed before the encoder, in training and inference (suit_ros/overhang.py)
     overhang: OverhangParam = 'keep'
+    # with overhang: drop, the gap that splits a column's returns grows to this many metres per
+    # metre of range where that is more than 0.5 m (0: 0.5 m at every range); far rings are
+    # further apart than 0.5 m, so a fixed gap cuts a far truck's side into floating stacks
+    overhang_gap_per_m: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -177,6 +181,9 @@ def validate(cfg: ModelConfig) -> None:
         raise bad('pillars.pillar_size must be > 0')
     if not 0 <= cfg.pillars.max_points_per_pillar <= 10_000:
         raise bad('pillars.max_points_per_pillar must be within 0..10000 (0: no cap)')
+    if not 0 <= cfg.pillars.overhang_gap_per_m < 1:
+        raise bad('pillars.overhang_gap_per_m must be within [0, 1) (0: a 0.5 m gap at every '
+                  f'range), got {cfg.pillars.overhang_gap_per_m}')
     if not cfg.pillars.time_scale > 0:
         raise bad(f'pillars.time_scale must be > 0, got {cfg.pillars.time_scale}')
     for extent in (r[3] - r[0], r[4] - r[1]):

@@ -31,6 +31,7 @@ from numpy.typing import NDArray
 from suit_ros.ops.kernels import GROUND_BIN_M as BIN_M
 from suit_ros.ops.kernels import height_histograms, level_heights
 from suit_ros.params import GroundParam
+from suit_ros.structures import Frame
 
 GroundMode: TypeAlias = GroundParam     # one definition: the node parameter's
 GROUND_MODES: tuple[GroundMode, ...] = get_args(GroundMode)
@@ -107,6 +108,21 @@ class LocalGround:
         out = np.empty_like(p)
         level_heights(p, self.grid, self.x0, self.y0, self.cell, out)
         return -out[:, 2]
+
+
+def leveled_frame(frame: Frame, ground: LocalGround) -> Frame:
+    """A model frame (points and GT in base_link) as ``ground: local`` shows it to the model:
+    its points leveled to their local ground, its GT boxes lowered by the ground under their
+    centres (training on what the model sees at inference; the inverse of putting decoded
+    boxes back on the road)."""
+    import dataclasses
+    points = ground.level(frame.points)
+    gt = frame.gt
+    if gt is not None and len(gt):
+        boxes = gt.boxes.copy()
+        boxes[:, 2] -= ground.under(boxes[:, :2])
+        gt = dataclasses.replace(gt, boxes=boxes)
+    return dataclasses.replace(frame, points=points, gt=gt)
 
 
 def _neighbours(z: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -22,7 +22,11 @@ import numpy as np
 import yaml
 
 from suit_ros.errors import ConfigError
+from suit_ros.params import GroundParam
 from suit_ros.structures import Frame
+
+if typing.TYPE_CHECKING:
+    from suit_ros.ground import LocalGround
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,10 @@ class TrainConfig:
     lift_m: float = 0.0              # ground height offset, uniform +-lift_m per clip
     point_dropout: float = 0.0       # half the clips lose up to this fraction of points
     overhead_probability: float = 0.0   # clips with canopies/awnings over objects (overhead)
+    # the input's height reference in training (suit_ros/ground.py): local levels every
+    # frame's points to their ground and lowers its GT boxes by it, as ``ground: local`` shows
+    # the model its input at inference
+    ground: GroundParam = 'as_given'
     preset: str = ''                 # synthetic world of the training drives ('': train-real)
     freeze: tuple[str, ...] = ()     # modules kept as loaded (pillars, backbone, fusion, ...)
     outage_probability: float = 0.0  # clips with a sensor sector lost (ClipSampler)
@@ -261,13 +269,16 @@ def _optimizer(module: Any, tc: TrainConfig) -> Any:
     return torch.optim.AdamW(groups, lr=tc.lr, weight_decay=tc.weight_decay, betas=(0.95, 0.99))
 
 
-def _augmented(clips: list[list[Frame]], tc: TrainConfig, rng: np.random.Generator
-               ) -> list[list[Frame]]:
-    """A batch's clips augmented as the config asks."""
-    if not tc.augment:
-        return clips
-    from suit_ros.data import augment
-    return [augment.apply_clip(_overhead(c, tc, rng), _draw(tc, rng)) for c in clips]
+def _augmented(clips: list[list[Frame]], tc: TrainConfig, rng: np.random.Generator,
+               ground: LocalGround | None = None) -> list[list[Frame]]:
+    """A batch's clips augmented as the config asks, then leveled with ``ground``."""
+    if tc.augment:
+        from suit_ros.data import augment
+        clips = [augment.apply_clip(_overhead(c, tc, rng), _draw(tc, rng)) for c in clips]
+    if ground is not None:
+        from suit_ros.ground import leveled_frame
+        clips = [[leveled_frame(f, ground) for f in c] for c in clips]
+    return clips
 
 
 def _overhead(clip: list[Frame], tc: TrainConfig, rng: np.random.Generator) -> list[Frame]:
@@ -406,6 +417,10 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     data = training_sequences(tc, mcfg.class_names)
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
+    ground = None
+    if tc.ground == 'local':
+        from suit_ros.ground import LocalGround
+        ground = LocalGround(mcfg.pillars.point_range)
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps,
                           tc.outage_probability, tc.outage_width_deg, tc.carry_gt,
                           tc.occlusion_weight)
@@ -432,7 +447,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     while True:                      # at least one step per call, then until the budget is spent
         lr = _schedule(opt, progress(), tc.lr)
         clips, lost = sampler.batch_with_outages(batch)
-        clips = _augmented(clips, tc, aug_rng)
+        clips = _augmented(clips, tc, aug_rng, ground)
         vals = _optimise(model, module, opt, clips, tc.grad_clip, lost, distiller)
         step += 1
         if not math.isfinite(vals['loss']):

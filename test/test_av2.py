@@ -105,6 +105,33 @@ def test_reads_points_gt_classes_poses_and_velocities(tmp_path: Path) -> None:
     assert f.num_points is not None and f.num_points[car][0] >= 50
 
 
+def test_an_object_annotated_twice_is_one_object(tmp_path: Path) -> None:
+    """Two track ids with one category and one box (as a car of the real dev log has) are one
+    GT box; a car of the same size next to it, or the same box turned by 10 degrees, stays."""
+    from suit_ros.data.av2 import first_of_duplicates
+    write_log(tmp_path)
+    path = tmp_path / 'sensor/val/0000-test-log/annotations.feather'
+    t = feather.read_table(str(path)).to_pydict()
+    rows = [i for i, c in enumerate(t['category']) if c == 'REGULAR_VEHICLE']
+    for i in rows:                         # a second track id on the same car at every stamp
+        for k in t:
+            t[k].append(f'{t[k][i]}-again' if k == 'track_uuid' else t[k][i])
+    feather.write_feather(pa.table(t), str(path))
+    (seq,) = av2_sequences(tmp_path)
+    f = seq[1]
+    assert f.gt is not None and sorted(f.gt.labels.tolist()) == [0, 2]
+    np.testing.assert_allclose(f.gt.velocities[f.gt.labels == 0][0], [10.0, 0.0], atol=1e-6)
+    box = np.array([10.0, 2.0, 0.5, 4.5, 1.9, 1.6, 0.3])
+    beside, turned, flipped = box.copy(), box.copy(), box.copy()
+    beside[1] += 2.2
+    turned[6] += np.deg2rad(10)
+    flipped[6] += np.pi                    # the same box with its heading the other way
+    boxes = np.stack([box, box, beside, turned, flipped, box])
+    keys = ['car', 'car', 'car', 'car', 'car', 'pedestrian']
+    assert first_of_duplicates(boxes, keys).tolist() == [True, False, True, True, False, True]
+    assert first_of_duplicates(np.zeros((0, 7)), []).tolist() == []
+
+
 def test_velocity_in_the_egovehicle_frame_when_the_ego_turns(tmp_path: Path) -> None:
     write_log(tmp_path)
     path = tmp_path / 'sensor/val/0000-test-log/city_SE3_egovehicle.feather'

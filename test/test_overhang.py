@@ -30,10 +30,12 @@ def reference_keep(points: np.ndarray, f: Overhang) -> np.ndarray:
         same = inside & (cx == cx[i]) & (cy == cy[i])
         occupied = sorted(set(bins[same]))
         start = occupied[0]
+        r = np.hypot(f.x0 + (cx[i] + 0.5) * f.size, f.y0 + (cy[i] + 0.5) * f.size)
+        gap = max(f.gap_bins, int(round(f.gap_bins_per_m * r)))
         for lower, b in zip(occupied, occupied[1:]):
             if b > bins[i]:
                 break
-            if b - lower - 1 >= f.gap_bins:
+            if b - lower - 1 >= gap:
                 start = b
         keep[i] = start < f.b_float
     return keep
@@ -63,12 +65,13 @@ def test_a_canopy_over_a_pedestrian_goes_and_what_stands_on_the_ground_stays():
     assert len(out) == keep.sum() and np.array_equal(out, pts[keep])
 
 
-def test_the_kernel_is_the_rule_on_random_columns():
+@pytest.mark.parametrize('gap_per_m', [0.0, 0.05])
+def test_the_kernel_is_the_rule_on_random_columns(gap_per_m: float):
     rng = np.random.default_rng(3)
-    f = Overhang(RANGE, 0.4)
+    f = Overhang(RANGE, 0.4, gap_per_m=gap_per_m)
     parts = []
-    for _ in range(60):                    # 60 columns of random stacks and gaps
-        x, y = rng.uniform(-3, 3, 2)
+    for _ in range(60):                    # 60 columns of random stacks and gaps, 0-50 m out
+        x, y = rng.uniform(-3, 3, 2) * rng.choice([1.0, 6.0, 15.0])
         spans = []
         z = rng.uniform(-0.5, 0.5)
         while z < 4.6:
@@ -82,6 +85,35 @@ def test_the_kernel_is_the_rule_on_random_columns():
     keep = f.keep(pts)
     assert np.array_equal(keep, reference_keep(pts, f))
     assert 0 < (~keep).sum() < len(pts)
+
+
+def rings(x: float, y: float, spacing_deg: float, top: float) -> np.ndarray:
+    """The returns of a vertical surface at ``(x, y)`` from a sensor at the origin, 1.8 m up,
+    whose rings are ``spacing_deg`` apart, from the ground to ``top``."""
+    r = float(np.hypot(x, y))
+    angles = np.deg2rad(np.arange(-30.0, 10.0, spacing_deg))
+    z = 1.8 + r * np.tan(angles)
+    z = z[(z >= 0.0) & (z <= top)]
+    return np.c_[np.full((len(z), 2), (x, y)), z, np.full(len(z), 0.3),
+                 np.zeros(len(z))].astype(np.float32)
+
+
+def test_a_range_aware_gap_keeps_a_far_trucks_side_and_still_drops_a_near_canopy():
+    """16-beam rings (2 degrees) are 1 m apart at 30 m: with a fixed 0.5 m gap every return
+    of a far truck's side above 2 m is a floating stack of its own; ``gap_per_m`` 0.05 (1.5 m
+    at 30 m) keeps them, and a canopy 0.75 m over a pedestrian 10 m out still goes."""
+    truck = rings(30.1, 0.1, 2.0, 3.6)
+    assert (np.diff(truck[:, 2]) > 0.9).all() and (truck[:, 2] > 2.0).any()
+    ped = column(10.1, 3.1, (0.0, 1.75), (2.5, 3.2))
+    pts = np.concatenate([truck, ped])
+    fixed, ranged = Overhang(RANGE, 0.4), Overhang(RANGE, 0.4, gap_per_m=0.05)
+    k_fixed, k_ranged = fixed.keep(pts), ranged.keep(pts)
+    assert not k_fixed[:len(truck)].all()                      # the fixed gap cuts the truck
+    assert k_ranged[:len(truck)].all()
+    assert (k_ranged[len(truck):] == (ped[:, 2] < 2.0)).all()  # the canopy still goes
+    assert np.array_equal(k_ranged, reference_keep(pts, ranged))
+    with pytest.raises(ValueError, match='gap_per_m'):
+        Overhang(RANGE, 0.4, gap_per_m=-0.1)
 
 
 def test_empty_low_and_bad_input():
@@ -139,3 +171,11 @@ def test_the_model_config_names_it():
     assert cfg.pillars.overhang == 'drop'
     with pytest.raises(ConfigError, match='overhang must be one of'):
         model_config_from_dict({'pillars': {'overhang': 'cut'}}, 'test')
+    cfg = model_config_from_dict({'pillars': {'overhang': 'drop', 'overhang_gap_per_m': 0.05}},
+                                 'test')
+    assert cfg.pillars.overhang_gap_per_m == 0.05
+    from suit_ros.model.detector import SUITDetector
+    overhang = SUITDetector(cfg).pillars._overhang
+    assert overhang is not None and overhang.gap_bins_per_m == pytest.approx(0.5)
+    with pytest.raises(ConfigError, match='overhang_gap_per_m'):
+        model_config_from_dict({'pillars': {'overhang_gap_per_m': 1.5}}, 'test')

@@ -33,6 +33,9 @@ Conventions (what the :class:`~suit_ros.structures.Frame` s hold):
   :data:`IGNORED` : neither objects nor false positives (``Frame.ignore_boxes``). Every other
   category (bollards, cones, signs, strollers, animals, ...) is background: a detection on one
   is a false positive;
+- an object annotated twice (two ``track_uuid`` s with the same category and the same box, as
+  one car on the dev log of ../shared/data/real-dev is) is one object: the second row is left
+  out (:func:`first_of_duplicates`), so one box cannot find both nor miss one of them;
 - GT velocities from the same ``track_uuid`` at the neighbouring annotated stamps (centre
   differences in the city frame, at most 1.5 s apart, as nuScenes' ``box_velocity``), in the
   egovehicle frame, absolute.
@@ -139,6 +142,28 @@ class Av2Annotations:
         return Av2Annotations(stamps, rows, t['track_uuid'], t['category'], boxes)
 
 
+DUPLICATE_TOLERANCE_M = 0.05       # centre and size (m) within which two rows are one box
+DUPLICATE_TOLERANCE_RAD = np.deg2rad(2.0)
+
+
+def first_of_duplicates(boxes: NDArray[np.floating[Any]], keys: Sequence[object]
+                        ) -> NDArray[np.bool_]:
+    """``(R,)`` bool: False for a row that repeats an earlier row's key (category) and box
+    ``(R, 7)`` (centre and size within :data:`DUPLICATE_TOLERANCE_M`, heading within
+    :data:`DUPLICATE_TOLERANCE_RAD` modulo pi)."""
+    keep = np.ones(len(boxes), bool)
+    for i in range(1, len(boxes)):
+        for j in range(i):
+            if not keep[j] or keys[j] != keys[i]:
+                continue
+            turn = (float(boxes[i, 6]) - float(boxes[j, 6])) % np.pi
+            if (np.abs(boxes[i, :6] - boxes[j, :6]).max() <= DUPLICATE_TOLERANCE_M
+                    and min(turn, np.pi - turn) <= DUPLICATE_TOLERANCE_RAD):
+                keep[i] = False
+                break
+    return keep
+
+
 class Av2Sequence(LazySequence):
     """One AV2 log, its sweeps read from disk when indexed.
 
@@ -188,6 +213,7 @@ class Av2Sequence(LazySequence):
         (none when the stamp has no annotation)."""
         ann = self.annotations
         rows = ann.rows.get(int(stamp_ns), np.zeros(0, np.int64))
+        rows = rows[first_of_duplicates(ann.boxes[rows], [str(c) for c in ann.category[rows]])]
         cls = [map_av2_class(str(c)) for c in ann.category[rows]]
         keep = np.array([c is not None and c in self.class_names for c in cls], bool)
         ignore = np.array([str(c) in IGNORED for c in ann.category[rows]], bool)

@@ -78,7 +78,8 @@ class SUITDetector(nn.Module):
         p, b, h, g = cfg.pillars, cfg.backbone, cfg.head, cfg.geonet
         self.grid = BEVGrid(p.point_range, p.pillar_size, cfg.out_stride)
         self.pillars = PillarEncoder(self.grid, p.in_channels, p.channels, p.time_scale,
-                                     p.max_points_per_pillar, p.overhang)
+                                     p.max_points_per_pillar, p.overhang,
+                                     p.overhang_gap_per_m)
         self.backbone = BEVBackbone(self.pillars.out_channels, b.layer_nums, b.layer_strides,
                                     b.num_filters, b.upsample_strides, b.num_upsample_filters)
         C = self.backbone.out_channels

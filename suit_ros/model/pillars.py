@@ -29,6 +29,8 @@ class PillarEncoder(nn.Module):
         another scale is moved to this one by :meth:`rescale_time_weights`.
     :param overhang: ``drop``: the returns that hang over a gap in their column are removed
         from every cloud before it is encoded (:mod:`suit_ros.overhang`); ``keep``: none.
+    :param overhang_gap_per_m: the gap grows with the column's range
+        (:class:`suit_ros.overhang.Overhang`'s ``gap_per_m``; 0: 0.5 m everywhere).
     """
 
     TIME_CHANNEL = 4
@@ -36,8 +38,9 @@ class PillarEncoder(nn.Module):
 
     def __init__(self, grid: BEVGrid, in_channels: int = 5, channels: int = 32,
                  time_scale: float = 1.0, max_points: int = 0,
-                 overhang: OverhangMode = 'keep') -> None:
+                 overhang: OverhangMode = 'keep', overhang_gap_per_m: float = 0.0) -> None:
         super().__init__()
+        self.overhang_gap_per_m = float(overhang_gap_per_m)
         self.max_points = max_points
         self.grid = grid
         self.in_channels = in_channels
@@ -56,7 +59,8 @@ class PillarEncoder(nn.Module):
         if overhang not in OVERHANG_MODES:
             raise ValueError(f'overhang must be one of {OVERHANG_MODES}, got {overhang!r}')
         self.overhang: OverhangMode = overhang
-        self._overhang = (Overhang(self.grid.point_range, self.grid.pillar_size)
+        self._overhang = (Overhang(self.grid.point_range, self.grid.pillar_size,
+                                   gap_per_m=self.overhang_gap_per_m)
                           if overhang == 'drop' else None)
 
     def unhung(self, cloud: Tensor) -> Tensor:

@@ -583,14 +583,15 @@ OVERHANG_BIN_M = 0.1     # the overhang filter's height bin (m); 64 bins a colum
 
 @_jit
 def overhang_keep(points: Any, x0: float, y0: float, size: float, nx: int, ny: int,
-                  zlo: float, n_bins: int, gap_bins: int, b_float: int
-                  ) -> Any:  # pragma: no cover
+                  zlo: float, n_bins: int, gap_bins: int, b_float: int,
+                  gap_bins_per_m: float = 0.0) -> Any:  # pragma: no cover
     """Which points to keep when the returns that hang are dropped
     (:class:`suit_ros.overhang.Overhang`): per column of a ``(ny, nx)`` grid of ``size`` m
     from ``(x0, y0)``, its occupied ``OVERHANG_BIN_M`` height bins from ``zlo`` (``n_bins``
-    <= 64, one bit each) split into stacks at every ``gap_bins`` empty bins in a row; a point
-    is dropped when its stack starts at bin ``b_float`` or higher. Points outside the grid or
-    the bins (or not finite) are kept. :return: ``(N,)`` bool, and the number dropped."""
+    <= 64, one bit each) split into stacks at every ``max(gap_bins, round(gap_bins_per_m *
+    r))`` empty bins in a row, ``r`` the column centre's distance from the origin; a point is
+    dropped when its stack starts at bin ``b_float`` or higher. Points outside the grid or the
+    bins (or not finite) are kept. :return: ``(N,)`` bool, and the number dropped."""
     n = points.shape[0]
     occ = np.zeros(nx * ny, np.uint64)
     cell = np.full(n, -1, np.int64)
@@ -627,12 +628,17 @@ def overhang_keep(points: Any, x0: float, y0: float, size: float, nx: int, ny: i
         if not done[c]:
             done[c] = True
             bits = occ[c]
+            gap = gap_bins
+            if gap_bins_per_m > 0:
+                rx = x0 + ((c % nx) + 0.5) * size
+                ry = y0 + ((c // nx) + 0.5) * size
+                gap = max(gap_bins, int(round(gap_bins_per_m * np.sqrt(rx * rx + ry * ry))))
             start = -1
             last = -n_bins - 1
             mask = np.uint64(0)
             for b in range(n_bins):
                 if (bits >> np.uint64(b)) & one:
-                    if b - last - 1 >= gap_bins:
+                    if b - last - 1 >= gap:
                         start = b
                     last = b
                     if start >= b_float:
@@ -675,5 +681,5 @@ def warm_up() -> None:
     height_histograms(model_input, -1.0, -1.0, 1.0, 2, 2, -1.0, 4)
     level_heights(model_input, np.zeros((2, 2), np.float32), -1.0, -1.0, 1.0,
                   model_input.copy())
-    overhang_keep(model_input, -1.0, -1.0, 0.5, 4, 4, -1.0, 20, 5, 10)
+    overhang_keep(model_input, -1.0, -1.0, 0.5, 4, 4, -1.0, 20, 5, 10, 0.5)
     paired_bev_iou(np.ones((1, 7), np.float32), np.ones((1, 7), np.float32))
