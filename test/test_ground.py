@@ -113,3 +113,29 @@ def test_a_detector_fed_a_lifted_cloud_finds_the_boxes_of_the_true_one(tmp_path)
     assert np.median(dz) == pytest.approx(0.5, abs=0.1)
     with pytest.raises(ValueError, match='ground must be one of'):
         StreamingDetector(model, ground='flat')                   # type: ignore[arg-type]
+
+
+def test_a_training_frame_is_leveled_with_its_gt_as_the_node_shows_it():
+    """``ground: local`` in training (``leveled_frame``): the points as ``level`` makes them and
+    each GT box lowered by the ground under its centre, so that decoding on leveled input and
+    putting the box back (the node) gives the true box."""
+    from suit_ros.ground import leveled_frame
+    from suit_ros.structures import Detections, Frame
+    rng = np.random.default_rng(5)
+    slope = lambda x, y: 0.03 * x - 0.4                            # noqa: E731
+    car = block(rng, (15.0, -3.0), (4.5, 1.9), slope(15.0, 0) + 0.3, slope(15.0, 0) + 1.6)
+    pts = np.concatenate([road(rng, slope), car])
+    box = np.array([[15.0, -3.0, slope(15.0, 0) + 0.8, 4.5, 1.9, 1.6, 0.2]], np.float32)
+    gt = Detections(box, np.array([[3.0, 0.0]]), np.ones(1), np.zeros(1, np.int64))
+    f = Frame(pts, np.eye(4), 7, 'base_link', gt, instance_ids=np.ones(1, np.uint32))
+    est = LocalGround(RANGE)
+    out = leveled_frame(f, est)
+    np.testing.assert_array_equal(out.points, LocalGround(RANGE).level(pts))
+    assert out.gt is not None and out.gt.boxes[0, 2] == pytest.approx(0.8, abs=0.08)
+    back = out.gt.boxes[0, 2] + est.under(out.gt.boxes[:, :2])[0]  # what the node does
+    assert back == pytest.approx(box[0, 2], abs=1e-5)
+    np.testing.assert_array_equal(out.gt.boxes[:, [0, 1, 3, 4, 5, 6]], box[:, [0, 1, 3, 4, 5, 6]])
+    np.testing.assert_array_equal(out.gt.velocities, gt.velocities)
+    assert f.points is pts and f.gt.boxes[0, 2] == box[0, 2]       # the input is not changed
+    empty = Frame(pts[:0], np.eye(4), 8, 'base_link', Detections.empty())
+    assert len(leveled_frame(empty, est).points) == 0

@@ -81,18 +81,35 @@ def test_train_config_strict(tmp_path):
     (tmp_path / 'ovh.yaml').write_text('overhead_probability: 1.5\n')
     with pytest.raises(ConfigError, match='overhead_probability'):
         load_train_config(tmp_path / 'ovh.yaml')
+    (tmp_path / 'ground.yaml').write_text('ground: flat\n')
+    with pytest.raises(ConfigError, match='ground'):
+        load_train_config(tmp_path / 'ground.yaml')
+    assert load_train_config(
+        REPO / 'docs/experiments/ground/configs/train_suit_ground14.yaml').ground == 'local'
 
 
-def test_overhead_clips_draw_only_when_asked():
-    from modelkit import frame
-
-    from suit_ros.train import _overhead
-    clip = [frame(t) for t in range(2)]
+def test_training_clips_are_leveled_when_the_config_asks():
+    """``ground: local``: a clip on a road 0.5 m below base_link's ground reaches the model
+    leveled, its GT lowered with it; without a ground (as_given) the clip is untouched."""
+    from suit_ros.ground import LocalGround
+    from suit_ros.structures import Detections
+    from suit_ros.train import _augmented
     rng = np.random.default_rng(0)
-    assert _overhead(clip, TrainConfig(), rng) is clip
-    assert rng.random() == np.random.default_rng(0).random()      # nothing drawn at 0
-    out = _overhead(clip, TrainConfig(overhead_probability=1.0), np.random.default_rng(0))
-    assert all(len(o.points) > len(c.points) for o, c in zip(out, clip))
+    clip = []
+    for t in range(2):
+        xy = rng.uniform(-40, 40, (20000, 2))
+        pts = np.c_[xy, rng.normal(-0.5, 0.02, 20000), np.full(20000, 0.3),
+                    np.zeros(20000)].astype(np.float32)
+        gt = Detections(np.array([[10.0 + t, 2.0, 0.3, 4.5, 1.9, 1.6, 0.0]]),
+                        np.array([[10.0, 0.0]]), np.ones(1), np.zeros(1, np.int64))
+        clip.append(Frame(pts, np.eye(4), t, 'base_link', gt))
+    tc = TrainConfig(augment=False, ground='local')
+    assert _augmented([clip], tc, rng)[0] is clip
+    out = _augmented([clip], tc, rng, LocalGround((-51.2, -51.2, -3.0, 51.2, 51.2, 3.0)))[0]
+    for o, c in zip(out, clip):
+        assert abs(float(np.median(o.points[:, 2]))) < 0.05
+        assert o.gt is not None and o.gt.boxes[0, 2] == pytest.approx(0.8, abs=0.06)
+        assert c.gt is not None and c.gt.boxes[0, 2] == pytest.approx(0.3)
 
 
 def test_fresh_window_of_training_drives_follows_the_first_ones():
