@@ -13,7 +13,7 @@ import yaml
 
 from suit_ros import CLASS_NAMES
 from suit_ros.errors import ConfigError
-from suit_ros.params import OverhangParam
+from suit_ros.params import GroundParam, OverhangParam
 
 TemporalMode = Literal['none', 'dense', 'sparse', 'sparse_velocity', 'suit']
 Relaxation = Literal['square', 'circle', 'rectangle']
@@ -57,6 +57,10 @@ class PillarConfig:
     # metre of range where that is more than 0.5 m (0: 0.5 m at every range); far rings are
     # further apart than 0.5 m, so a fixed gap cuts a far truck's side into floating stacks
     overhang_gap_per_m: float = 0.0
+    # the input's height reference the model was trained on (suit_ros/ground.py): as_given,
+    # or local (leveled to the ground around each point, GT boxes with it); what the node's
+    # `ground: checkpoint` runs the model with
+    ground: GroundParam = 'as_given'
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from typing import Any, get_args
 import numpy as np
 
 from suit_ros.errors import BagError, ConfigError
-from suit_ros.params import DetectorParams, GroundParam, OverhangChoice
+from suit_ros.params import DetectorParams, GroundChoice, OverhangChoice
 
 DET_TOPIC = '/detector/detections'
 MARKER_TOPIC = '/detector/markers'
@@ -38,7 +38,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--device', default=None, choices=['auto', 'cpu', 'cuda'])
     parser.add_argument('--precision', default=None, choices=['auto', 'float32', 'bfloat16'],
                         help='default: auto (bfloat16 on a CPU with bfloat16 units)')
-    parser.add_argument('--ground', default=None, choices=get_args(GroundParam),
+    parser.add_argument('--ground', default=None, choices=get_args(GroundChoice),
                         help="the input's height reference (the node's ground parameter)")
     parser.add_argument('--overhang', default=None, choices=get_args(OverhangChoice),
                         help="the returns that hang over a gap in their column (the node's "

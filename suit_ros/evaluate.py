@@ -381,7 +381,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               history: int | None = None, drop_memory: bool = False,
               transform: Callable[[Frame], Frame] | None = None,
               precision: PrecisionChoice = 'float32',
-              tracker: TrackerConfig | None = None, ground: GroundMode = 'as_given',
+              tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
               overhang: OverhangMode | None = None) -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
@@ -394,7 +394,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param precision: of the streaming detector (:mod:`suit_ros.model.inference`).
     :param tracker: the streaming detector's (:mod:`suit_ros.tracking`); None: the
         head's velocities.
-    :param ground: the input's height reference (:mod:`suit_ros.ground`).
+    :param ground: the input's height reference (:mod:`suit_ros.ground`; None: as the
+        checkpoint was trained).
     :param overhang: keep or drop the returns that hang (:mod:`suit_ros.overhang`; None: as
         the checkpoint says).
     """

@@ -11,9 +11,10 @@ the model learned from has nothing over its sidewalks.
 ``overhang: drop`` removes, before the model, the returns that float: per column of the
 model's pillar grid, its returns are split into stacks wherever ``gap`` (0.5 m) of height has
 none (or, with ``gap_per_m``, ``gap_per_m`` times the column's range where that is more: a
-sensor's rings spread apart with range, 1 m at 30 m for 2-degree rings), and the returns of a stack that starts ``height`` (2.0 m) or more above base_link's
-ground plane are dropped: higher than a pedestrian, a cyclist or a car reaches, so nothing
-the model detects starts there. What stands on the ground keeps every return (a wall, a
+sensor's rings spread apart with range, 1 m at 30 m for 2-degree rings), and the returns of
+a stack that starts ``height`` (2.0 m) or more above base_link's ground plane are dropped:
+higher than a pedestrian, a cyclist or a car reaches, so nothing the model detects starts
+there. What stands on the ground keeps every return (a wall, a
 pole, a truck's side, a trailer over its open underside: stacks that start low); what hangs
 goes (a canopy or an awning over a pedestrian or a parked car, a tree's crown over the road,
 an overhead sign, a bus roof above its windows). The ground is the one the model sees: with

@@ -24,6 +24,7 @@ PrecisionParam = Literal['auto', 'float32', 'bfloat16']
 GroundParam = Literal['as_given', 'local']       # suit_ros.ground.GroundMode
 OverhangParam = Literal['keep', 'drop']          # suit_ros.overhang.OverhangMode
 OverhangChoice = Literal['checkpoint', 'keep', 'drop']   # the node's: 'checkpoint' as it says
+GroundChoice = Literal['checkpoint', 'as_given', 'local']   # the node's: 'checkpoint' as it says
 Vector3 = tuple[float, float, float]
 
 
@@ -82,11 +83,12 @@ class DetectorParams:
     track_score_mix: float = field(default=0.7, metadata=_spec(
         "with tracking: a tracked detection's score is (1 - mix) x its own + mix x its "
         "track's running score; 0: the model's scores", lo=0.0, hi=1.0))
-    ground: GroundParam = field(default='as_given', metadata=_spec(
-        "as_given | local: the input's heights as base_link has them, or leveled to the "
-        'ground estimated around each point (sloped roads, an extrinsic height a little off; '
-        'boxes put back on the road); a change resets the memory',
-        choices=get_args(GroundParam)))
+    ground: GroundChoice = field(default='checkpoint', metadata=_spec(
+        "checkpoint | as_given | local: the input's heights as the checkpoint was trained on "
+        "them, as base_link has them, or leveled to the ground estimated around each point "
+        '(sloped roads, an extrinsic height a little off; boxes put back on the road); a '
+        'change resets the memory',
+        choices=get_args(GroundChoice)))
     overhang: OverhangChoice = field(default='checkpoint', metadata=_spec(
         'checkpoint | keep | drop: the returns that hang over a gap in their column '
         "(canopies, awnings, signal arms over the objects) as the checkpoint's config says, "
@@ -172,6 +174,11 @@ class DetectorParams:
     def ego_box_enabled(self) -> bool:
         """Whether the ego crop box is a real box."""
         return all(hi > lo for lo, hi in zip(self.ego_box_min, self.ego_box_max))
+
+    def ground_mode(self) -> GroundParam | None:
+        """``ground`` for :class:`~suit_ros.model.streaming.StreamingDetector` (None: the
+        checkpoint's)."""
+        return None if self.ground == 'checkpoint' else self.ground
 
     def overhang_mode(self) -> OverhangParam | None:
         """``overhang`` for :class:`~suit_ros.model.streaming.StreamingDetector` (None: the

@@ -54,7 +54,7 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
     from suit_ros.checkpoint import published_thresholds
     model, cfg, meta = load_checkpoint(params.checkpoint, dev)
     runner = StreamingDetector(model, dev, precision=params.precision,
-                               overhang=params.overhang_mode())
+                               ground=params.ground_mode(), overhang=params.overhang_mode())
     # the first clouds are not slower than the rest (compiled kernels, oneDNN primitives)
     runner.warm_up()
     runner.published_thresholds = published_thresholds(meta, cfg.class_names)
@@ -138,10 +138,10 @@ class DetectionPipeline:
             TrackerConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix)
             if params.tracking else None)
         self.detector.sweeps.max_age_s = params.max_gap_s     # one staleness threshold
-        if params.ground != self.detector.ground:
-            self.detector.set_ground(params.ground)
-            if self.last_stamp_ns is not None:      # the memory was made on other heights
-                self.reset('ground changed')
+        before_ground = self.detector.ground
+        self.detector.set_ground(params.ground_mode())
+        if self.detector.ground != before_ground and self.last_stamp_ns is not None:
+            self.reset('ground changed')           # the memory was made on other heights
         before = self.detector.overhang
         self.detector.set_overhang(params.overhang_mode())
         if self.detector.overhang != before and self.last_stamp_ns is not None:

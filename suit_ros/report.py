@@ -280,8 +280,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         "checkpoint's, as the node)")
     parser.add_argument('--no-tracking', action='store_true',
                         help="the model's own output (the node tracks by default)")
-    parser.add_argument('--ground', choices=list(GROUND_MODES), default='as_given',
-                        help="the input's height reference (the node's `ground` parameter)")
+    parser.add_argument('--ground', choices=list(GROUND_MODES), default=None,
+                        help="the input's height reference (the node's `ground` parameter; "
+                        'default: as the checkpoint was trained)')
     parser.add_argument('--overhang', choices=list(OVERHANG_MODES), default=None,
                         help='keep or drop the returns that hang over a gap in their column '
                         "(the node's `overhang` parameter; default: as the checkpoint says)")
@@ -340,8 +341,9 @@ def run(args: argparse.Namespace) -> int:
     result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang)
     notes = ['as the node by default: 3 sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
-    if args.ground != 'as_given':
-        notes.append(f'input heights: ground {args.ground} (suit_ros/ground.py)')
+    if args.ground is not None or cfg.pillars.ground != 'as_given':
+        notes.append(f'input heights: ground {args.ground or cfg.pillars.ground} '
+                     '(suit_ros/ground.py)')
     if args.overhang is not None:
         notes.append(f'overhang {args.overhang}: the returns that hang over a gap in their '
                      'column (suit_ros/overhang.py)')

@@ -22,7 +22,6 @@ import numpy as np
 import yaml
 
 from suit_ros.errors import ConfigError
-from suit_ros.params import GroundParam
 from suit_ros.structures import Frame
 
 if typing.TYPE_CHECKING:
@@ -62,10 +61,11 @@ class TrainConfig:
     lift_m: float = 0.0              # ground height offset, uniform +-lift_m per clip
     point_dropout: float = 0.0       # half the clips lose up to this fraction of points
     overhead_probability: float = 0.0   # clips with canopies/awnings over objects (overhead)
-    # the input's height reference in training (suit_ros/ground.py): local levels every
-    # frame's points to their ground and lowers its GT boxes by it, as ``ground: local`` shows
-    # the model its input at inference
-    ground: GroundParam = 'as_given'
+    # the input's height reference in training (suit_ros/ground.py; '' keeps the model
+    # config's pillars.ground): local levels every frame's points to their ground and lowers
+    # its GT boxes by it, as ``ground: local`` shows the model its input at inference; the
+    # checkpoint records it (pillars.ground), so the node runs it so by default
+    ground: Literal['', 'as_given', 'local'] = ''
     preset: str = ''                 # synthetic world of the training drives ('': train-real)
     freeze: tuple[str, ...] = ()     # modules kept as loaded (pillars, backbone, fusion, ...)
     outage_probability: float = 0.0  # clips with a sensor sector lost (ClipSampler)
@@ -404,6 +404,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     mcfg = load_model_config(tc.model_config)
     if tc.temporal:
         mcfg = replace(mcfg, temporal=tc.temporal)
+    if tc.ground:
+        mcfg = replace(mcfg, pillars=replace(mcfg.pillars, ground=tc.ground))
     module = SUITDetector(mcfg).to(dev)
     if tc.init_from:
         fresh = load_weights_into(module, tc.init_from)
@@ -418,7 +420,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
     ground = None
-    if tc.ground == 'local':
+    if mcfg.pillars.ground == 'local':
         from suit_ros.ground import LocalGround
         ground = LocalGround(mcfg.pillars.point_range)
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps,

@@ -139,3 +139,32 @@ def test_a_training_frame_is_leveled_with_its_gt_as_the_node_shows_it():
     assert f.points is pts and f.gt.boxes[0, 2] == box[0, 2]       # the input is not changed
     empty = Frame(pts[:0], np.eye(4), 8, 'base_link', Detections.empty())
     assert len(leveled_frame(empty, est).points) == 0
+
+
+def test_a_model_trained_on_leveled_input_runs_leveled_unless_told_otherwise():
+    """The checkpoint records its input convention (``pillars.ground``, written by training
+    with ``ground: local``); the streaming detector and the node's ``ground: checkpoint``
+    follow it, and an explicit choice wins."""
+    import torch
+
+    from suit_ros.config import ModelConfig, model_config_from_dict
+    from suit_ros.errors import ConfigError
+    from suit_ros.model.detector import SUITDetector
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.params import DetectorParams
+    torch.manual_seed(0)
+    cfg = model_config_from_dict({'temporal': 'none', 'pillars': {'ground': 'local'}}, 'test')
+    det = StreamingDetector(SUITDetector(cfg).eval(), 'cpu')
+    assert det.ground == 'local'
+    det.set_ground('as_given')
+    assert det.ground == 'as_given'
+    det.set_ground(None)
+    assert det.ground == 'local'
+    assert StreamingDetector(SUITDetector(cfg).eval(), 'cpu', ground='as_given').ground \
+        == 'as_given'
+    plain = StreamingDetector(SUITDetector(ModelConfig(temporal='none')).eval(), 'cpu')
+    assert plain.ground == 'as_given'
+    assert DetectorParams().ground == 'checkpoint' and DetectorParams().ground_mode() is None
+    assert DetectorParams(ground='local').ground_mode() == 'local'
+    with pytest.raises(ConfigError, match='ground'):
+        model_config_from_dict({'pillars': {'ground': 'flat'}}, 'test')

@@ -66,7 +66,8 @@ class StreamingDetector:
         (:mod:`suit_ros.tracking`) and each gets a track id; None: the head's velocities.
     :param ground: ``as_given``: the input's heights as they come (base_link's ground plane);
         ``local``: leveled to the ground estimated under each point before the model sees
-        them, the boxes put back on it (:mod:`suit_ros.ground`).
+        them, the boxes put back on it (:mod:`suit_ros.ground`); None: as the checkpoint was
+        trained (``pillars.ground``).
     :param overhang: ``keep``: every return; ``drop``: the returns that hang over a gap in
         their column (canopies, awnings) removed before the model (:mod:`suit_ros.overhang`);
         None: as the checkpoint's config says (``pillars.overhang``).
@@ -76,7 +77,7 @@ class StreamingDetector:
                  score_thresholds: list[float] | None = None,
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
                  candidates: int | None = None, precision: PrecisionChoice = 'float32',
-                 tracker: TrackerConfig | None = None, ground: GroundMode = 'as_given',
+                 tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
                  overhang: OverhangMode | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
         self.precision = resolve_precision(precision, self.device)
@@ -134,8 +135,11 @@ class StreamingDetector:
         if self.candidates < 1:
             raise ValueError(f'candidates must be >= 1, got {self.candidates}')
 
-    def set_ground(self, ground: GroundMode) -> None:
-        """Choose how the input's heights are referenced (see ``ground``)."""
+    def set_ground(self, ground: GroundMode | None) -> None:
+        """Choose how the input's heights are referenced (see ``ground``; None: as the
+        checkpoint was trained)."""
+        if ground is None:
+            ground = self.cfg.pillars.ground
         if ground not in GROUND_MODES:
             raise ValueError(f'ground must be one of {GROUND_MODES}, got {ground!r}')
         self.ground: GroundMode = ground
