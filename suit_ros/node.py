@@ -151,7 +151,10 @@ class DetectorNode(Node):
         snapshot of the node's counters."""
         snap = self.worker.snapshot({'points_reliability': self.points.reliability.name.lower(),
                                      'model_device': self.detector.device.type,
-                                     'model_precision': self.detector.precision})
+                                     'model_precision': self.detector.precision,
+                                     # what `checkpoint` resolved to (the model's input)
+                                     'model_ground': self.detector.ground,
+                                     'model_overhang': self.detector.overhang})
         level, message, values = health_report(snap)
         return DiagnosticStatus(
             name='suit_ros: detector', hardware_id='suit_ros', message=message,

@@ -72,6 +72,11 @@ def test_default_node_gets_the_clouds_of_a_played_bag(big_bag, checkpoint, relia
     from suit_ros.model.inference import resolve_precision
     # the default precision (auto) as this machine resolves it, reported in diagnostics
     assert last['model_precision'] == resolve_precision('auto', last['model_device'])
+    # ground and overhang: checkpoint (the defaults), as the shipped checkpoint was trained
+    from suit_ros.checkpoint import default_checkpoint_path, read_metadata
+    pillars = read_metadata(default_checkpoint_path())['config']['pillars']
+    assert last['model_ground'] == pillars.get('ground', 'as_given')
+    assert last['model_overhang'] == pillars.get('overhang', 'keep')
     assert frames_in >= 0.95 * FRAMES, node_out[-2000:]
     # whatever was lost is counted: by the publisher's sequence numbers
     assert frames_in + int(last['lost_before_callback']) >= FRAMES - 1, node_out[-2000:]
