@@ -23,6 +23,7 @@ the validation set and the real dev set in docs/experiments/ground.
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, TypeAlias, get_args
 
 import numpy as np
@@ -115,7 +116,6 @@ def leveled_frame(frame: Frame, ground: LocalGround) -> Frame:
     its points leveled to their local ground, its GT boxes lowered by the ground under their
     centres (training on what the model sees at inference; the inverse of putting decoded
     boxes back on the road)."""
-    import dataclasses
     points = ground.level(frame.points)
     gt = frame.gt
     if gt is not None and len(gt):

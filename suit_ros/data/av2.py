@@ -151,16 +151,18 @@ def first_of_duplicates(boxes: NDArray[np.floating[Any]], keys: Sequence[object]
     """``(R,)`` bool: False for a row that repeats an earlier row's key (category) and box
     ``(R, 7)`` (centre and size within :data:`DUPLICATE_TOLERANCE_M`, heading within
     :data:`DUPLICATE_TOLERANCE_RAD` modulo pi)."""
-    keep = np.ones(len(boxes), bool)
-    for i in range(1, len(boxes)):
-        for j in range(i):
-            if not keep[j] or keys[j] != keys[i]:
-                continue
-            turn = (float(boxes[i, 6]) - float(boxes[j, 6])) % np.pi
-            if (np.abs(boxes[i, :6] - boxes[j, :6]).max() <= DUPLICATE_TOLERANCE_M
-                    and min(turn, np.pi - turn) <= DUPLICATE_TOLERANCE_RAD):
-                keep[i] = False
-                break
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    # candidate pairs (row i after row j) by x alone, then the whole test on those few
+    i, j = np.nonzero(np.tril(np.abs(b[:, None, 0] - b[None, :, 0]) <= DUPLICATE_TOLERANCE_M,
+                              -1))
+    turn = (b[i, 6] - b[j, 6]) % np.pi
+    same = ((np.abs(b[i, :6] - b[j, :6]).max(axis=1, initial=0.0) <= DUPLICATE_TOLERANCE_M)
+            & (np.minimum(turn, np.pi - turn) <= DUPLICATE_TOLERANCE_RAD)
+            & np.array([keys[p] == keys[q] for p, q in zip(i, j)], bool).reshape(-1))
+    keep = np.ones(len(b), bool)
+    for p, q in zip(i[same], j[same]):      # row order (np.nonzero is row-major): earlier first
+        if keep[q]:
+            keep[p] = False
     return keep
 
 

@@ -584,7 +584,7 @@ OVERHANG_BIN_M = 0.1     # the overhang filter's height bin (m); 64 bins a colum
 @_jit
 def overhang_keep(points: Any, x0: float, y0: float, size: float, nx: int, ny: int,
                   zlo: float, n_bins: int, gap_bins: int, b_float: int,
-                  gap_bins_per_m: float = 0.0) -> Any:  # pragma: no cover
+                  gap_bins_per_m: float) -> Any:  # pragma: no cover
     """Which points to keep when the returns that hang are dropped
     (:class:`suit_ros.overhang.Overhang`): per column of a ``(ny, nx)`` grid of ``size`` m
     from ``(x0, y0)``, its occupied ``OVERHANG_BIN_M`` height bins from ``zlo`` (``n_bins``
