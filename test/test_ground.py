@@ -48,12 +48,40 @@ def test_a_slope_and_a_crown_follow_the_road():
     rng = np.random.default_rng(1)
     height = lambda x, y: 0.04 * x - 0.02 * np.abs(y)              # noqa: E731 (4% climb, crown)
     ground = road(rng, height)
-    out = LocalGround(RANGE).level(ground)
+    out = LocalGround(RANGE, hold=np.inf).level(ground)
     near = np.hypot(ground[:, 0], ground[:, 1]) < 40
     residual = out[near, 2]
     raw = ground[near, 2]
     assert np.abs(np.median(residual)) < 0.05 and np.percentile(np.abs(residual), 95) < 0.15
     assert np.percentile(np.abs(raw), 95) > 1.0                   # what the model got before
+    # with the default hold (30 m) the slope is followed within it, and held beyond it
+    est = LocalGround(RANGE)
+    out = est.level(ground)
+    r = np.hypot(ground[:, 0], ground[:, 1])
+    inside = r < est.hold - np.sqrt(2) * est.cell
+    assert np.percentile(np.abs(out[inside, 2]), 95) < 0.15
+    read = est.hold - np.sqrt(2) * est.cell                       # where the far cells read
+    ahead = est.under(np.array([[45.0, 0.0]]))[0]
+    assert ahead == pytest.approx(height(read, 0.0), abs=0.1)     # not height(45, 0) = 1.8
+
+
+def test_beyond_the_last_ring_the_bottoms_of_objects_are_not_taken_for_the_road():
+    """A sparse LiDAR's last road ring at 30 m: beyond it a cell holds only the returns of
+    the objects in it (a car's side from 0.3 m up), whose lowest returns a cell's own
+    estimate takes for the road; held, the car's cell keeps the road's height."""
+    rng = np.random.default_rng(3)
+    ground = road(rng, lambda x, y: np.full_like(x, -0.2), reach=28.0)
+    cars = [block(rng, (x, y), (4.5, 1.9), -0.2 + 0.3, -0.2 + 1.5, n=1000)
+            for x, y in ((44.0, 3.0), (-41.0, -20.0), (10.0, 46.0))]
+    pts = np.concatenate([ground, *cars])
+    held = LocalGround(RANGE)
+    held.fit(pts)
+    own = LocalGround(RANGE, hold=np.inf)
+    own.fit(pts)
+    at = np.array([[44.0, 3.0], [-41.0, -20.0], [10.0, 46.0]])
+    assert np.all(own.under(at) > 0.05)                          # what the cells alone say
+    np.testing.assert_allclose(held.under(at), -0.2, atol=0.06)
+    assert held.under(np.array([[5.0, 5.0]]))[0] == pytest.approx(-0.2, abs=0.06)
 
 
 def test_a_roof_hiding_the_road_takes_its_neighbours_ground():
@@ -81,6 +109,8 @@ def test_empty_sparse_and_non_finite_input():
     assert out.shape == bad.shape and np.isnan(out[2, 2])
     with pytest.raises(ValueError, match='cell > 0'):
         LocalGround(RANGE, cell=0.0)
+    with pytest.raises(ValueError, match='hold > cell'):
+        LocalGround(RANGE, hold=2.0)
 
 
 @pytest.mark.slow
