@@ -15,10 +15,13 @@ the road where they stand:
 2. cells with too few returns, and cells standing clearly above the median of their
    neighbours (the roof of a car or a bus shelter hiding the road), take their neighbours'
    value; the far field falls back to z = 0;
-3. beyond ``hold`` m every cell takes the ground found nearer on its bearing: there a sparse
-   LiDAR's rings leave gaps with no road returns at all (a 16-beam sensor 2 m up has none
-   between about 38 m and 115 m), and the lowest returns of such a cell are the bottoms of
-   the objects in it, 0.3-0.9 m above the road (docs/experiments/ground, "the far field");
+3. beyond ``hold`` m a cell may not rise more than ``rise`` above the ground found nearer on
+   its bearing: there a sparse LiDAR's rings leave gaps with no road returns at all (a
+   16-beam sensor 2 m up has none between about 38 m and 115 m), and the lowest returns of
+   such a cell are the bottoms of the objects in it, 0.3-0.9 m above the road. That error is
+   always upward (no return lies under the road), so a far cell lower than the ground nearer
+   keeps its own estimate: a road falling away is followed (docs/experiments/ground, "the far
+   field");
 4. every point's height becomes its height above the ground under it (bilinear between the
    cell centres), and every box's centre is raised by the ground under its centre.
 
@@ -53,25 +56,29 @@ class LocalGround:
     :param max_step: a cell more than this above the median of its neighbours takes it.
     :param road_band: the ground is the median height of the returns within this of the
         cell's lowest ones.
-    :param hold: range (m) beyond which a cell takes the ground nearer on its bearing
-        (``inf``: every cell its own).
+    :param hold: range (m) beyond which a cell rises at most ``rise`` above the ground nearer
+        on its bearing (``inf``: every cell its own).
+    :param rise: see ``hold`` (m).
     """
 
     def __init__(self, point_range: tuple[float, ...] | list[float], cell: float = 4.0,
                  band: tuple[float, float] = (-2.0, 1.5), percentile: float = 0.05,
                  min_points: int = 20, max_step: float = 0.3,
-                 road_band: float = 0.3, hold: float = 30.0) -> None:
+                 road_band: float = 0.3, hold: float = 30.0,
+                 rise: float = 0.1) -> None:
         x0, y0, _, x1, y1, _ = (float(v) for v in point_range)
-        if not cell > 0 or not band[1] > band[0] or not 0 < percentile < 1 or not hold > cell:
-            raise ValueError(f'LocalGround: cell > 0, a band lo < hi, a percentile in (0, 1) '
-                             f'and hold > cell needed, got {cell}, {band}, {percentile}, {hold}')
+        if not cell > 0 or not band[1] > band[0] or not 0 < percentile < 1 or not hold > cell \
+                or not rise >= 0:
+            raise ValueError(f'LocalGround: cell > 0, a band lo < hi, a percentile in (0, 1), '
+                             f'hold > cell and rise >= 0 needed, got {cell}, {band}, '
+                             f'{percentile}, {hold}, {rise}')
         self.x0, self.y0, self.cell = x0, y0, float(cell)
         self.nx = max(2, int(np.ceil((x1 - x0) / cell)))
         self.ny = max(2, int(np.ceil((y1 - y0) / cell)))
         self.zlo = float(band[0])
         self.n_bins = int(np.ceil((band[1] - band[0]) / BIN_M))
         self.percentile, self.min_points, self.max_step = percentile, min_points, max_step
-        self.road_band, self.hold = road_band, float(hold)
+        self.road_band, self.hold, self.rise = road_band, float(hold), float(rise)
         self.grid = np.zeros((self.ny, self.nx), np.float32)
         # the far cells, and where on their bearing their ground is read: a cell diagonal
         # inside ``hold``, so that the bilinear read touches no far cell
@@ -108,7 +115,8 @@ class LocalGround:
         z[high] = med[high]
         self.grid = _fill(z).astype(np.float32)
         if self.far.any():
-            self.grid[self.far] = self.under(self._far_from)
+            self.grid[self.far] = np.minimum(self.grid[self.far],
+                                             self.under(self._far_from) + self.rise)
         return self.grid
 
     def level(self, points: NDArray[np.float32]) -> NDArray[np.float32]:

@@ -54,15 +54,16 @@ def test_a_slope_and_a_crown_follow_the_road():
     raw = ground[near, 2]
     assert np.abs(np.median(residual)) < 0.05 and np.percentile(np.abs(residual), 95) < 0.15
     assert np.percentile(np.abs(raw), 95) > 1.0                   # what the model got before
-    # with the default hold (30 m) the slope is followed within it, and held beyond it
+    # with the default hold (30 m) the slope is followed within it; beyond it the climb is
+    # capped at the ground nearer on the bearing + rise, and the fall is followed
     est = LocalGround(RANGE)
     out = est.level(ground)
     r = np.hypot(ground[:, 0], ground[:, 1])
-    inside = r < est.hold - np.sqrt(2) * est.cell
-    assert np.percentile(np.abs(out[inside, 2]), 95) < 0.15
     read = est.hold - np.sqrt(2) * est.cell                       # where the far cells read
-    ahead = est.under(np.array([[45.0, 0.0]]))[0]
-    assert ahead == pytest.approx(height(read, 0.0), abs=0.1)     # not height(45, 0) = 1.8
+    assert np.percentile(np.abs(out[r < read, 2]), 95) < 0.15
+    ahead, behind = est.under(np.array([[45.0, 0.0], [-45.0, 0.0]]))
+    assert ahead == pytest.approx(height(read, 0.0) + est.rise, abs=0.1)   # not 1.8
+    assert behind == pytest.approx(height(-45.0, 0.0), abs=0.1)           # -1.8, followed
 
 
 def test_beyond_the_last_ring_the_bottoms_of_objects_are_not_taken_for_the_road():
@@ -80,7 +81,8 @@ def test_beyond_the_last_ring_the_bottoms_of_objects_are_not_taken_for_the_road(
     own.fit(pts)
     at = np.array([[44.0, 3.0], [-41.0, -20.0], [10.0, 46.0]])
     assert np.all(own.under(at) > 0.05)                          # what the cells alone say
-    np.testing.assert_allclose(held.under(at), -0.2, atol=0.06)
+    assert np.all(held.under(at) < -0.2 + held.rise + 0.06)        # at most the cap above
+    assert np.all(held.under(at) > -0.2 - 0.06)
     assert held.under(np.array([[5.0, 5.0]]))[0] == pytest.approx(-0.2, abs=0.06)
 
 
@@ -111,6 +113,8 @@ def test_empty_sparse_and_non_finite_input():
         LocalGround(RANGE, cell=0.0)
     with pytest.raises(ValueError, match='hold > cell'):
         LocalGround(RANGE, hold=2.0)
+    with pytest.raises(ValueError, match='rise >= 0'):
+        LocalGround(RANGE, rise=-0.1)
 
 
 @pytest.mark.slow
