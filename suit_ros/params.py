@@ -84,8 +84,9 @@ class DetectorParams:
         "with tracking: a tracked detection's score is (1 - mix) x its own + mix x its "
         "track's running score; 0: the model's scores", lo=0.0, hi=1.0))
     ground: GroundChoice = field(default='checkpoint', metadata=_spec(
-        "checkpoint | as_given | local: the input's heights as the checkpoint was trained on "
-        "them, as base_link has them, or leveled to the ground estimated around each point "
+        "checkpoint | as_given | local: the input's heights as the checkpoint's config says "
+        "(the shipped ones: local), as base_link has them, or leveled to the ground estimated "
+        "around each point "
         '(sloped roads, an extrinsic height a little off; boxes put back on the road); a '
         'change resets the memory',
         choices=get_args(GroundChoice)))
