@@ -67,10 +67,10 @@ class LocalGround:
                  road_band: float = 0.3, hold: float = 30.0,
                  rise: float = 0.1) -> None:
         x0, y0, _, x1, y1, _ = (float(v) for v in point_range)
-        if not cell > 0 or not band[1] > band[0] or not 0 < percentile < 1 or not hold > cell \
-                or not rise >= 0:
+        if not cell > 0 or not band[1] > band[0] or not 0 < percentile < 1 \
+                or not hold > np.sqrt(2.0) * cell or not rise >= 0:
             raise ValueError(f'LocalGround: cell > 0, a band lo < hi, a percentile in (0, 1), '
-                             f'hold > cell and rise >= 0 needed, got {cell}, {band}, '
+                             f'hold > 1.42 x cell and rise >= 0 needed, got {cell}, {band}, '
                              f'{percentile}, {hold}, {rise}')
         self.x0, self.y0, self.cell = x0, y0, float(cell)
         self.nx = max(2, int(np.ceil((x1 - x0) / cell)))

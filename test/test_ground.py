@@ -111,8 +111,8 @@ def test_empty_sparse_and_non_finite_input():
     assert out.shape == bad.shape and np.isnan(out[2, 2])
     with pytest.raises(ValueError, match='cell > 0'):
         LocalGround(RANGE, cell=0.0)
-    with pytest.raises(ValueError, match='hold > cell'):
-        LocalGround(RANGE, hold=2.0)
+    with pytest.raises(ValueError, match='hold > 1.42 x cell'):
+        LocalGround(RANGE, hold=5.0)                               # read behind the sensor
     with pytest.raises(ValueError, match='rise >= 0'):
         LocalGround(RANGE, rise=-0.1)
 
