@@ -145,7 +145,10 @@ def main() -> int:
         '| model | SUIT: CenterPoint-pillar + sparse memory + GeoNet (`temporal: suit`) | '
         'CenterPoint-pillar, single frame (`temporal: none`) |',
         f'| input | {cfg.get("sweeps", "?")} sweeps in base_link, x y z intensity (0..1) '
-        'time-lag | the same |',
+        'time-lag; heights '
+        + ('leveled to the local ground (`pillars.ground: local`, docs/experiments/ground)'
+           if cfg.get('pillars', {}).get('ground') == 'local' else 'as base_link has them')
+        + ' | the same |',
         '| architecture | 0.4 m pillars over +-51.2 m, 32-channel PFN (time lag x '
         f'{cfg.get("pillars", {}).get("time_scale", 1.0):g}), backbone 32/64/128, '
         '128 x 128 head map (0.8 m cells); significant sampling alpha 0.1, K 200, 3 x 3 square; '

@@ -13,7 +13,9 @@ checkpoint changed in one way:
 - ``tracking``: the node's tracker over the detections (velocities, scores, ids);
 - ``overhead``: the drives with canopies and awnings over their objects
   (:func:`suit_ros.data.overhead.overhead_drives`, fixed draws);
-- ``ground local``: the input leveled to its local ground (:mod:`suit_ros.ground`);
+- ``ground local``: the input leveled to its local ground (:mod:`suit_ros.ground`), and
+  ``ground as given``: not leveled; each runs only for a checkpoint whose config asks for the
+  other (the shipped ones ask for ``local``);
 - ``overhang drop``: the returns that hang over a gap in their column dropped
   (:mod:`suit_ros.overhang`), and ``overhead, overhang drop``: the same on the drives with
   canopies and awnings.
@@ -40,10 +42,12 @@ import numpy as np
 
 from suit_ros.config import TemporalMode
 from suit_ros.model.inference import PrecisionChoice
+from suit_ros.params import GroundParam
 from suit_ros.structures import Frame
 
 VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking',
-            'overhead', 'ground local', 'overhang drop', 'overhead, overhang drop')
+            'overhead', 'ground local', 'ground as given', 'overhang drop',
+            'overhead, overhang drop')
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
@@ -89,8 +93,11 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         if 'overhang drop' in variant:
             kwargs['overhang'] = 'drop'
         return run_model(model, drives, **kwargs)
-    if variant == 'ground local':
-        return run_model(model, sequences, ground='local', **kwargs)
+    if variant in ('ground local', 'ground as given'):
+        ground: GroundParam = 'local' if variant == 'ground local' else 'as_given'
+        if model.cfg.pillars.ground == ground:
+            return None
+        return run_model(model, sequences, ground=ground, **kwargs)
     raise ValueError(f'unknown variant {variant!r}; choose from {", ".join(VARIANTS)}')
 
 
@@ -303,7 +310,6 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from suit_ros.checkpoint import (
-        default_checkpoint_path,
         resolve_checkpoint,
         shipped_checkpoints,
     )
@@ -312,9 +318,7 @@ def run(args: argparse.Namespace) -> int:
     checkpoints = [(n, p) for n, p in args.run]
     variants = list(dict.fromkeys(args.variant))
     if args.ablation:
-        shipped = default_checkpoint_path().parent
-        checkpoints = checkpoints or [('single', str(shipped / 'centerpoint_single.safetensors')),
-                                      ('suit', str(shipped / 'suit_default.safetensors'))]
+        checkpoints = checkpoints or [('single', 'centerpoint_single'), ('suit', 'suit_default')]
         variants = list(VARIANTS)
     if not checkpoints:
         raise SuitRosError('give checkpoints to compare (--run NAME CHECKPOINT, repeatable) '

@@ -50,3 +50,21 @@ def test_compare_command_writes_paired_results(tmp_path):
     missing = subprocess.run(cmd[:4] + ['--run', 'x', str(tmp_path / 'nope.safetensors'),
                                         '--out', str(out)], capture_output=True, text=True)
     assert missing.returncode != 0 and 'does not exist' in missing.stderr
+
+
+def test_a_ground_variant_runs_only_where_it_changes_the_input():
+    """``ground local`` runs a checkpoint that asks for its input as given, ``ground as
+    given`` one that asks for it leveled (the shipped ones); otherwise no run (None)."""
+    from suit_ros.compare import variant_run
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.data.sequences import synthetic_split
+    from suit_ros.model.detector import SUITDetector
+    drives = [s[:2] for s in synthetic_split('tune', 1, 2)]
+    for trained, applies in (('local', 'ground as given'), ('as_given', 'ground local')):
+        cfg = model_config_from_dict({'temporal': 'none', 'pillars': {'ground': trained}},
+                                     'test')
+        model = SUITDetector(cfg).eval()
+        other = 'ground local' if applies == 'ground as given' else 'ground as given'
+        assert variant_run('unused', model, other, drives, 'float32') is None
+        out = variant_run('unused', model, applies, drives, 'float32')
+        assert out is not None and out.evaluate(cfg.class_names) is not None
