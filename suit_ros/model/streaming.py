@@ -275,12 +275,14 @@ class StreamingDetector:
                          out['velocities'].float().cpu().numpy(),
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
         carried = out['carried'].cpu().numpy()
-        if self._ground is not None and len(det):
-            det.boxes[:, 2] += self._ground.under(det.boxes[:, :2])   # back on the road
         ids = np.zeros(len(det), np.int64)
         if self.tracks is not None and T_odom_base is not None:
+            # in the frame of the model input (leveled or not): the sweep velocities read
+            # the boxes' returns from the input's heights
             det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points,
                                   carried=carried)
+        if self._ground is not None and len(det):
+            det.boxes[:, 2] += self._ground.under(det.boxes[:, :2])   # back on the road
         published = det.scores >= np.where(carried, self.carry_thresholds[det.labels],
                                            self.score_thresholds[det.labels])
         if not published.all():
