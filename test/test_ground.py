@@ -69,7 +69,8 @@ def test_a_slope_and_a_crown_follow_the_road():
 def test_beyond_the_last_ring_the_bottoms_of_objects_are_not_taken_for_the_road():
     """A sparse LiDAR's last road ring at 30 m: beyond it a cell holds only the returns of
     the objects in it (a car's side from 0.3 m up), whose lowest returns a cell's own
-    estimate takes for the road; held, the car's cell keeps the road's height."""
+    estimate takes for the road; with the far cells' rise capped, the car's cell stays within
+    ``rise`` of the road nearer on its bearing."""
     rng = np.random.default_rng(3)
     ground = road(rng, lambda x, y: np.full_like(x, -0.2), reach=28.0)
     cars = [block(rng, (x, y), (4.5, 1.9), -0.2 + 0.3, -0.2 + 1.5, n=1000)
