@@ -16,6 +16,7 @@
 #            function at the start), side by side with one thread each for 60 min:
 #            SUIT                  -> suit_default.safetensors
 #            single frame          -> centerpoint_single.safetensors
+#            both then level their input to its local ground (metadata: pillars.ground local);
 #   then the benchmark (docs/results.md). The SUIT runs of stages 2-5 are not in the shipped
 #   SUIT model's lineage (README, "More drives, not more steps"), but they shared the 2 cores
 #   with the single-frame runs of the same stages, which set how many steps those got in their
@@ -68,6 +69,16 @@ wait
 wait
 cp runs/suit_t10/model.safetensors suit_ros/checkpoints/suit_default.safetensors
 cp runs/single_t10/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
+# both level their input to its local ground when they run (pillars.ground: local; trained on
+# the input as given; the decision and its figures: docs/experiments/ground): metadata only
+"$py" - <<'PY'
+from suit_ros.checkpoint import read_metadata, update_metadata
+for name in ('suit_default', 'centerpoint_single'):
+    path = f'suit_ros/checkpoints/{name}.safetensors'
+    config = read_metadata(path)['config']
+    config['pillars']['ground'] = 'local'
+    update_metadata(path, config=config)
+PY
 # the thresholds the node publishes at (best F1 on the synthetic tune split), in each checkpoint
 "$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
 "$suit" choose-thresholds --checkpoint suit_ros/checkpoints/centerpoint_single.safetensors --write
