@@ -69,8 +69,12 @@ wait
 wait
 cp runs/suit_t10/model.safetensors suit_ros/checkpoints/suit_default.safetensors
 cp runs/single_t10/model.safetensors suit_ros/checkpoints/centerpoint_single.safetensors
-# both level their input to its local ground when they run (pillars.ground: local; trained on
-# the input as given; the decision and its figures: docs/experiments/ground): metadata only
+# the thresholds the node publishes at (best F1 on the synthetic tune split), in each checkpoint
+"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
+"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/centerpoint_single.safetensors --write
+# then both level their input to its local ground when they run (pillars.ground: local; trained
+# on the input as given, thresholds chosen on it; the decision and its figures:
+# docs/experiments/ground): metadata only
 "$py" - <<'PY'
 from suit_ros.checkpoint import read_metadata, update_metadata
 for name in ('suit_default', 'centerpoint_single'):
@@ -79,7 +83,4 @@ for name in ('suit_default', 'centerpoint_single'):
     config['pillars']['ground'] = 'local'
     update_metadata(path, config=config)
 PY
-# the thresholds the node publishes at (best F1 on the synthetic tune split), in each checkpoint
-"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
-"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/centerpoint_single.safetensors --write
 "$suit" compare --ablation --out docs
