@@ -53,3 +53,28 @@ def test_model_yaml_base_and_overrides(tmp_path):
     with pytest.raises(ConfigError, match='cycle'):
         load_model_config(tmp_path / 'a.yaml')
 
+
+
+def test_recipe_configs_load_and_match_the_shipped_checkpoints():
+    """Every training config of the recipe (scripts/train_default.sh) loads with its model
+    config, and the shipped checkpoints hold the config of their last stage (stage 8 for SUIT,
+    stage 7 for the single-frame model), leveled to their local ground as they run."""
+    from dataclasses import replace
+
+    from suit_ros.checkpoint import read_metadata
+    from suit_ros.config import load_model_config, model_config_from_dict
+    from suit_ros.train import load_train_config
+    repo = Path(__file__).resolve().parents[1]
+    recipe = (repo / 'scripts/train_default.sh').read_text()
+    for path in sorted((repo / 'params').glob('train_*.yaml')):
+        tc = load_train_config(path)
+        load_model_config(repo / tc.model_config)
+    for name, last in (('suit_default', 'train_suit_overhang.yaml'),
+                       ('centerpoint_single', 'train_single_time10.yaml')):
+        assert f'params/{last}' in recipe
+        tc = load_train_config(repo / 'params' / last)
+        stage = replace(load_model_config(repo / tc.model_config), temporal=tc.temporal)
+        meta = read_metadata(repo / 'suit_ros/checkpoints' / f'{name}.safetensors')
+        shipped = model_config_from_dict(meta['config'])
+        assert shipped.pillars.ground == 'local'
+        assert shipped.diff(stage) == ['pillars.ground'], (name, shipped.diff(stage))
