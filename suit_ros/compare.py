@@ -17,7 +17,9 @@ checkpoint changed in one way:
   ``ground as given``: not leveled; each runs only for a checkpoint whose config asks for the
   other (the shipped ones ask for ``local``);
 - ``overhang drop``: the returns that hang over a gap in their column dropped
-  (:mod:`suit_ros.overhang`), and ``overhead, overhang drop``: the same on the drives with
+  (:mod:`suit_ros.overhang`), and ``overhang keep``: every return kept; each runs only for a
+  checkpoint whose config asks for the other (the shipped SUIT model drops them);
+  ``overhead, overhang drop`` and ``overhead, overhang keep``: the same on the drives with
   canopies and awnings.
 
 Paired differences (same drive resamples): every checkpoint against the first, each variant
@@ -42,12 +44,12 @@ import numpy as np
 
 from suit_ros.config import TemporalMode
 from suit_ros.model.inference import PrecisionChoice
-from suit_ros.params import GroundParam
+from suit_ros.params import GroundParam, OverhangParam
 from suit_ros.structures import Frame
 
 VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking',
-            'overhead', 'ground local', 'ground as given', 'overhang drop',
-            'overhead, overhang drop')
+            'overhead', 'ground local', 'ground as given', 'overhang drop', 'overhang keep',
+            'overhead, overhang drop', 'overhead, overhang keep')
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
@@ -87,11 +89,14 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         return run_model(model, sequences, precision='bfloat16')
     if variant == 'tracking':
         return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
-    if variant in ('overhead', 'overhang drop', 'overhead, overhang drop'):
+    if variant == 'overhead' or variant.endswith(('overhang drop', 'overhang keep')):
         from suit_ros.data.overhead import overhead_drives
         drives = overhead_drives(sequences) if variant.startswith('overhead') else sequences
-        if 'overhang drop' in variant:
-            kwargs['overhang'] = 'drop'
+        if variant != 'overhead':
+            overhang: OverhangParam = 'drop' if variant.endswith('drop') else 'keep'
+            if model.cfg.pillars.overhang == overhang:
+                return None
+            kwargs['overhang'] = overhang
         return run_model(model, drives, **kwargs)
     if variant in ('ground local', 'ground as given'):
         ground: GroundParam = 'local' if variant == 'ground local' else 'as_given'

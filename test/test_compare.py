@@ -68,3 +68,23 @@ def test_a_ground_variant_runs_only_where_it_changes_the_input():
         assert variant_run('unused', model, other, drives, 'float32') is None
         out = variant_run('unused', model, applies, drives, 'float32')
         assert out is not None and out.evaluate(cfg.class_names) is not None
+
+
+def test_an_overhang_variant_runs_only_where_it_changes_the_input():
+    """``overhang keep`` runs a checkpoint that drops the returns that hang (the shipped SUIT
+    model), ``overhang drop`` one that keeps them; with ``overhead,`` the same on the drives
+    with canopies; otherwise no run (None)."""
+    from suit_ros.compare import variant_run
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.data.sequences import synthetic_split
+    from suit_ros.model.detector import SUITDetector
+    drives = [s[:2] for s in synthetic_split('tune', 1, 2)]
+    for trained, applies in (('drop', 'keep'), ('keep', 'drop')):
+        cfg = model_config_from_dict({'temporal': 'none', 'pillars': {'overhang': trained}},
+                                     'test')
+        model = SUITDetector(cfg).eval()
+        for prefix in ('', 'overhead, '):
+            assert variant_run('unused', model, f'{prefix}overhang {trained}', drives,
+                               'float32') is None
+            out = variant_run('unused', model, f'{prefix}overhang {applies}', drives, 'float32')
+            assert out is not None and out.evaluate(cfg.class_names) is not None
