@@ -1,7 +1,12 @@
 """Run 12's composite: every weight of run 16 (suit_default: the overhang filter), the carry
-branch (its W2 and head) of suit_carry, in suit_carry's config with run 16's filter.
+branch (its W2 and head) of the earlier suit_carry (run 6), in its config with run 16's filter
+(docs/experiments/memory_carry/configs/model_branch16.yaml, ground local as it runs). Run 16
+is suit_default at commit 240b9ee (before its memory sampling moved to alpha 0.2), run 6 is
+suit_carry there:
 
-    python docs/experiments/memory_carry/make_carry16.py OUT.safetensors
+    git show 240b9ee:suit_ros/checkpoints/suit_default.safetensors > run16.safetensors
+    git show 240b9ee:suit_ros/checkpoints/suit_carry.safetensors > run6.safetensors
+    python docs/experiments/memory_carry/make_carry16.py run16.safetensors run6.safetensors OUT
 """
 import dataclasses
 import sys
@@ -18,9 +23,7 @@ from suit_ros.checkpoint import (
 )
 from suit_ros.model.detector import SUITDetector
 
-out = sys.argv[1]
-default = 'suit_ros/checkpoints/suit_default.safetensors'
-carry = 'suit_ros/checkpoints/suit_carry.safetensors'
+default, carry, out = sys.argv[1:4]
 carry_model, _, _ = load_checkpoint(carry, 'cpu')
 base_cfg = load_checkpoint(default, 'cpu')[0].cfg
 cfg = dataclasses.replace(carry_model.cfg, pillars=base_cfg.pillars)
