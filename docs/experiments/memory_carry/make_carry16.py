@@ -37,5 +37,5 @@ with torch.no_grad():
 meta = read_metadata(default)
 save_checkpoint(out, m.eval(), cfg, extra={'composite': [default, carry]})
 update_metadata(out, publish_thresholds=meta['publish_thresholds'],
-                description='run 16 (suit_default) with suit_carry\'s carry branch '
+                description="run 16 (suit_default) with suit_carry's carry branch "
                             '(docs/experiments/memory_carry, run 12)')
