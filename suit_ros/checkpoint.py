@@ -15,7 +15,7 @@ from typing import Any
 import torch
 
 from suit_ros import __version__
-from suit_ros.config import ModelConfig, TemporalMode, model_config_from_dict
+from suit_ros.config import SPARSE_MEMORIES, ModelConfig, TemporalMode, model_config_from_dict
 from suit_ros.errors import CheckpointError, ConfigError
 
 FORMAT = 'suit_ros/1'
@@ -217,7 +217,15 @@ def load_model_as(path: str | os.PathLike[str], temporal: TemporalMode | None = 
     model, cfg, _ = load_checkpoint(path, device)
     if temporal is None or temporal == cfg.temporal:
         return model
-    other = SUITDetector(replace(cfg, temporal=temporal))
+    if temporal in SPARSE_MEMORIES:
+        new = replace(cfg, temporal=temporal)
+    else:
+        # carrying needs a sparse memory: the dense or single-frame variant of a carrying
+        # checkpoint (suit_carry) is its base model
+        new = replace(cfg, temporal=temporal, sampling=replace(cfg.sampling, carry_frames=0),
+                      fusion_gate='none' if cfg.fusion_gate == 'carry_branch'
+                      else cfg.fusion_gate)
+    other = SUITDetector(new)
     other.load_state_dict(model.state_dict(), strict=False)
     return other.to(model.device).eval()
 

@@ -19,6 +19,8 @@ TemporalMode = Literal['none', 'dense', 'sparse', 'sparse_velocity', 'suit']
 Relaxation = Literal['square', 'circle', 'rectangle']
 NmsKind = Literal['rotated', 'circle']
 TEMPORAL_MODES: tuple[str, ...] = get_args(TemporalMode)
+# the temporal modes whose memory is sparse (sampled cells, which a carry can keep)
+SPARSE_MEMORIES: tuple[TemporalMode, ...] = ('sparse', 'sparse_velocity', 'suit')
 # where the memory's past term enters the fused map: everywhere (the paper), or only at head
 # cells whose neighbourhood has no return in the current input (the memory fills what the
 # sweeps do not see: occlusion, a lost sector; what is seen now is left as the sweep shows it)
@@ -167,13 +169,12 @@ def validate(cfg: ModelConfig) -> None:
                   f'0..8, got {cfg.fusion_gate!r} and {cfg.fusion_gate_radius}')
     if not 0 <= cfg.sampling.carry_frames <= 20:
         raise bad(f'sampling.carry_frames must be within 0..20, got {cfg.sampling.carry_frames}')
-    if cfg.sampling.carry_frames and (cfg.fusion_gate == 'none' or cfg.temporal
-                                      not in ('sparse', 'sparse_velocity', 'suit')):
+    if cfg.sampling.carry_frames and (cfg.fusion_gate == 'none'
+                                      or cfg.temporal not in SPARSE_MEMORIES):
         raise bad('sampling.carry_frames needs a sparse memory and a fusion_gate (unobserved, '
                   'unobserved_output or carry_branch): a sample is carried only where the '
                   'current input has no returns')
-    if cfg.fusion_gate == 'carry_branch' and cfg.temporal not in ('sparse', 'sparse_velocity',
-                                                                  'suit'):
+    if cfg.fusion_gate == 'carry_branch' and cfg.temporal not in SPARSE_MEMORIES:
         raise bad(f'fusion_gate carry_branch needs a sparse memory, not temporal '
                   f'{cfg.temporal!r}')
     if not cfg.class_names or len(set(cfg.class_names)) != len(cfg.class_names):

@@ -172,6 +172,25 @@ def test_shipped_checkpoints_load_and_detect(name, temporal):
     assert all(np.isfinite(r.detections.boxes).all() for r in results)
 
 
+@pytest.mark.parametrize('name', ['suit_default', 'suit_carry'])
+def test_shipped_checkpoints_load_in_the_other_temporal_modes(name):
+    """The bench and the ablation build the dense and single-frame variants of a checkpoint:
+    a carrying one (suit_carry) gives its base model there, since only a sparse memory
+    carries; in a sparse mode it keeps its carry."""
+    from suit_ros.checkpoint import load_model_as
+    from suit_ros.config import TEMPORAL_MODES
+    base = load_checkpoint(name, 'cpu')[1]
+    for temporal in TEMPORAL_MODES:
+        cfg = load_model_as(name, temporal, 'cpu').cfg
+        assert cfg.temporal == temporal
+        if temporal in ('none', 'dense'):
+            assert cfg.sampling.carry_frames == 0 and cfg.fusion_gate != 'carry_branch'
+        else:
+            assert cfg.sampling.carry_frames == base.sampling.carry_frames
+            assert cfg.fusion_gate == base.fusion_gate
+    assert (base.fusion_gate == 'carry_branch') == (name == 'suit_carry')
+
+
 def test_shipped_checkpoint_in_bfloat16_finds_the_same_objects():
     """The node's ``precision: auto`` on a CPU with bfloat16 units: every confident float32
     detection has a bfloat16 twin (same class, centre within 0.1 m, score within 0.03)."""
