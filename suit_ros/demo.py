@@ -111,13 +111,17 @@ def _print_published(gt: list[Any], det: list[Any], num_points: list[Any]) -> No
     from suit_ros import CLASS_NAMES
     from suit_ros.report import class_counts
     n = max(len(gt), 1)
-    print('published boxes per frame within 50 m (objects with returns there), recall / '
-          'precision:')
+    print(f'published boxes per frame within 50 m (objects with returns there) [in all {n} '
+          'frames], recall / precision:')
+
+    def three(x: float) -> str:
+        return 'n/a  ' if x != x else f'{x:.3f}'
     for c, counts in class_counts(gt, det, CLASS_NAMES, num_points).items():
         boxes, present = len(counts.scores) / n, counts.npos / n
         at = counts.at(0.0)
-        print(f'  {c:<11} {boxes:6.1f} ({present:5.1f})   recall {at["recall"]:.3f}  '
-              f'precision {at["precision"]:.3f}')
+        print(f'  {c:<11} {boxes:6.1f} ({present:5.1f}) [{len(counts.scores):5d} for '
+              f'{counts.npos:5d}]   recall {three(at["recall"])}  '
+              f'precision {three(at["precision"])}')
 
 
 def draw_bev(bag: Path, stamp: int, gt: Any, det: Any, path: Path) -> None:
