@@ -191,6 +191,33 @@ def test_shipped_checkpoints_load_in_the_other_temporal_modes(name):
     assert (base.fusion_gate == 'carry_branch') == (name == 'suit_carry')
 
 
+@pytest.mark.parametrize('name', ['suit_default', 'suit_carry'])
+def test_shipped_suit_checkpoints_on_an_empty_road(name):
+    """A road with nothing on it: (almost) no cell scores the memory's alpha, the sparse
+    memory stays empty, and the following steps run (GeoNet's reshape of an empty memory
+    crashed)."""
+    import numpy as np
+
+    from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.ops.geometry import pose_from_xyz_rpy
+    runner = StreamingDetector(load_checkpoint(name, 'cpu')[0])
+    rng = np.random.default_rng(0)
+    used, sizes = [], []
+    for t in range(4):
+        n = 30000
+        ang, rad = rng.uniform(-np.pi, np.pi, n), rng.uniform(3, 50, n)
+        pts = np.c_[rad * np.cos(ang), rad * np.sin(ang), rng.normal(-1.8, 0.02, n),
+                    rng.uniform(0, 0.3, n)].astype(np.float32)
+        res = runner.step(pts, int(1e9 + t * 1e8), pose_from_xyz_rpy((t * 1.0, 0, 1.8), (0, 0, 0)))
+        assert np.isfinite(res.detections.boxes).all() and len(res.detections) <= 2
+        used.append(res.used_memory)
+        assert runner.memory is not None
+        sizes.append(len(runner.memory.batch_index))
+    assert used == [False, True, True, True]
+    # suit_default keeps cells scoring 0.2 or more: none; suit_carry 0.1: a stray one or two
+    assert max(sizes) == 0 if name == 'suit_default' else max(sizes) <= 3, sizes
+
+
 def test_shipped_checkpoint_in_bfloat16_finds_the_same_objects():
     """The node's ``precision: auto`` on a CPU with bfloat16 units: every confident float32
     detection has a bfloat16 twin (same class, centre within 0.1 m, score within 0.03)."""

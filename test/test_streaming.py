@@ -90,3 +90,33 @@ def test_carried_boxes_are_published_at_the_carry_thresholds():
     assert sum(len(r.detections) for r in only_carried[2:]) > 0
     assert not any(len(r.detections) for r in only_carried[:1])     # no memory yet
     assert np.all([r.used_memory for r in only_carried[1:]])
+
+
+@pytest.mark.parametrize('temporal', ['suit', 'sparse_velocity', 'sparse', 'suit carrying'])
+def test_a_memory_with_no_sample_fuses_nothing(temporal):
+    """A scene where no cell scores alpha or more leaves the sparse memory empty (the shipped
+    SUIT model keeps cells scoring 0.2 or more: an empty road); the next step fuses nothing
+    and gives what a step with the memory dropped gives (this crashed GeoNet's reshape); with
+    a carry branch the step runs."""
+    from dataclasses import replace
+    torch.manual_seed(0)
+    cfg = small_config(temporal.split()[0])
+    carry = {'fusion_gate': 'carry_branch', 'sampling': replace(cfg.sampling, carry_frames=3)}
+    cfg = replace(cfg, **carry) if temporal.endswith('carrying') else cfg
+    model = SUITDetector(replace(cfg, sampling=replace(cfg.sampling, alpha=0.999))).eval()
+    K = len(model.cfg.class_names)
+    empty = StreamingDetector(model, score_thresholds=[0.0] * K)
+    dropped = StreamingDetector(model, score_thresholds=[0.0] * K)
+    for t in range(3):
+        f = frame(t)
+        dropped.reset('memory dropped', sweeps=False)
+        a = empty.step(f.points, f.stamp_ns, f.pose)
+        b = dropped.step(f.points, f.stamp_ns, f.pose)
+        assert len(a.detections) > 0
+        if temporal.endswith('carrying'):
+            # the carry decoding (boxes where the cloud has no returns cut apart) still
+            # applies with nothing carried, so only the step itself is checked
+            continue
+        assert torch.equal(torch.from_numpy(a.detections.boxes),
+                           torch.from_numpy(b.detections.boxes)), t
+    assert empty.memory is not None and len(empty.memory.batch_index) == 0

@@ -170,7 +170,9 @@ class SUITDetector(nn.Module):
         M = feats.shape[0]
         if self.geonet is not None:
             win = memory.window
-            patches = (feats * mask[..., None]).permute(0, 2, 1).reshape(M, -1, win, win)
+            # channels named: a memory may hold no sample (no cell scored alpha or more)
+            patches = (feats * mask[..., None]).permute(0, 2, 1).reshape(
+                M, feats.shape[-1], win, win)
             logits = self.geonet(patches, rotate_velocities(sub.velocities, bi, T_now_prev))
             q = torch.softmax(logits, dim=1)
             bins = typing.cast(Tensor, self.geonet.bin_velocities)
