@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 from suit_ros.data.sequences import seen_ids
 from suit_ros.evaluate import ModelRun
 from suit_ros.structures import Detections, Frame
+from suit_ros.tracking import TrackerConfig
 
 MATCH_DIST = 2.0
 
@@ -302,6 +303,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--no-occlusion', dest='occlusion', action='store_false',
                         help='skip the natural-occlusion runs (drives as the sensor saw them)')
+    parser.add_argument('--coast-frames', type=int, default=None, metavar='N',
+                        help="the tracker's coast_frames (default: the node's)")
     parser.add_argument('--json-out', help='write the figures as JSON here')
     parser.add_argument('--markdown', help='write the tables (markdown) here')
 
@@ -320,6 +323,12 @@ def run(args: argparse.Namespace) -> int:
     result: dict[str, Any] = {'drives': args.drives, 'frames': args.frames,
                               'width_deg': args.width, 'length': args.length, 'runs': {},
                               'occlusion': {}, 'occlusion_ap': {}}
+    tracker = TrackerConfig()
+    if args.coast_frames is not None:
+        try:
+            tracker = TrackerConfig(coast_frames=args.coast_frames)
+        except ValueError as exc:
+            raise SystemExit(f'suit-ros outage: --coast-frames: {exc}') from None
     for name, path in models.items():
         model, cfg, meta = load_checkpoint(path)
         thr = published_thresholds(meta, cfg.class_names)
@@ -327,15 +336,16 @@ def run(args: argparse.Namespace) -> int:
         zero = [0.0] * len(thr)     # (for detections already cut at the published thresholds)
         for tracked in (False, True):
             key = f'{name}, tracker' if tracked else name
-            counts = count_outage(seqs, published_by_drive(_run(model, seqs, tracked), thr, carry),
-                                  outs, zero, args.length)
+            runs = _run(model, seqs, tracker if tracked else None)
+            counts = count_outage(seqs, published_by_drive(runs, thr, carry), outs, zero,
+                                  args.length)
             result['runs'][key] = r = intervals(counts)
             print(f'{key:<24} recall by outage frame ' + ' '.join(f'{v[0]:.2f}' for v in
                                                                    r['recall'])
                   + f' | frames 3+: {_band(r["recall_from_frame_3"])} | sector precision '
                   + ' '.join(f'{v[0]:.2f}' for v in r['sector_precision']), flush=True)
             if args.occlusion:
-                run_ = _run(model, plain, tracked)
+                run_ = _run(model, plain, tracker if tracked else None)
                 occ = count_occlusion(plain, published_by_drive(run_, thr, carry), zero)
                 result['occlusion'][key] = o = intervals(occ)
                 print(f'{key:<24} occluded objects, recall by frames since last seen '
@@ -405,11 +415,11 @@ def _band(v: Any) -> str:
     return f'{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]'
 
 
-def _run(model: Any, seqs: Sequence[Sequence[Frame]], tracked: bool) -> ModelRun:
-    """The drives as the node decodes them (with or without its tracker)."""
+def _run(model: Any, seqs: Sequence[Sequence[Frame]], tracker: TrackerConfig | None
+         ) -> ModelRun:
+    """The drives as the node decodes them (with its tracker, or without: None)."""
     from suit_ros.evaluate import run_model
-    from suit_ros.tracking import TrackerConfig
-    return run_model(model, seqs, tracker=TrackerConfig() if tracked else None)
+    return run_model(model, seqs, tracker=tracker)
 
 
 def published_by_drive(run: ModelRun, thresholds: Sequence[float],

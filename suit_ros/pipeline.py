@@ -135,7 +135,8 @@ class DetectionPipeline:
                                      params.candidates,
                                      None if chosen else self.detector.published_carry_thresholds)
         self.detector.set_tracker(
-            TrackerConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix)
+            TrackerConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix,
+                          coast_frames=params.coast_frames)
             if params.tracking else None)
         self.detector.sweeps.max_age_s = params.max_gap_s     # one staleness threshold
         before_ground = self.detector.ground

@@ -39,6 +39,13 @@ class Detections:
         return Detections(np.zeros((0, 7), np.float32), np.zeros((0, 2), np.float32),
                           np.zeros(0, np.float32), np.zeros(0, np.int64))
 
+    def concat(self, other: Detections) -> Detections:
+        """Return these boxes followed by ``other``'s."""
+        return Detections(np.concatenate([self.boxes, other.boxes]),
+                          np.concatenate([self.velocities, other.velocities]),
+                          np.concatenate([self.scores, other.scores]),
+                          np.concatenate([self.labels, other.labels]))
+
     def select(self, mask: NDArray[np.bool_] | NDArray[np.int64]) -> Detections:
         """Return the boxes picked by a boolean mask or an index array."""
         return Detections(self.boxes[mask], self.velocities[mask], self.scores[mask],

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.geometry import CellIndex
+from suit_ros.ops.geometry import CellIndex, count_points_in_boxes
 from suit_ros.ops.kernels import as_float, distinct_values, sweep_histograms_by_cell
 from suit_ros.structures import Detections
 
@@ -72,6 +72,12 @@ class TrackerConfig:
         forwards); None: headings as the model gives them.
     :param max_misses: frames a track survives without a detection.
     :param max_gap_s: a longer gap between frames (or time going back) drops every track.
+    :param coast_frames: a confident track (running score >= ``birth_score``) that gets no
+        detection is published where it is predicted to be, for up to this many frames, while
+        the current sweep has no return within ``coast_margin`` of its box, on the road under
+        it included (a lost sector, a blocked sensor, the shadow of an occluder): an object
+        that drove off leaves road returns where the track expects it and is not held (0: off).
+    :param coast_margin: see ``coast_frames`` (m around the box's footprint).
     """
 
     pos_sigma: float = 0.3
@@ -86,6 +92,8 @@ class TrackerConfig:
     heading_min_speed: float | None = 1.5
     max_misses: int = 6
     max_gap_s: float = 0.5
+    coast_frames: int = 0
+    coast_margin: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ('pos_sigma', 'vel_sigma', 'accel_sigma', 'gate', 'max_gap_s'):
@@ -102,6 +110,12 @@ class TrackerConfig:
                 raise ValueError(f'TrackerConfig.{name} must be within 0..1, got {value}')
         if self.max_misses < 0:
             raise ValueError(f'TrackerConfig.max_misses must be >= 0, got {self.max_misses}')
+        if not 0 <= self.coast_frames <= self.max_misses:
+            raise ValueError(f'TrackerConfig.coast_frames must be within 0..max_misses '
+                             f'({self.max_misses}), got {self.coast_frames}')
+        if not (np.isfinite(self.coast_margin) and self.coast_margin >= 0):
+            raise ValueError(f'TrackerConfig.coast_margin must be finite and >= 0, got '
+                             f'{self.coast_margin}')
 
     def sweep_targets(self, det: Detections, class_names: Sequence[str]) -> NDArray[np.bool_]:
         """The detections whose velocity is read from the sweeps: ``sweep_classes`` scoring at
@@ -139,7 +153,9 @@ class Tracker:
         self.ids = np.zeros(0, np.int64)
         self.misses = np.zeros(0, np.int64)
         self.score = np.zeros(0)                # running score (halving weights)
+        self.shape = np.zeros((0, 5))           # z, length, width, height, yaw (odometry)
         self.stamp_ns = None
+        self.coasted = 0                        # the last update's coasted detections
 
     def __len__(self) -> int:
         return len(self.x)
@@ -174,7 +190,8 @@ class Tracker:
 
     def update(self, det: Detections, stamp_ns: int, T_odom_frame: NDArray[np.float64],
                swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None,
-               carried: NDArray[np.bool_] | None = None
+               carried: NDArray[np.bool_] | None = None,
+               current: NDArray[np.floating[Any]] | None = None
                ) -> tuple[Detections, NDArray[np.int64]]:
         """Filter one frame's detections.
 
@@ -189,9 +206,12 @@ class Tracker:
             the memory holds through an occlusion keeps the confidence it was tracked with,
             while its carried boxes last (``sampling.carry_frames``). Without a carry branch
             (None, or none carried) nothing changes.
+        :param current: ``(M, >= 3)`` the current sweep's returns in the detections' frame,
+            for ``coast_frames`` (None: nothing coasts).
         :return: the detections with filtered velocities and smoothed scores, and their track
             ids (0, the measured velocity and the model's score, for a detection below
-            ``birth_score`` that no track took).
+            ``birth_score`` that no track took); the last :attr:`coasted` of them are the
+            tracks held where the sweep shows nothing (``coast_frames``).
         """
         cfg = self.config
         T = np.asarray(T_odom_frame, np.float64)
@@ -244,21 +264,63 @@ class Tracker:
         rows[new] = len(self.x) + np.arange(n_new)
         self.x = np.concatenate([self.x, np.concatenate([centres, vel], 1)[new]])
         self.P = np.concatenate([self.P, Rm[new]])
+        self.shape = np.concatenate([self.shape, np.zeros((n_new, 5))])
+        tracked = rows >= 0
+        shape = det.boxes[tracked][:, 2:7].astype(np.float64)   # the box as last seen
+        shape[:, 4] += np.arctan2(R[1, 0], R[0, 0])
+        self.shape[rows[tracked]] = shape
         self.labels = np.concatenate([self.labels, det.labels[new]])
         self.ids = np.concatenate([self.ids, new_ids])
         self.misses = np.concatenate([self.misses, np.zeros(n_new, np.int64)])
         self.score = np.concatenate([self.score, det.scores[new]])
         out_vel = measured_vel                                  # untracked: as measured
-        tracked = rows >= 0
         out_vel[tracked] = self.x[rows[tracked], 2:] @ R
         boxes = det.boxes
         if cfg.heading_min_speed is not None and tracked.any():
             boxes = self._settle_headings(det, rows, out_vel)
+        out = Detections(boxes, out_vel, scores, det.labels)
+        self.coasted = 0
+        if cfg.coast_frames and current is not None:
+            coast, coast_ids = self._coast(T, current)
+            if len(coast):
+                out = out.concat(coast)
+                ids = np.concatenate([ids, coast_ids])
+                self.coasted = len(coast)
         keep = self.misses <= cfg.max_misses
         self.x, self.P = self.x[keep], self.P[keep]
         self.labels, self.ids, self.misses = self.labels[keep], self.ids[keep], self.misses[keep]
-        self.score = self.score[keep]
-        return Detections(boxes, out_vel, scores, det.labels), ids
+        self.score, self.shape = self.score[keep], self.shape[keep]
+        return out, ids
+
+    def _coast(self, T: NDArray[np.float64], current: NDArray[np.floating[Any]]
+               ) -> tuple[Detections, NDArray[np.int64]]:
+        """The boxes of the confident tracks missed this frame (for at most ``coast_frames``)
+        where the current sweep has no return in or around their footprint, in the frame of
+        ``T`` (see ``coast_frames``)."""
+        cfg = self.config
+        t = np.nonzero((self.misses >= 1) & (self.misses <= cfg.coast_frames)
+                       & (self.score >= cfg.birth_score))[0]
+        empty = Detections.empty()
+        if len(t) == 0:
+            return empty, np.zeros(0, np.int64)
+        R = T[:2, :2]
+        boxes = np.zeros((len(t), 7))
+        boxes[:, :2] = (self.x[t, :2] - T[:2, 3]) @ R               # odometry -> frame
+        boxes[:, 2:6] = self.shape[t, :4]
+        boxes[:, 6] = self.shape[t, 4] - np.arctan2(R[1, 0], R[0, 0])
+        boxes[:, 6] = (boxes[:, 6] + np.pi) % (2.0 * np.pi) - np.pi
+        # the whole column over the footprint and a margin: the road under it counts
+        column = boxes.copy()
+        column[:, 3:5] += 2.0 * cfg.coast_margin
+        column[:, 5] = 100.0
+        pts = np.asarray(current, np.float64)[:, :3]
+        blind = count_points_in_boxes(pts, column) == 0 if len(pts) else np.ones(len(t), bool)
+        if not blind.any():
+            return empty, np.zeros(0, np.int64)
+        t, boxes = t[blind], boxes[blind]
+        return (Detections(boxes.astype(np.float32), (self.x[t, 2:] @ R).astype(np.float32),
+                           self.score[t].astype(np.float32), self.labels[t]),
+                self.ids[t])
 
     def _correct(self, t: NDArray[np.int64], centres: NDArray[np.float64],
                  vel: NDArray[np.float64], Rm: NDArray[np.float64]) -> None:
@@ -300,7 +362,8 @@ class Tracker:
 def track_step(tracks: Tracker, det: Detections, stamp_ns: int,
                T_odom_base: NDArray[np.float64], model_points: NDArray[np.floating[Any]] | None,
                swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None,
-               carried: NDArray[np.bool_] | None = None
+               carried: NDArray[np.bool_] | None = None,
+               current: NDArray[np.floating[Any]] | None = None
                ) -> tuple[Detections, NDArray[np.int64]]:
     """The streaming detector's tracking step: read the vehicles' velocities from the sweeps
     (when the config asks for it; ``swept`` given: already read), then update the tracks.
@@ -308,12 +371,13 @@ def track_step(tracks: Tracker, det: Detections, stamp_ns: int,
     :param det: the frame's detections in base_link (the model frame).
     :param model_points: the model input ``(N, 5)`` in base_link.
     :param carried: which detections a memory carries (:meth:`Tracker.update`).
+    :param current: the current sweep's returns in base_link (``coast_frames``).
     """
     fc = tracks.config
     if swept is None and fc.sweep_sigma is not None and model_points is not None:
         swept = sweep_velocities(model_points, det.boxes,
                                  fc.sweep_targets(det, tracks.class_names))
-    return tracks.update(det, stamp_ns, T_odom_base, swept, carried)
+    return tracks.update(det, stamp_ns, T_odom_base, swept, carried, current)
 
 
 def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],

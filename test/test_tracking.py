@@ -244,3 +244,68 @@ def test_a_vehicle_driving_backwards_by_a_confident_velocity_is_turned_round():
     # after a second of centres that agree, it is
     assert drive(cfg, 6.0, 0, frames=1) == pytest.approx(np.pi - 0.2, abs=1e-5)
     assert drive(cfg, 6.0, 0, frames=10) == pytest.approx(-0.2, abs=1e-5)
+
+
+def road(T, around_odom, half=6.0, step=0.25):
+    """Road returns (a flat grid at z -1.8) over a square of the odometry frame, seen from
+    pose ``T`` (the detections' frame)."""
+    g = np.arange(-half, half + 1e-9, step)
+    xx, yy = np.meshgrid(g, g)
+    xy_odom = np.c_[xx.ravel(), yy.ravel()] + np.asarray(around_odom)
+    xy, _ = to_frame(T, xy_odom, np.zeros_like(xy_odom))
+    return np.c_[xy, np.full(len(xy), -1.8)]
+
+
+def test_coasting_holds_a_confident_track_only_where_the_sweep_shows_nothing():
+    """A car tracked for 8 frames loses its detection: where the sweep has no return around
+    its predicted box (a lost sector) it is published there, with its id, running score and
+    velocity, for ``coast_frames`` frames; where the road shows through (it drove off), not."""
+    v_true = np.array([6.0, 1.0])
+    start = np.array([15.0, -3.0])
+    held = []
+    for blind in (True, False):
+        vf = Tracker(TrackerConfig(coast_frames=3))
+        for k in range(14):
+            t = k * 0.1
+            T = ego_pose(t)
+            xy_odom = start + v_true * t
+            xy, v = to_frame(T, xy_odom, v_true)
+            seen = k < 8
+            det = frame(xy, v) if seen else Detections.empty()
+            current = np.zeros((0, 3)) if blind and not seen else road(T, xy_odom)
+            out, ids = vf.update(det, k * DT_NS, T, current=current)
+            if seen:
+                assert vf.coasted == 0 and ids.tolist() == [1]
+                continue
+            assert vf.coasted == len(out)
+            if blind and k < 8 + 3:
+                assert ids.tolist() == [1] and out.labels.tolist() == [0]
+                assert np.linalg.norm(out.boxes[0, :2] - xy) < 0.3      # where it is now
+                assert np.linalg.norm(out.velocities[0] - v) < 0.5
+                assert out.boxes[0, 3:6].tolist() == pytest.approx([4.5, 1.9, 1.6])
+                assert out.scores[0] == pytest.approx(0.8)              # its running score
+                held.append(k)
+            else:
+                assert len(out) == 0, (blind, k)
+    assert held == [8, 9, 10]
+
+
+def test_coasting_needs_a_confident_track_and_is_off_by_default():
+    T = np.eye(4)
+    for cfg, score, expect in ((TrackerConfig(coast_frames=3), 0.8, 1),
+                               (TrackerConfig(coast_frames=3), 0.35, 0),   # never confident
+                               (TrackerConfig(), 0.8, 0)):                # off by default
+        vf = Tracker(cfg)
+        for k in range(4):
+            vf.update(frame([10.0, 0.0], [0.0, 0.0], scores=[score]), k * DT_NS, T,
+                      current=np.zeros((0, 3)))
+        out, _ = vf.update(Detections.empty(), 4 * DT_NS, T, current=np.zeros((0, 3)))
+        assert len(out) == expect == vf.coasted, (cfg, score)
+    # no current sweep given: nothing coasts
+    vf = Tracker(TrackerConfig(coast_frames=3))
+    vf.update(frame([10.0, 0.0], [0.0, 0.0]), 0, T)
+    assert len(vf.update(Detections.empty(), DT_NS, T)[0]) == 0
+    with pytest.raises(ValueError, match='coast_frames'):
+        TrackerConfig(coast_frames=7)                       # more than max_misses
+    with pytest.raises(ValueError, match='coast_margin'):
+        TrackerConfig(coast_frames=2, coast_margin=float('nan'))

@@ -279,8 +279,13 @@ class StreamingDetector:
         if self.tracks is not None and T_odom_base is not None:
             # in the frame of the model input (leveled or not): the sweep velocities read
             # the boxes' returns from the input's heights
+            # the current sweep's returns (the first rows of the input), for coasting
+            now = (model_points[:len(pts)] if pts.shape[1] == 4 or not pts[:, 4].any()
+                   else model_points[model_points[:, 4] == 0])
             det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points,
-                                  carried=carried)
+                                  carried=carried, current=now)
+            # the tracks held where the sweep shows nothing count as carried
+            carried = np.concatenate([carried, np.ones(self.tracks.coasted, bool)])
         if self._ground is not None and len(det):
             det.boxes[:, 2] += self._ground.under(det.boxes[:, :2])   # back on the road
         published = det.scores >= np.where(carried, self.carry_thresholds[det.labels],
