@@ -122,6 +122,8 @@ def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
         'points_in': str(last.points_in), 'points_used': str(last.points_used),
         'points_nonfinite': str(last.points_nonfinite),
         'has_intensity': str(last.has_intensity), 'detections': str(len(last.detections)),
+        # published with no return of this cloud in them: held by the tracker or a carry
+        'held_boxes': str(int((last.num_points == 0).sum())),
         'memory_samples': str(last.memory_samples), 'memory_bytes': str(last.memory_bytes),
         'used_memory': str(last.used_memory),
         'tracks': 'off' if last.track_ids is None else str(last.tracks),

@@ -83,11 +83,11 @@ class DetectorParams:
     track_score_mix: float = field(default=0.7, metadata=_spec(
         "with tracking: a tracked detection's score is (1 - mix) x its own + mix x its "
         "track's running score; 0: the model's scores", lo=0.0, hi=1.0))
-    coast_frames: int = field(default=0, metadata=_spec(
+    coast_frames: int = field(default=5, metadata=_spec(
         'with tracking: a confident track that gets no detection is published where it is '
         'predicted, with its running score and num_points 0, for up to this many frames while '
-        "the cloud has no return in or around its box (a lost sector, an occluder's shadow); "
-        '0: off', lo=0, hi=6))
+        "the cloud has no return in or around its box (a lost sector, an occluder's shadow; "
+        'docs/experiments/coast); 0: off', lo=0, hi=6))
     ground: GroundChoice = field(default='checkpoint', metadata=_spec(
         "checkpoint | as_given | local: the input's heights as the checkpoint's config says "
         "(the shipped ones: local), as base_link has them, or leveled to the ground estimated "

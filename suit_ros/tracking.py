@@ -76,7 +76,8 @@ class TrackerConfig:
         detection is published where it is predicted to be, for up to this many frames, while
         the current sweep has no return within ``coast_margin`` of its box, on the road under
         it included (a lost sector, a blocked sensor, the shadow of an occluder): an object
-        that drove off leaves road returns where the track expects it and is not held (0: off).
+        that drove off leaves road returns where the track expects it and is not held (0: off;
+        5, 0.5 s at 10 Hz, by the rule of docs/experiments/coast).
     :param coast_margin: see ``coast_frames`` (m around the box's footprint).
     """
 
@@ -92,7 +93,7 @@ class TrackerConfig:
     heading_min_speed: float | None = 1.5
     max_misses: int = 6
     max_gap_s: float = 0.5
-    coast_frames: int = 0
+    coast_frames: int = 5
     coast_margin: float = 0.5
 
     def __post_init__(self) -> None:

@@ -37,6 +37,12 @@ def test_running_when_clouds_flow():
     assert (level, message) == (OK, 'running')
     assert values['input_rate_hz'] == '10.00' and values['input_period_ms'] == '100.0'
     assert values['latency_reference'] == 'header stamp' and values['model_device'] == 'cpu'
+    assert values['held_boxes'] == '0'
+    # two boxes published, one with no return of this cloud in it (held through a gap)
+    two = Detections(np.zeros((2, 7)), np.zeros((2, 2)), np.ones(2), np.zeros(2, np.int64))
+    last = replace(healthy().last, detections=two, num_points=np.array([12, 0], np.uint32))
+    values = health_report(replace(healthy(), last=last))[2]
+    assert values['held_boxes'] == '1' and values['detections'] == '2'
 
 
 def test_no_input_yet_then_timeout():

@@ -290,11 +290,12 @@ def test_coasting_holds_a_confident_track_only_where_the_sweep_shows_nothing():
     assert held == [8, 9, 10]
 
 
-def test_coasting_needs_a_confident_track_and_is_off_by_default():
+def test_coasting_needs_a_confident_track_and_can_be_turned_off():
     T = np.eye(4)
     for cfg, score, expect in ((TrackerConfig(coast_frames=3), 0.8, 1),
                                (TrackerConfig(coast_frames=3), 0.35, 0),   # never confident
-                               (TrackerConfig(), 0.8, 0)):                # off by default
+                               (TrackerConfig(coast_frames=0), 0.8, 0),   # off
+                               (TrackerConfig(), 0.8, 1)):                # the default: 5
         vf = Tracker(cfg)
         for k in range(4):
             vf.update(frame([10.0, 0.0], [0.0, 0.0], scores=[score]), k * DT_NS, T,
