@@ -86,7 +86,7 @@ class DetectorParams:
     coast_frames: int = field(default=5, metadata=_spec(
         'with tracking: a confident track that gets no detection is published where it is '
         'predicted, with its running score and num_points 0, for up to this many frames while '
-        "the cloud has no return in or around its box (a lost sector, an occluder's shadow; "
+        "no ray of the cloud passed through its box (a lost sector, an occluder's shadow; "
         'docs/experiments/coast); 0: off', lo=0, hi=6))
     ground: GroundChoice = field(default='checkpoint', metadata=_spec(
         "checkpoint | as_given | local: the input's heights as the checkpoint's config says "

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.geometry import CellIndex, count_points_in_boxes
+from suit_ros.ops.geometry import CellIndex
 from suit_ros.ops.kernels import as_float, distinct_values, sweep_histograms_by_cell
 from suit_ros.structures import Detections
 
@@ -73,12 +73,12 @@ class TrackerConfig:
     :param max_misses: frames a track survives without a detection.
     :param max_gap_s: a longer gap between frames (or time going back) drops every track.
     :param coast_frames: a confident track (running score >= ``birth_score``) that gets no
-        detection is published where it is predicted to be, for up to this many frames, while
-        the current sweep has no return within ``coast_margin`` of its box, on the road under
-        it included (a lost sector, a blocked sensor, the shadow of an occluder): an object
-        that drove off leaves road returns where the track expects it and is not held (0: off;
-        5, 0.5 s at 10 Hz, by the rule of docs/experiments/coast).
-    :param coast_margin: see ``coast_frames`` (m around the box's footprint).
+        detection is published where it is predicted to be, for up to this many frames (and
+        ``max_misses``), while the current sweep shows nothing in or beyond its box on its
+        bearings (:func:`unseen`: a lost sector, a blocked sensor, the shadow of an occluder):
+        an object that drove off leaves road returns, or a wall seen past it, where the track
+        expects it and is not held (0: off; 5, 0.5 s at 10 Hz: docs/experiments/coast).
+    :param coast_margin: see ``coast_frames`` (m the box is grown by).
     """
 
     pos_sigma: float = 0.3
@@ -111,9 +111,8 @@ class TrackerConfig:
                 raise ValueError(f'TrackerConfig.{name} must be within 0..1, got {value}')
         if self.max_misses < 0:
             raise ValueError(f'TrackerConfig.max_misses must be >= 0, got {self.max_misses}')
-        if not 0 <= self.coast_frames <= self.max_misses:
-            raise ValueError(f'TrackerConfig.coast_frames must be within 0..max_misses '
-                             f'({self.max_misses}), got {self.coast_frames}')
+        if self.coast_frames < 0:
+            raise ValueError(f'TrackerConfig.coast_frames must be >= 0, got {self.coast_frames}')
         if not (np.isfinite(self.coast_margin) and self.coast_margin >= 0):
             raise ValueError(f'TrackerConfig.coast_margin must be finite and >= 0, got '
                              f'{self.coast_margin}')
@@ -192,7 +191,8 @@ class Tracker:
     def update(self, det: Detections, stamp_ns: int, T_odom_frame: NDArray[np.float64],
                swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None,
                carried: NDArray[np.bool_] | None = None,
-               current: NDArray[np.floating[Any]] | None = None
+               current: NDArray[np.floating[Any]] | None = None,
+               sensor: NDArray[np.floating[Any]] | None = None
                ) -> tuple[Detections, NDArray[np.int64]]:
         """Filter one frame's detections.
 
@@ -208,7 +208,8 @@ class Tracker:
             while its carried boxes last (``sampling.carry_frames``). Without a carry branch
             (None, or none carried) nothing changes.
         :param current: ``(M, >= 3)`` the current sweep's returns in the detections' frame,
-            for ``coast_frames`` (None: nothing coasts).
+            for ``coast_frames`` (None: nothing coasts), and ``sensor`` where they were seen
+            from in that frame (default: its origin).
         :return: the detections with filtered velocities and smoothed scores, and their track
             ids (0, the measured velocity and the model's score, for a detection below
             ``birth_score`` that no track took); the last :attr:`coasted` of them are the
@@ -267,9 +268,6 @@ class Tracker:
         self.P = np.concatenate([self.P, Rm[new]])
         self.shape = np.concatenate([self.shape, np.zeros((n_new, 5))])
         tracked = rows >= 0
-        shape = det.boxes[tracked][:, 2:7].astype(np.float64)   # the box as last seen
-        shape[:, 4] += np.arctan2(R[1, 0], R[0, 0])
-        self.shape[rows[tracked]] = shape
         self.labels = np.concatenate([self.labels, det.labels[new]])
         self.ids = np.concatenate([self.ids, new_ids])
         self.misses = np.concatenate([self.misses, np.zeros(n_new, np.int64)])
@@ -279,10 +277,13 @@ class Tracker:
         boxes = det.boxes
         if cfg.heading_min_speed is not None and tracked.any():
             boxes = self._settle_headings(det, rows, out_vel)
+        shape = boxes[tracked][:, 2:7].astype(np.float64)      # the box as published
+        shape[:, 4] += np.arctan2(R[1, 0], R[0, 0])
+        self.shape[rows[tracked]] = shape
         out = Detections(boxes, out_vel, scores, det.labels)
         self.coasted = 0
         if cfg.coast_frames and current is not None:
-            coast, coast_ids = self._coast(T, current)
+            coast, coast_ids = self._coast(T, current, sensor)
             if len(coast):
                 out = out.concat(coast)
                 ids = np.concatenate([ids, coast_ids])
@@ -293,34 +294,26 @@ class Tracker:
         self.score, self.shape = self.score[keep], self.shape[keep]
         return out, ids
 
-    def _coast(self, T: NDArray[np.float64], current: NDArray[np.floating[Any]]
-               ) -> tuple[Detections, NDArray[np.int64]]:
-        """The boxes of the confident tracks missed this frame (for at most ``coast_frames``)
-        where the current sweep has no return in or around their footprint, in the frame of
-        ``T`` (see ``coast_frames``)."""
+    def _coast(self, T: NDArray[np.float64], current: NDArray[np.floating[Any]],
+               sensor: NDArray[np.floating[Any]] | None) -> tuple[Detections, NDArray[np.int64]]:
+        """The boxes of the confident tracks missed this frame (for at most ``coast_frames``,
+        while they live) where the current sweep shows nothing of them, in the frame of ``T``
+        (see ``coast_frames`` and :func:`unseen`)."""
         cfg = self.config
-        t = np.nonzero((self.misses >= 1) & (self.misses <= cfg.coast_frames)
+        t = np.nonzero((self.misses >= 1)
+                       & (self.misses <= min(cfg.coast_frames, cfg.max_misses))
                        & (self.score >= cfg.birth_score))[0]
-        empty = Detections.empty()
         if len(t) == 0:
-            return empty, np.zeros(0, np.int64)
+            return Detections.empty(), np.zeros(0, np.int64)
         R = T[:2, :2]
         boxes = np.zeros((len(t), 7))
         boxes[:, :2] = (self.x[t, :2] - T[:2, 3]) @ R               # odometry -> frame
         boxes[:, 2:6] = self.shape[t, :4]
         boxes[:, 6] = self.shape[t, 4] - np.arctan2(R[1, 0], R[0, 0])
         boxes[:, 6] = (boxes[:, 6] + np.pi) % (2.0 * np.pi) - np.pi
-        # the whole column over the footprint and a margin: the road under it counts
-        column = boxes.copy()
-        column[:, 3:5] += 2.0 * cfg.coast_margin
-        column[:, 5] = 100.0
-        pts = np.asarray(current, np.float64)[:, :3]
-        blind = count_points_in_boxes(pts, column) == 0 if len(pts) else np.ones(len(t), bool)
-        if not blind.any():
-            return empty, np.zeros(0, np.int64)
+        blind = unseen(boxes, current, cfg.coast_margin, sensor)
         t, boxes = t[blind], boxes[blind]
-        return (Detections(boxes.astype(np.float32), (self.x[t, 2:] @ R).astype(np.float32),
-                           self.score[t].astype(np.float32), self.labels[t]),
+        return (Detections(boxes, self.x[t, 2:] @ R, self.score[t], self.labels[t]),
                 self.ids[t])
 
     def _correct(self, t: NDArray[np.int64], centres: NDArray[np.float64],
@@ -360,11 +353,58 @@ class Tracker:
         return boxes
 
 
+def unseen(boxes: NDArray[np.floating[Any]], points: NDArray[np.floating[Any]],
+           margin: float = 0.5, sensor: NDArray[np.floating[Any]] | None = None
+           ) -> NDArray[np.bool_]:
+    """Which ``(M, 7)`` boxes the sweep ``points`` (``(N, >= 3)``, from a sensor at ``sensor``,
+    default the origin) shows nothing of: no return whose ray passed through the box (grown by
+    ``margin``): on its bearings, at or beyond its nearest corner, and at the range of that
+    corner within its heights. A lost sector or an occluder's shadow leaves a box blind; the
+    road where an object no longer is, or a wall seen low past where it would be, does not; a
+    wall seen over an occluder's top does not count. A box around the sensor is never blind."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    o = np.zeros(3) if sensor is None else np.asarray(sensor, np.float64)[:3]
+    out = np.zeros(len(b), bool)
+    if len(b) == 0:
+        return out
+    bx, by = b[:, 0] - o[0], b[:, 1] - o[1]
+    dx, dy = b[:, 3] / 2 + margin, b[:, 4] / 2 + margin
+    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
+    sx, sy = np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, 1.0, -1.0])
+    cx = bx[:, None] + sx * dx[:, None] * c[:, None] - sy * dy[:, None] * s[:, None]   # (M, 4)
+    cy = by[:, None] + sx * dx[:, None] * s[:, None] + sy * dy[:, None] * c[:, None]
+    near = np.hypot(cx, cy).min(axis=1)
+    bearing = np.arctan2(by, bx)
+    half = np.abs(_wrap(np.arctan2(cy, cx) - bearing[:, None])).max(axis=1)
+    low = b[:, 2] - b[:, 5] / 2 - margin - o[2]
+    high = b[:, 2] + b[:, 5] / 2 + margin - o[2]
+    # the sensor inside the grown box, or bearings over half a turn: nothing to reason about
+    ok: NDArray[np.bool_] = (near > 1.0) & (half < np.pi / 2)
+    p = np.asarray(points, np.float64)
+    if len(p) == 0 or not ok.any():
+        return ok
+    r = np.hypot(p[:, 0] - o[0], p[:, 1] - o[1])
+    far = r >= near[ok].min()
+    r, az = r[far], np.arctan2(p[far, 1] - o[1], p[far, 0] - o[0])
+    dz = p[far, 2] - o[2]
+    for m in np.nonzero(ok)[0]:
+        hit = (r >= near[m]) & (np.abs(_wrap(az - bearing[m])) <= half[m])
+        z_at = dz[hit] * (near[m] / r[hit])          # the ray's height at the box's range
+        out[m] = not np.any((z_at >= low[m]) & (z_at <= high[m]))
+    return out
+
+
+def _wrap(a: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Angles wrapped to [-pi, pi)."""
+    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi)
+
+
 def track_step(tracks: Tracker, det: Detections, stamp_ns: int,
                T_odom_base: NDArray[np.float64], model_points: NDArray[np.floating[Any]] | None,
                swept: tuple[NDArray[np.float64], NDArray[np.bool_]] | None = None,
                carried: NDArray[np.bool_] | None = None,
-               current: NDArray[np.floating[Any]] | None = None
+               current: NDArray[np.floating[Any]] | None = None,
+               sensor: NDArray[np.floating[Any]] | None = None
                ) -> tuple[Detections, NDArray[np.int64]]:
     """The streaming detector's tracking step: read the vehicles' velocities from the sweeps
     (when the config asks for it; ``swept`` given: already read), then update the tracks.
@@ -372,13 +412,14 @@ def track_step(tracks: Tracker, det: Detections, stamp_ns: int,
     :param det: the frame's detections in base_link (the model frame).
     :param model_points: the model input ``(N, 5)`` in base_link.
     :param carried: which detections a memory carries (:meth:`Tracker.update`).
-    :param current: the current sweep's returns in base_link (``coast_frames``).
+    :param current: the current sweep's returns in base_link (``coast_frames``), seen from
+        ``sensor`` (the LiDAR's position in base_link).
     """
     fc = tracks.config
     if swept is None and fc.sweep_sigma is not None and model_points is not None:
         swept = sweep_velocities(model_points, det.boxes,
                                  fc.sweep_targets(det, tracks.class_names))
-    return tracks.update(det, stamp_ns, T_odom_base, swept, carried, current)
+    return tracks.update(det, stamp_ns, T_odom_base, swept, carried, current, sensor)
 
 
 def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],

@@ -246,9 +246,9 @@ def test_a_vehicle_driving_backwards_by_a_confident_velocity_is_turned_round():
     assert drive(cfg, 6.0, 0, frames=10) == pytest.approx(-0.2, abs=1e-5)
 
 
-def road(T, around_odom, half=6.0, step=0.25):
+def road(T, around_odom, half=3.0, step=0.25):
     """Road returns (a flat grid at z -1.8) over a square of the odometry frame, seen from
-    pose ``T`` (the detections' frame)."""
+    pose ``T`` (the detections' frame, its sensor at the origin)."""
     g = np.arange(-half, half + 1e-9, step)
     xx, yy = np.meshgrid(g, g)
     xy_odom = np.c_[xx.ravel(), yy.ravel()] + np.asarray(around_odom)
@@ -272,6 +272,7 @@ def test_coasting_holds_a_confident_track_only_where_the_sweep_shows_nothing():
             xy, v = to_frame(T, xy_odom, v_true)
             seen = k < 8
             det = frame(xy, v) if seen else Detections.empty()
+            det.boxes[:, 2] = -1.0             # on the road 1.8 m below the sensor
             current = np.zeros((0, 3)) if blind and not seen else road(T, xy_odom)
             out, ids = vf.update(det, k * DT_NS, T, current=current)
             if seen:
@@ -282,7 +283,9 @@ def test_coasting_holds_a_confident_track_only_where_the_sweep_shows_nothing():
                 assert ids.tolist() == [1] and out.labels.tolist() == [0]
                 assert np.linalg.norm(out.boxes[0, :2] - xy) < 0.3      # where it is now
                 assert np.linalg.norm(out.velocities[0] - v) < 0.5
-                assert out.boxes[0, 3:6].tolist() == pytest.approx([4.5, 1.9, 1.6])
+                assert out.boxes[0, 2:6].tolist() == pytest.approx([-1.0, 4.5, 1.9, 1.6])
+                # its heading as last published (0 then), turned by the ego's yaw since
+                assert out.boxes[0, 6] == pytest.approx(-0.3 * (t - 0.7), abs=1e-4)
                 assert out.scores[0] == pytest.approx(0.8)              # its running score
                 held.append(k)
             else:
@@ -307,6 +310,42 @@ def test_coasting_needs_a_confident_track_and_can_be_turned_off():
     vf.update(frame([10.0, 0.0], [0.0, 0.0]), 0, T)
     assert len(vf.update(Detections.empty(), DT_NS, T)[0]) == 0
     with pytest.raises(ValueError, match='coast_frames'):
-        TrackerConfig(coast_frames=7)                       # more than max_misses
+        TrackerConfig(coast_frames=-1)
     with pytest.raises(ValueError, match='coast_margin'):
         TrackerConfig(coast_frames=2, coast_margin=float('nan'))
+    # a track lives max_misses frames without a detection, and coasts no longer than that
+    vf = Tracker(TrackerConfig(max_misses=2))               # coast_frames 5 by default
+    vf.update(frame([10.0, 0.0], [0.0, 0.0]), 0, T)
+    held = [len(vf.update(Detections.empty(), k * DT_NS, T, current=np.zeros((0, 3)))[0])
+            for k in range(1, 5)]
+    assert held == [1, 1, 0, 0]
+
+
+def test_unseen_boxes_are_those_no_ray_passed_through():
+    """A car 20 m ahead (sensor 1.8 m up): blind with no returns or only returns in front of
+    it or over an occluder's top; seen with road returns under it, or a wall behind it whose
+    rays passed low through where it would be."""
+    from suit_ros.tracking import unseen
+    car = np.array([[20.0, 0.0, 0.8, 4.5, 1.9, 1.6, 0.3]])
+    sensor = np.array([0.0, 0.0, 1.8])
+
+    def cloud(*xyz):
+        return np.array(xyz, np.float64).reshape(-1, 3)
+    assert unseen(car, np.zeros((0, 3)), 0.5, sensor).tolist() == [True]
+    assert unseen(car, cloud([10, 0, 0.0], [15, 1, 0.5]), 0.5, sensor).tolist() == [True]
+    assert unseen(car, cloud([21, 0.5, 0.0]), 0.5, sensor).tolist() == [False]  # road under
+    # a wall 10 m behind: a return 0.5 m up crossed the car's range 1.3 m up (through it)
+    assert unseen(car, cloud([31, 0, 0.5]), 0.5, sensor).tolist() == [False]
+    # the same wall seen 6 m up (over a truck in front): the ray was 4.5 m up at the car
+    assert unseen(car, cloud([31, 0, 6.0]), 0.5, sensor).tolist() == [True]
+    # off its bearings: a return beside it
+    assert unseen(car, cloud([25, 8, 0.0]), 0.5, sensor).tolist() == [True]
+    # behind the sensor, across the +-pi cut: the same rules
+    back = car.copy()
+    back[0, :2] = (-20.0, 0.1)
+    assert unseen(back, cloud([-21, -0.4, 0.0]), 0.5, sensor).tolist() == [False]
+    assert unseen(back, cloud([-21, 6, 0.0]), 0.5, sensor).tolist() == [True]
+    # the sensor inside the grown box: never blind
+    around = car.copy()
+    around[0, :2] = (0.5, 0.0)
+    assert unseen(around, np.zeros((0, 3)), 0.5, sensor).tolist() == [False]

@@ -283,7 +283,7 @@ class StreamingDetector:
             now = (model_points[:len(pts)] if pts.shape[1] == 4 or not pts[:, 4].any()
                    else model_points[model_points[:, 4] == 0])
             det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points,
-                                  carried=carried, current=now)
+                                  carried=carried, current=now, sensor=T_bl[:3, 3])
             # the tracks held where the sweep shows nothing count as carried
             carried = np.concatenate([carried, np.ones(self.tracks.coasted, bool)])
         if self._ground is not None and len(det):
