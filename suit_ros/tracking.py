@@ -45,7 +45,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.ops.geometry import CellIndex
-from suit_ros.ops.kernels import as_float, distinct_values, sweep_histograms_by_cell
+from suit_ros.ops.kernels import as_float, distinct_values, rays_through, sweep_histograms_by_cell
 from suit_ros.structures import Detections
 
 
@@ -363,7 +363,7 @@ def unseen(boxes: NDArray[np.floating[Any]], points: NDArray[np.floating[Any]],
     road where an object no longer is, or a wall seen low past where it would be, does not; a
     wall seen over an occluder's top does not count. A box around the sensor is never blind."""
     b = np.asarray(boxes, np.float64).reshape(-1, 7)
-    o = np.zeros(3) if sensor is None else np.asarray(sensor, np.float64)[:3]
+    o = np.zeros(3) if sensor is None else np.ascontiguousarray(sensor, np.float64)[:3]
     out = np.zeros(len(b), bool)
     if len(b) == 0:
         return out
@@ -380,17 +380,12 @@ def unseen(boxes: NDArray[np.floating[Any]], points: NDArray[np.floating[Any]],
     high = b[:, 2] + b[:, 5] / 2 + margin - o[2]
     # the sensor inside the grown box, or bearings over half a turn: nothing to reason about
     ok: NDArray[np.bool_] = (near > 1.0) & (half < np.pi / 2)
-    p = np.asarray(points, np.float64)
-    if len(p) == 0 or not ok.any():
+    if len(points) == 0 or not ok.any():
         return ok
-    r = np.hypot(p[:, 0] - o[0], p[:, 1] - o[1])
-    far = r >= near[ok].min()
-    r, az = r[far], np.arctan2(p[far, 1] - o[1], p[far, 0] - o[0])
-    dz = p[far, 2] - o[2]
-    for m in np.nonzero(ok)[0]:
-        hit = (r >= near[m]) & (np.abs(_wrap(az - bearing[m])) <= half[m])
-        z_at = dz[hit] * (near[m] / r[hit])          # the ray's height at the box's range
-        out[m] = not np.any((z_at >= low[m]) & (z_at <= high[m]))
+    u = np.stack([np.cos(bearing), np.sin(bearing)], axis=1)[ok]
+    hit = rays_through(as_float(np.asarray(points)), o, np.ascontiguousarray(u),
+                       np.cos(half[ok]), near[ok], low[ok], high[ok])
+    out[ok] = ~hit
     return out
 
 

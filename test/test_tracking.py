@@ -349,3 +349,35 @@ def test_unseen_boxes_are_those_no_ray_passed_through():
     around = car.copy()
     around[0, :2] = (0.5, 0.0)
     assert unseen(around, np.zeros((0, 3)), 0.5, sensor).tolist() == [False]
+
+
+def test_unseen_matches_its_definition_on_random_clouds():
+    """The compiled pass (ops.kernels.rays_through) against the definition written out in
+    numpy: bearings, range from the nearest corner, the ray's height at that range."""
+    from suit_ros.tracking import unseen
+    rng = np.random.default_rng(7)
+    o = np.array([0.9, 0.0, 1.8])
+    for trial in range(20):
+        n = int(rng.integers(0, 400))
+        pts = np.c_[rng.uniform(-40, 40, (n, 2)), rng.uniform(-0.5, 4, n)].astype(np.float32)
+        boxes = np.c_[rng.uniform(-30, 30, (8, 2)), rng.uniform(0.3, 1.5, 8),
+                      rng.uniform(0.5, 5, (8, 3)), rng.uniform(-np.pi, np.pi, 8)]
+        got = unseen(boxes, pts, 0.5, o)
+        for m, b in enumerate(boxes):
+            c, s = np.cos(b[6]), np.sin(b[6])
+            corners = np.array([[b[0] + i * (b[3] / 2 + 0.5) * c - j * (b[4] / 2 + 0.5) * s,
+                                 b[1] + i * (b[3] / 2 + 0.5) * s + j * (b[4] / 2 + 0.5) * c]
+                                for i in (1, -1) for j in (1, -1)]) - o[:2]
+            near = np.hypot(*corners.T).min()
+            bearing = np.arctan2(b[1] - o[1], b[0] - o[0])
+            wrap = lambda a: (a + np.pi) % (2 * np.pi) - np.pi       # noqa: E731
+            half = np.abs(wrap(np.arctan2(corners[:, 1], corners[:, 0]) - bearing)).max()
+            if near <= 1.0 or half >= np.pi / 2:
+                assert not got[m]
+                continue
+            p = pts.astype(np.float64) - o
+            r = np.hypot(p[:, 0], p[:, 1])
+            on = (r >= near) & (np.abs(wrap(np.arctan2(p[:, 1], p[:, 0]) - bearing)) <= half)
+            z = p[on, 2] * near / r[on]
+            lo, hi = b[2] - b[5] / 2 - 0.5 - o[2], b[2] + b[5] / 2 + 0.5 - o[2]
+            assert got[m] == (not np.any((z >= lo) & (z <= hi))), (trial, m)

@@ -650,6 +650,36 @@ def overhang_keep(points: Any, x0: float, y0: float, size: float, nx: int, ny: i
     return keep, dropped
 
 
+@_jit
+def rays_through(points: Any, o: Any, u: Any, cos_half: Any, near: Any, low: Any,
+                 high: Any) -> Any:  # pragma: no cover
+    """Per box ``m``: whether a return's ray (from ``o``) passed through it: on its bearings
+    (unit direction ``u[m]``, within the half-angle whose cosine is ``cos_half[m]``), at or
+    beyond its nearest range ``near[m]``, and at that range between heights ``low[m]`` and
+    ``high[m]`` (relative to ``o``). One pass over the points, stopping when every box is hit
+    (see :func:`suit_ros.tracking.unseen`)."""
+    M = near.shape[0]
+    hit = np.zeros(M, np.bool_)
+    left = M
+    for i in range(points.shape[0]):
+        x = points[i, 0] - o[0]
+        y = points[i, 1] - o[1]
+        r = np.sqrt(x * x + y * y)
+        if r <= 0.0:
+            continue
+        dz = points[i, 2] - o[2]
+        for m in range(M):
+            if hit[m] or r < near[m] or x * u[m, 0] + y * u[m, 1] < r * cos_half[m]:
+                continue
+            z = dz * near[m] / r
+            if low[m] <= z <= high[m]:
+                hit[m] = True
+                left -= 1
+        if left == 0:
+            break
+    return hit
+
+
 def warm_up() -> None:
     """Compile (or load from the cache) every kernel for the argument types of the node's
     step: float32 clouds of 4 (the sensor's) and 5 columns (the model input), xyz slices of
@@ -683,3 +713,5 @@ def warm_up() -> None:
                   model_input.copy())
     overhang_keep(model_input, -1.0, -1.0, 0.5, 4, 4, -1.0, 20, 5, 10, 0.5)
     paired_bev_iou(np.ones((1, 7), np.float32), np.ones((1, 7), np.float32))
+    one = np.ones(1)
+    rays_through(model_input, np.zeros(3), np.ones((1, 2)), one, one, one, one)
