@@ -203,7 +203,9 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.model.inference import resolve_precision
     res: dict[str, Any] = {'machine': machine(), 'threads': args.threads, 'device': args.device,
                            'precision': resolve_precision(args.precision, args.device),
-                           'points_per_frame': int(np.mean([len(f.cloud) for f in simframes]))}
+                           'points_per_frame': int(np.mean([len(f.cloud) for f in simframes])),
+                           # other work on the machine skews every figure: said up front
+                           'load_before': round(os.getloadavg()[0], 2)}
     temporals: tuple[TemporalMode, ...] = ('none', 'suit', 'dense')
     # as the node runs them by default: tracker on
     runners = {t: StreamingDetector(_model(args, t), args.device, precision=args.precision,
@@ -251,7 +253,8 @@ def table(r: dict[str, Any]) -> str:
     """The human-readable table."""
     lines = [f'machine: {r["machine"]}; torch threads {r["threads"]}; device {r["device"]}; '
              f'precision {r.get("precision", "float32")}; demo scene '
-             f'~{r["points_per_frame"]} points/frame', '',
+             f'~{r["points_per_frame"]} points/frame; load average before the run '
+             f'{r.get("load_before", float("nan")):.2f} (busy if near the CPU count)', '',
              f'{"stage (SUIT step, memory carried)":<36}{"p50 ms":>9}{"p95 ms":>9}']
     for k, v in r['stages_ms'].items():
         lines.append(f'{k:<36}{v["p50"]:>9.1f}{v["p95"]:>9.1f}')
