@@ -223,15 +223,17 @@ def main() -> int:
     if filt:
         f, g = runs['suit, tracking'], runs.get('single, tracking', {})
         lines += ['', "**Tracking** (the node's defaults `tracking: true`, "
-                  '`track_score_mix: 0.7`; `suit_ros/tracking.py`: constant-velocity Kalman '
-                  "tracks over the detections in the odometry frame, fed with the head's "
-                  'velocity and the velocity read from the sweeps, scores smoothed over each '
-                  'track). What the node publishes, against the '
+                  '`track_score_mix: 0.7`, `coast_frames: 5`; `suit_ros/tracking.py`: '
+                  'constant-velocity Kalman tracks over the detections in the odometry frame, '
+                  "fed with the head's velocity and the velocity read from the sweeps, scores "
+                  'smoothed over each track, confident tracks held where no ray of the sweep '
+                  'passed, docs/experiments/coast). What the node publishes, against the '
                   "model's own output, same drive resamples: mAP "
                   f'{fmt(f, "mAP")} (difference {fmt(filt, "mAP")}), NDS {fmt(f, "NDS")} '
                   f'(difference {fmt(filt, "NDS")}), mAVE {fmt(f, "mAVE")} (difference '
                   f'{fmt(filt, "mAVE")}), moving-car velocity error '
-                  f'{fmt(f, "moving car vel err")}; boxes are unchanged.'
+                  f'{fmt(f, "moving car vel err")}; boxes are unchanged but for the coasted '
+                  'ones.'
                   + (f' Single frame with tracking: mAP {fmt(g, "mAP")}, NDS {fmt(g, "NDS")}, '
                      f'mAVE {fmt(g, "mAVE")}.' if g else '')]
     lines += real_dev_lines(meta)
