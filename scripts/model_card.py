@@ -65,6 +65,9 @@ REAL_DEV = {'suit': 'docs/real_dev/suit.json', 'single': 'docs/real_dev/single.j
 CARRY = 'suit_ros/checkpoints/suit_carry.safetensors'
 OUTAGE = 'docs/outage/shipped.json'
 CARRY_VAL = 'docs/experiments/memory_carry/val_run12/results.json'
+# measured with `suit-ros bench --threads 1 --frames 30 --skip-node` on each checkpoint, one run
+CARRY_STEP = ("Its step is 1.3-1.4x suit_default's (the memory's carry and the second head: "
+              '51 ms against 36-39 ms at 37k points, one thread).')
 
 
 def carry_lines() -> list[str]:
@@ -91,12 +94,6 @@ def carry_lines() -> list[str]:
             'where the cloud has no returns are published at '
             + ', '.join(f'{k} {v:.2f}' for k, v in thr.items())
             + f' ({meta.get("carry_publish_thresholds_source", "")}). {CARRY_STEP}']
-
-
-# measured with `suit-ros bench --threads 1 --frames 30 --skip-node` on each checkpoint, one run
-CARRY_STEP = ("Its step is 1.3-1.4x suit_default's (the memory's carry and the second head: "
-              '51 ms against 36-39 ms at 37k points, one thread).')
-
 
 
 def real_dev_lines(meta: dict[str, dict[str, Any]]) -> list[str]:

@@ -44,7 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.geometry import CellIndex
+from suit_ros.ops.geometry import CellIndex, wrap_angle
 from suit_ros.ops.kernels import as_float, distinct_values, rays_through, sweep_histograms_by_cell
 from suit_ros.structures import Detections
 
@@ -309,8 +309,7 @@ class Tracker:
         boxes = np.zeros((len(t), 7))
         boxes[:, :2] = (self.x[t, :2] - T[:2, 3]) @ R               # odometry -> frame
         boxes[:, 2:6] = self.shape[t, :4]
-        boxes[:, 6] = self.shape[t, 4] - np.arctan2(R[1, 0], R[0, 0])
-        boxes[:, 6] = (boxes[:, 6] + np.pi) % (2.0 * np.pi) - np.pi
+        boxes[:, 6] = wrap_angle(self.shape[t, 4] - np.arctan2(R[1, 0], R[0, 0]))
         blind = unseen(boxes, current, cfg.coast_margin, sensor)
         t, boxes = t[blind], boxes[blind]
         return (Detections(boxes, self.x[t, 2:] @ R, self.score[t], self.labels[t]),
@@ -367,15 +366,16 @@ def unseen(boxes: NDArray[np.floating[Any]], points: NDArray[np.floating[Any]],
     out = np.zeros(len(b), bool)
     if len(b) == 0:
         return out
-    bx, by = b[:, 0] - o[0], b[:, 1] - o[1]
-    dx, dy = b[:, 3] / 2 + margin, b[:, 4] / 2 + margin
-    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
-    sx, sy = np.array([1.0, 1.0, -1.0, -1.0]), np.array([1.0, -1.0, 1.0, -1.0])
-    cx = bx[:, None] + sx * dx[:, None] * c[:, None] - sy * dy[:, None] * s[:, None]   # (M, 4)
-    cy = by[:, None] + sx * dx[:, None] * s[:, None] + sy * dy[:, None] * c[:, None]
+    import torch
+
+    from suit_ros.ops.iou import bev_corners
+    grown = b.copy()
+    grown[:, 3:5] += 2.0 * margin
+    corners = bev_corners(torch.from_numpy(grown)).numpy() - o[:2]                # (M, 4, 2)
+    cx, cy = corners[..., 0], corners[..., 1]
     near = np.hypot(cx, cy).min(axis=1)
-    bearing = np.arctan2(by, bx)
-    half = np.abs(_wrap(np.arctan2(cy, cx) - bearing[:, None])).max(axis=1)
+    bearing = np.arctan2(b[:, 1] - o[1], b[:, 0] - o[0])
+    half = np.abs(wrap_angle(np.arctan2(cy, cx) - bearing[:, None])).max(axis=1)
     low = b[:, 2] - b[:, 5] / 2 - margin - o[2]
     high = b[:, 2] + b[:, 5] / 2 + margin - o[2]
     # the sensor inside the grown box, or bearings over half a turn: nothing to reason about
@@ -387,11 +387,6 @@ def unseen(boxes: NDArray[np.floating[Any]], points: NDArray[np.floating[Any]],
                        np.cos(half[ok]), near[ok], low[ok], high[ok])
     out[ok] = ~hit
     return out
-
-
-def _wrap(a: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Angles wrapped to [-pi, pi)."""
-    return np.asarray((a + np.pi) % (2.0 * np.pi) - np.pi)
 
 
 def track_step(tracks: Tracker, det: Detections, stamp_ns: int,

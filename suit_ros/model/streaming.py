@@ -17,7 +17,7 @@ from suit_ros.ground import GROUND_MODES, GroundMode, LocalGround
 from suit_ros.model.detector import Memory, SUITDetector
 from suit_ros.model.fusion import BranchTerms, PastTerm
 from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
-from suit_ros.model.sweeps import SweepBuffer, boxes_to_lidar
+from suit_ros.model.sweeps import SweepBuffer, already_accumulated, boxes_to_lidar
 from suit_ros.ops.geometry import count_points_in_boxes
 from suit_ros.overhang import OverhangMode
 from suit_ros.structures import Detections
@@ -276,14 +276,15 @@ class StreamingDetector:
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
         carried = out['carried'].cpu().numpy()
         ids = np.zeros(len(det), np.int64)
+        # this cloud's own returns, the same rows of the input as it came and of the model
+        # input: the first ones, or those without a time lag when it came accumulated
+        now = pts[:, 4] == 0 if already_accumulated(pts) else slice(None, len(pts))
         if self.tracks is not None and T_odom_base is not None:
             # in the frame of the model input (leveled or not): the sweep velocities read
-            # the boxes' returns from the input's heights
-            # the current sweep's returns (the first rows of the input), for coasting
-            now = (model_points[:len(pts)] if pts.shape[1] == 4 or not pts[:, 4].any()
-                   else model_points[model_points[:, 4] == 0])
+            # the boxes' returns from the input's heights; coasting, the current sweep's
             det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points,
-                                  carried=carried, current=now, sensor=T_bl[:3, 3])
+                                  carried=carried, current=model_points[now],
+                                  sensor=T_bl[:3, 3])
             # the tracks held where the sweep shows nothing count as carried
             carried = np.concatenate([carried, np.ones(self.tracks.coasted, bool)])
         if self._ground is not None and len(det):
@@ -295,9 +296,7 @@ class StreamingDetector:
         det = boxes_to_lidar(det, T_bl)
         # the returns of this cloud in each box, counted on the input as it came (LiDAR
         # frame), not on the accumulated sweeps
-        this_sweep = (pts if pts.shape[1] == 4 or not pts[:, 4].any()
-                      else pts[pts[:, 4] == 0])
-        num_points = count_points_in_boxes(this_sweep[:, :3], det.boxes)
+        num_points = count_points_in_boxes(pts[now, :3], det.boxes)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
                    'head_decode': t4 - t3, 'sampling': t5 - t4, 'tracking': t6 - t5,
