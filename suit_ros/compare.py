@@ -20,12 +20,16 @@ checkpoint changed in one way:
   (:mod:`suit_ros.overhang`), and ``overhang keep``: every return kept; each runs only for a
   checkpoint whose config asks for the other (the shipped SUIT model drops them);
   ``overhead, overhang drop`` and ``overhead, overhang keep``: the same on the drives with
-  canopies and awnings.
+  canopies and awnings;
+- ``box fit faces``: car boxes moved onto the returns of their visible faces
+  (:mod:`suit_ros.box_fit`), and ``tracking, box fit faces``: the same under the node's
+  tracker.
 
 Paired differences (same drive resamples): every checkpoint against the first, each variant
 against its checkpoint (``memory dropped`` and ``zero displacement`` as checkpoint minus
-variant: what the part is worth; the others as variant minus checkpoint), and a variant of
-every checkpoint against the same variant of the first. Writes ``OUT/results.md`` and
+variant: what the part is worth; the others as variant minus checkpoint; a variant named
+``A, B`` minus the run of ``A`` when there is one: the same drives and the same tracker), and
+a variant of every checkpoint against the same variant of the first. Writes ``OUT/results.md`` and
 ``OUT/results.json``.
 """
 from __future__ import annotations
@@ -49,7 +53,8 @@ from suit_ros.structures import Frame
 
 VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking',
             'overhead', 'ground local', 'ground as given', 'overhang drop', 'overhang keep',
-            'overhead, overhang drop', 'overhead, overhang keep')
+            'overhead, overhang drop', 'overhead, overhang keep', 'box fit faces',
+            'tracking, box fit faces')
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
@@ -89,6 +94,9 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         return run_model(model, sequences, precision='bfloat16')
     if variant == 'tracking':
         return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
+    if variant in ('box fit faces', 'tracking, box fit faces'):
+        tracker = TrackerConfig() if variant.startswith('tracking') else None
+        return run_model(model, sequences, tracker=tracker, box_fit='faces', **kwargs)
     if variant == 'overhead' or variant.endswith(('overhang drop', 'overhang keep')):
         from suit_ros.data.overhead import overhead_drives
         drives = overhead_drives(sequences) if variant.startswith('overhead') else sequences
@@ -114,8 +122,10 @@ def pairs_of(names: list[str], runs: dict[str, Any], variants: list[str]
     for n in names:
         for v in variants:
             key = f'{n}, {v}'
+            base = f'{n}, {v.rsplit(", ", 1)[0]}' if ', ' in v else n
             if key in runs:
-                pairs.append((n, key) if v in WORTH else (key, n))
+                pairs.append((n, key) if v in WORTH else
+                             (key, base if base in runs else n))
             if n != first and key in runs and f'{first}, {v}' in runs and v not in WORTH:
                 pairs.append((key, f'{first}, {v}'))
     return pairs

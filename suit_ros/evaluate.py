@@ -21,6 +21,7 @@ from suit_ros import CLASS_NAMES
 from suit_ros.structures import Detections, Frame
 
 if TYPE_CHECKING:
+    from suit_ros.box_fit import BoxFitMode
     from suit_ros.ground import GroundMode
     from suit_ros.model.inference import PrecisionChoice
     from suit_ros.overhang import OverhangMode
@@ -382,7 +383,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               transform: Callable[[Frame], Frame] | None = None,
               precision: PrecisionChoice = 'float32',
               tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
-              overhang: OverhangMode | None = None) -> ModelRun:
+              overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off') -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -398,11 +399,13 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         checkpoint was trained).
     :param overhang: keep or drop the returns that hang (:mod:`suit_ros.overhang`; None: as
         the checkpoint says).
+    :param box_fit: car boxes fitted to their visible faces or not (:mod:`suit_ros.box_fit`).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
     runner = StreamingDetector(model, device, precision=precision,
-                               tracker=tracker, ground=ground, overhang=overhang)
+                               tracker=tracker, ground=ground, overhang=overhang,
+                               box_fit=box_fit)
     out = ModelRun([], [], [], [], [], {})
     for drive, seq in enumerate(sequences):
         runner.reset('new sequence')

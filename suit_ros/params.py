@@ -25,6 +25,7 @@ GroundParam = Literal['as_given', 'local']       # suit_ros.ground.GroundMode
 OverhangParam = Literal['keep', 'drop']          # suit_ros.overhang.OverhangMode
 OverhangChoice = Literal['checkpoint', 'keep', 'drop']   # the node's: 'checkpoint' as it says
 GroundChoice = Literal['checkpoint', 'as_given', 'local']   # the node's: 'checkpoint' as it says
+BoxFitParam = Literal['off', 'faces']             # suit_ros.box_fit.BoxFitMode
 Vector3 = tuple[float, float, float]
 
 
@@ -100,6 +101,10 @@ class DetectorParams:
         "(canopies, awnings, signal arms over the objects) as the checkpoint's config says, "
         'kept, or dropped before the model; a change resets the memory',
         choices=get_args(OverhangChoice)))
+    box_fit: BoxFitParam = field(default='off', metadata=_spec(
+        'off | faces: car boxes as the model places them, or moved toward the sensor onto the '
+        'returns of the faces it sees (real LiDAR: the shipped models place parked cars about '
+        '0.6 m too far; docs/experiments/box_fit)', choices=get_args(BoxFitParam)))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
     max_range: float = field(default=80.0, metadata=_spec(

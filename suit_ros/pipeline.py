@@ -54,7 +54,8 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
     from suit_ros.checkpoint import published_thresholds
     model, cfg, meta = load_checkpoint(params.checkpoint, dev)
     runner = StreamingDetector(model, dev, precision=params.precision,
-                               ground=params.ground_mode(), overhang=params.overhang_mode())
+                               ground=params.ground_mode(), overhang=params.overhang_mode(),
+                               box_fit=params.box_fit)
     # the first clouds are not slower than the rest (compiled kernels, oneDNN primitives)
     runner.warm_up()
     runner.published_thresholds = published_thresholds(meta, cfg.class_names)
@@ -139,6 +140,7 @@ class DetectionPipeline:
                           coast_frames=params.coast_frames)
             if params.tracking else None)
         self.detector.sweeps.max_age_s = params.max_gap_s     # one staleness threshold
+        self.detector.set_box_fit(params.box_fit)      # boxes only: the memory stands
         before_ground = self.detector.ground
         self.detector.set_ground(params.ground_mode())
         if self.detector.ground != before_ground and self.last_stamp_ns is not None:

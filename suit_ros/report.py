@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.box_fit import BOX_FIT_MODES
 from suit_ros.errors import ConfigError, DatasetError
 from suit_ros.ground import GROUND_MODES
 from suit_ros.overhang import OVERHANG_MODES
@@ -287,6 +288,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='keep or drop the returns that hang over a gap in their column '
                         "(the node's `overhang` parameter; default: as the checkpoint says)")
     parser.add_argument('--max-range', type=float, default=50.0, help='scored range (m)')
+    parser.add_argument('--box-fit', choices=list(BOX_FIT_MODES), default='off',
+                        help="car boxes moved onto the returns of their visible faces (the "
+                        "node's `box_fit` parameter; suit_ros/box_fit.py)")
     parser.add_argument('--match-dist', type=float, default=2.0, help='BEV centre distance (m)')
     parser.add_argument('--pictures', type=int, default=50,
                         help="bird's-eye PNGs for the first N frames (0: none)")
@@ -338,7 +342,8 @@ def run(args: argparse.Namespace) -> int:
     if not seqs or not any(len(s) for s in seqs):
         raise DatasetError('the dataset holds no frame')
     filt = None if args.no_tracking else TrackerConfig()
-    result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang)
+    result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
+                       box_fit=args.box_fit)
     notes = ['as the node by default: 3 sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.ground is not None or cfg.pillars.ground != 'as_given':
@@ -347,6 +352,9 @@ def run(args: argparse.Namespace) -> int:
     if args.overhang is not None:
         notes.append(f'overhang {args.overhang}: the returns that hang over a gap in their '
                      'column (suit_ros/overhang.py)')
+    if args.box_fit != 'off':
+        notes.append(f'box fit {args.box_fit}: car boxes moved onto the returns of the faces '
+                     'the sensor sees (suit_ros/box_fit.py)')
     if args.kitti:
         from suit_ros.data.kitti import camera_fov_run
         result = camera_fov_run(result, seqs)

@@ -12,13 +12,18 @@ from suit_ros.compare import VARIANTS, pairs_of
 
 def test_pairs_follow_the_documented_directions():
     runs = dict.fromkeys(('single', 'suit', 'single, tracking', 'suit, tracking',
-                          'suit, memory dropped', 'suit, bfloat16'))
+                          'suit, memory dropped', 'suit, bfloat16', 'suit, overhead',
+                          'suit, overhead, overhang keep', 'suit, tracking, box fit faces'))
     pairs = pairs_of(['single', 'suit'], runs, list(VARIANTS))
     assert ('suit', 'single') in pairs                                  # against the first
     assert ('suit', 'suit, memory dropped') in pairs                    # what the memory is worth
     assert ('suit, bfloat16', 'suit') in pairs                          # variant minus run
     assert ('single, tracking', 'single') in pairs
     assert ('suit, tracking', 'single, tracking') in pairs              # same variant, both
+    # a variant of a variant against that variant: the same drives, the same tracker
+    assert ('suit, overhead, overhang keep', 'suit, overhead') in pairs
+    assert ('suit, tracking, box fit faces', 'suit, tracking') in pairs
+    assert ('suit, tracking, box fit faces', 'suit') not in pairs
     assert not any('zero displacement' in a or 'zero displacement' in b for a, b in pairs)
 
 

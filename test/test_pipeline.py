@@ -77,7 +77,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
                        'intensity_field', 'tracking', 'track_score_mix', 'coast_frames',
-                       'ground', 'overhang',
+                       'ground', 'overhang', 'box_fit',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -252,6 +252,61 @@ def test_coast_frames_holds_tracked_objects_where_the_cloud_shows_nothing(model,
     assert not ((none.detections.boxes[:, 0] > 2.0) & (none.num_points == 0)).any()
     pipe.configure(replace(pipe.params, coast_frames=2))
     assert pipe.detector.tracks.config.coast_frames == 2
+
+
+@pytest.fixture(scope='module')
+def dense_scene():
+    """A frame of the detailed world seen by a 64-beam sensor (cars with many returns)."""
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.scene import Simulation
+    return Simulation(preset('test-real', sensor='hdl64e', frames=3), 5).render(2).cloud
+
+
+def test_box_fit_moves_car_boxes_onto_their_faces(model, classes, dense_scene):
+    """``box_fit: faces`` moves the published car boxes as :func:`suit_ros.box_fit.fit_to_faces`
+    does on the same cloud (in the LiDAR frame: the fit moves boxes in x and y only, relative
+    to the sensor), and nothing else; the parameter switches at runtime. The cloud's cars are
+    made 0.8 m longer at the end the sensor sees (their returns copied forward), as a real
+    car looks to a model that puts it too far away."""
+    from suit_ros.box_fit import fit_to_faces
+    pipe = make_pipeline(model, classes, tracking=False, score_thresholds=(0.2,))
+    scene = dense_scene
+    first = pipe.process(cloud(classes, T0, scene)).detections
+    xyz = np.stack([scene['x'], scene['y'], scene['z']], 1)
+    copies = []
+    for box in first.boxes[first.labels == 0]:
+        c, s = np.cos(box[6]), np.sin(box[6])
+        d = xyz[:, :2] - box[:2]
+        along = d[:, 0] * c + d[:, 1] * s
+        inside = (np.abs(along) <= box[3] / 2) & (np.abs(-d[:, 0] * s + d[:, 1] * c) <= box[4] / 2)
+        toward = -np.sign(box[0] * c + box[1] * s)       # along the car, toward the sensor
+        for k in (0.2, 0.4, 0.6, 0.8):
+            copy = scene[inside].copy()
+            copy['x'] += toward * k * c
+            copy['y'] += toward * k * s
+            copies.append(copy)
+    longer = np.concatenate([scene, *copies])
+    xyz = np.stack([longer['x'], longer['y'], longer['z']], 1)
+    off = pipe.process(cloud(classes, T0 + S // 10, longer)).detections
+    pipe.configure(replace(pipe.params, box_fit='faces'))
+    assert pipe.detector.box_fit == 'faces'
+    faces = pipe.process(cloud(classes, T0 + 2 * S // 10, longer)).detections
+    assert np.array_equal(off.labels, faces.labels) and np.allclose(off.scores, faces.scores)
+    expected = fit_to_faces(off.boxes, off.labels, off.scores, xyz, np.zeros(2),
+                            tuple(model.cfg.class_names))
+    assert np.allclose(faces.boxes[:, :2], expected[:, :2], atol=2e-3)
+    # heights, sizes and headings as the model gave them (the ground estimate runs on)
+    assert np.allclose(faces.boxes[:, 2:], off.boxes[:, 2:], atol=1e-2)
+    car = off.labels == 0
+    assert np.allclose(faces.boxes[~car, :2], off.boxes[~car, :2])
+    moved = np.hypot(*(faces.boxes[:, :2] - off.boxes[:, :2]).T)
+    assert (moved > 0.05).any()
+    # toward the sensor (the LiDAR frame's origin), never away
+    assert (np.hypot(*faces.boxes[moved > 0.05, :2].T)
+            < np.hypot(*off.boxes[moved > 0.05, :2].T)).all()
+    pipe.configure(replace(pipe.params, box_fit='off'))
+    again = pipe.process(cloud(classes, T0 + 3 * S // 10, longer)).detections
+    assert np.allclose(again.boxes, off.boxes, atol=1e-2)
 
 
 @pytest.mark.slow

@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 import torch
 
+from suit_ros.box_fit import BOX_FIT_MODES, BoxFitMode, fit_to_faces
 from suit_ros.ground import GROUND_MODES, GroundMode, LocalGround
 from suit_ros.model.detector import Memory, SUITDetector
 from suit_ros.model.fusion import BranchTerms, PastTerm
@@ -71,6 +72,8 @@ class StreamingDetector:
     :param overhang: ``keep``: every return; ``drop``: the returns that hang over a gap in
         their column (canopies, awnings) removed before the model (:mod:`suit_ros.overhang`);
         None: as the checkpoint's config says (``pillars.overhang``).
+    :param box_fit: ``faces``: car boxes moved onto the returns of the faces the sensor sees
+        (:mod:`suit_ros.box_fit`); ``off``: as the model places them.
     """
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
@@ -78,7 +81,7 @@ class StreamingDetector:
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
                  candidates: int | None = None, precision: PrecisionChoice = 'float32',
                  tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
-                 overhang: OverhangMode | None = None) -> None:
+                 overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off') -> None:
         self.device = torch.device(device) if device is not None else model.device
         self.precision = resolve_precision(precision, self.device)
         # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
@@ -90,6 +93,7 @@ class StreamingDetector:
         self.sweeps = SweepBuffer(self.cfg.sweeps)
         self.set_ground(ground)
         self.set_overhang(overhang)
+        self.set_box_fit(box_fit)
         self.tracks = (None if tracker is None
                        else Tracker(tracker, self.cfg.class_names))
         self.last_reset_reason = 'start'
@@ -156,6 +160,12 @@ class StreamingDetector:
     def overhang(self) -> OverhangMode:
         """Whether the returns that hang are kept or dropped now."""
         return self.model.pillars.overhang
+
+    def set_box_fit(self, box_fit: BoxFitMode) -> None:
+        """Fit the car boxes to their visible faces, or not (see ``box_fit``)."""
+        if box_fit not in BOX_FIT_MODES:
+            raise ValueError(f'box_fit must be one of {BOX_FIT_MODES}, got {box_fit!r}')
+        self.box_fit: BoxFitMode = box_fit
 
     def set_tracker(self, config: TrackerConfig | None) -> None:
         """Turn the tracker on (with ``config``; tracks kept when it is unchanged) or
@@ -279,6 +289,9 @@ class StreamingDetector:
         # this cloud's own returns, the same rows of the input as it came and of the model
         # input: the first ones, or those without a time lag when it came accumulated
         now = pts[:, 4] == 0 if already_accumulated(pts) else slice(None, len(pts))
+        if self.box_fit == 'faces' and len(det):
+            det.boxes[:] = fit_to_faces(det.boxes, det.labels, det.scores, model_points[now],
+                                        T_bl[:2, 3], tuple(self.cfg.class_names))
         if self.tracks is not None and T_odom_base is not None:
             # in the frame of the model input (leveled or not): the sweep velocities read
             # the boxes' returns from the input's heights; coasting, the current sweep's
