@@ -233,3 +233,43 @@ def test_street_objects_only_in_the_street_presets():
     assert all(c > 0 for c in counts.values()), counts
     frame = Simulation(preset('train-street', frames=2), 3).render(1)
     assert frame.clutter_boxes is not None and len(frame.cloud) > 1000
+
+
+def test_real_car_ends_start_inside_the_box():
+    """A car with real ends, seen from 12 m behind: its returns start inside its box (a
+    bumper 0.1 m in, the body over it 0.35 m in), where a boxy car's start at the box's end;
+    the parts stay inside the box."""
+    size = np.array([4.6, 1.8, 1.45])
+    starts = []
+    for real in (False, True):
+        body = car_body('sedan', size, (0.5, 1.0, 0.0), Realism(), real_ends=real)
+        lo = body.parts[:, :3] - body.parts[:, 3:6] / 2
+        hi = body.parts[:, :3] + body.parts[:, 3:6] / 2
+        assert (lo[:, :2] >= -size[:2] / 2 - 1e-9).all()
+        assert (hi[:, :2] <= size[:2] / 2 + 1e-9).all()
+        _, pts = cast_one(body.parts, [size[0] / 2 + 12.0, 0.0, 1.8],
+                          porosity=np.zeros(len(body.parts)))
+        on = pts[pts[:, 2] > 0.3]
+        starts.append(size[0] / 2 - np.percentile(on[:, 0], 95))   # depth of the near returns
+    assert starts[0] < 0.02
+    assert 0.08 < starts[1] < 0.5
+
+
+def test_real_car_ends_change_only_the_cars_shapes():
+    """``real_car_ends`` is drawn from each car's id: the presets without it keep their world
+    (the same actors, sizes, routes), the others give some cars real ends and others not."""
+    from suit_ros.data.sim.actors import id_fraction
+    plain = Simulation(preset('val-real', frames=2), 3)
+    ends = Simulation(preset('val-ends', frames=2), 3)
+    cars = [(a, b) for a, b in zip(plain.actors, ends.actors) if a.body is not None
+            and a.label == 0]
+    assert len(cars) > 10
+    for a, b in cars:
+        assert a.instance_id == b.instance_id and np.array_equal(a.size, b.size)
+        assert np.array_equal(a.s, b.s)
+    changed = [not np.array_equal(a.body.parts, b.body.parts) for a, b in cars]
+    expected = [id_fraction(a.instance_id) < 0.5 for a, _ in cars]
+    assert changed == expected and 0 < sum(changed) < len(cars)
+    assert preset('val-real').realism.real_car_ends == 0.0
+    with pytest.raises(ConfigError, match='real_car_ends'):
+        preset('test', realism=Realism(real_car_ends=1.5))

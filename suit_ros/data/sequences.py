@@ -54,8 +54,9 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int) -> str:
     for name in ('realism', 'exact_sectors'):   # off: the box world, keys as before they existed
         if not cfg[name]:
             del cfg[name]
-    if cfg.get('realism') and not cfg['realism']['street_objects']:
-        del cfg['realism']['street_objects']     # off: the world (and its key) as before
+    for name in ('street_objects', 'real_car_ends'):
+        if cfg.get('realism') and not cfg['realism'][name]:
+            del cfg['realism'][name]             # off: the world (and its key) as before
     blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 2}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 

@@ -186,6 +186,12 @@ def make_actors(world: World, cfg: SimConfig, rng: np.random.Generator, duration
 
 
 # ------------------------------------------------------------------ the detailed world
+def id_fraction(instance_id: int) -> float:
+    """A number in [0, 1) drawn from an actor's id (Knuth's multiplicative hash): a choice
+    made per actor without a draw from the world's generator, which stays as it was."""
+    return ((instance_id * 2654435761) % 2**32) / 2**32
+
+
 def dress_actors(actors: list[Actor], realism: Realism, rng: np.random.Generator) -> None:
     """Give every actor a :class:`Body` (and a size that fits it): cars become sedans,
     hatchbacks, SUVs, vans or pickups; trucks and buses get cabs, cargo boxes or window bands;
@@ -194,7 +200,8 @@ def dress_actors(actors: list[Actor], realism: Realism, rng: np.random.Generator
         name = CLASS_NAMES[a.label]
         if name == 'car':
             kind, a.size = vehicle_kind(rng)
-            a.body = car_body(kind, a.size, paint(rng, realism), realism)
+            real = id_fraction(a.instance_id) < realism.real_car_ends
+            a.body = car_body(kind, a.size, paint(rng, realism), realism, real_ends=real)
         elif name == 'truck':
             a.body = heavy_body(a.size, paint(rng, realism), realism)
         elif name == 'pedestrian':

@@ -81,11 +81,28 @@ def glass(realism: Realism) -> tuple[float, float, float]:
     return 0.05, realism.glass_return, realism.glass_porosity
 
 
+BUMPER = (0.08, 0.5, 0.0)                   # black plastic: little light back
+SEATS = (0.2, 0.8, 0.0)
+
+
 def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, float],
-             realism: Realism) -> Body:
-    """A passenger vehicle of ``kind`` (see :data:`VEHICLE_KINDS`) filling ``size``."""
+             realism: Realism, real_ends: bool = False) -> Body:
+    """A passenger vehicle of ``kind`` (see :data:`VEHICLE_KINDS`) filling ``size``.
+
+    :param real_ends: ends as real cars have them (:attr:`Realism.real_car_ends`): a bumper
+        of dark plastic, narrower than the body (rounded corners), 0.1 m inside the box's
+        ends; the painted body above it set back 0.35 m and the cabin's glass another 0.3 m
+        (a sloped screen); seats behind the glass. Real cars' returns start about 0.35 m
+        inside their labelled ends, synthetic boxy ones at them (docs/experiments/box_fit).
+    """
     l, w, h = (float(v) for v in size)
     p = _Parts()
+    if real_ends:
+        wb0 = w / 2 - 0.09
+        for end in (-1.0, 1.0):             # a label leaves ~0.1 m past the curved bumper
+            p.add(_band(end * (l / 2 - 0.1), -end * 0.25), (-wb0 + 0.2, wb0 - 0.2),
+                  (0.25, 0.7), BUMPER)
+        l -= 0.7                            # the painted body between the bumpers
     front, rear = l / 2, -l / 2
     wb = w / 2 - 0.09                       # body half width; mirrors reach w / 2
     r = 0.3 if kind in ('sedan', 'hatchback') else 0.36
@@ -110,8 +127,12 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
         p.add((split, cab_front), (-wb + 0.05, wb - 0.05), (belt, roof_top), glass(realism))
         p.add((cab_rear, split), (-wb, wb), (belt, roof_top), coat)
     else:
-        p.add((cab_rear, cab_front), (-wb + 0.1, wb - 0.1), (belt, roof_top),
+        slope = 0.3 if real_ends else 0.0
+        p.add((cab_rear + slope, cab_front - slope), (-wb + 0.1, wb - 0.1), (belt, roof_top),
               glass(realism))
+    if real_ends:                           # seats, seen through the glass
+        p.add((cab_rear + 0.5, cab_front - 0.6), (-wb + 0.25, wb - 0.25),
+              (belt - 0.1, belt + 0.45), SEATS)
     inset = 0.12 if kind in ('van', 'suv') else 0.3
     p.add((cab_rear + inset, cab_front - 0.4), (-wb + 0.12, wb - 0.12), (roof_top, h), coat)
     for side in (-1.0, 1.0):                                                    # mirrors

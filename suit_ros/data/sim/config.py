@@ -64,6 +64,10 @@ class Realism:
         meters, utility boxes, planters, slim street trees and lamp posts, facade columns,
         bus shelters), relative to one per 8 m of sidewalk; 0 (default): none, and the world is
         byte for byte the one before they existed.
+    :param real_car_ends: fraction of passenger cars whose ends are shaped as real cars' are
+        (a set-back body over a dark bumper, seats behind the glass:
+        :func:`~suit_ros.data.sim.bodies.car_body`), drawn from each car's id so that the
+        rest of the world is unchanged; 0 (default): none, the world byte for byte as before.
     """
 
     clutter: float = 1.0
@@ -73,6 +77,7 @@ class Realism:
     hedge_porosity: tuple[float, float] = (0.25, 0.6)
     ego_body: bool = True
     street_objects: float = 0.0
+    real_car_ends: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -139,7 +144,7 @@ def _validate_realism(r: Realism) -> None:
     """Raise ConfigError on out-of-range realism values."""
     if r.clutter < 0:
         raise ConfigError(f'realism.clutter must be >= 0 (0: no clutter), got {r.clutter}')
-    for name in ('glass_porosity', 'glass_return', 'dark_paint'):
+    for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends'):
         value = getattr(r, name)
         if not 0.0 <= value <= 1.0:
             raise ConfigError(f'realism.{name} is a probability in [0, 1], got {value}')
@@ -196,6 +201,9 @@ PRESETS.update({f'{name}-real': replace(cfg, realism=Realism())
 # positives sit on); training only, so the validation drives stay what they were
 PRESETS['train-street'] = replace(PRESETS['train-real'], realism=Realism(street_objects=1.0))
 PRESETS['val-street'] = replace(PRESETS['val-real'], realism=Realism(street_objects=1.0))
+# half the passenger cars with the ends of real ones (docs/experiments/box_fit, run 18)
+PRESETS['train-ends'] = replace(PRESETS['train-real'], realism=Realism(real_car_ends=0.5))
+PRESETS['val-ends'] = replace(PRESETS['val-real'], realism=Realism(real_car_ends=0.5))
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:
