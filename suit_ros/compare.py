@@ -23,7 +23,10 @@ checkpoint changed in one way:
   canopies and awnings;
 - ``box fit faces``: car boxes moved onto the returns of their visible faces
   (:mod:`suit_ros.box_fit`), and ``tracking, box fit faces``: the same under the node's
-  tracker.
+  tracker;
+- ``real car ends`` and ``tracking, real car ends``: the same drives with half their
+  passenger cars shaped at their ends as real cars are (preset ``val-ends``,
+  :attr:`~suit_ros.data.sim.config.Realism.real_car_ends`; everything else as it was).
 
 Paired differences (same drive resamples): every checkpoint against the first, each variant
 against its checkpoint (``memory dropped`` and ``zero displacement`` as checkpoint minus
@@ -54,7 +57,7 @@ from suit_ros.structures import Frame
 VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking',
             'overhead', 'ground local', 'ground as given', 'overhang drop', 'overhang keep',
             'overhead, overhang drop', 'overhead, overhang keep', 'box fit faces',
-            'tracking, box fit faces')
+            'tracking, box fit faces', 'real car ends', 'tracking, real car ends')
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
@@ -75,7 +78,7 @@ def load_as(path: str, temporal: TemporalMode | None = None) -> Any:
 
 
 def variant_run(path: str, model: Any, variant: str, sequences: Any,
-                precision: PrecisionChoice) -> Any:
+                precision: PrecisionChoice, cache_dir: str | None = None) -> Any:
     """One variant's run (None when it does not apply to the model)."""
     from suit_ros.evaluate import run_model
     from suit_ros.tracking import TrackerConfig
@@ -94,6 +97,12 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         return run_model(model, sequences, precision='bfloat16')
     if variant == 'tracking':
         return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
+    if variant in ('real car ends', 'tracking, real car ends'):
+        from suit_ros.data.sequences import synthetic_split
+        drives = synthetic_split('val', len(sequences), len(sequences[0]), cache_dir,
+                                 preset_name='val-ends')
+        tracker = TrackerConfig() if variant.startswith('tracking') else None
+        return run_model(model, drives, tracker=tracker, **kwargs)
     if variant in ('box fit faces', 'tracking, box fit faces'):
         tracker = TrackerConfig() if variant.startswith('tracking') else None
         return run_model(model, sequences, tracker=tracker, box_fit='faces', **kwargs)
@@ -169,7 +178,7 @@ def compare(checkpoints: list[tuple[str, str]], variants: list[str], drives: int
         names = tuple(model.cfg.class_names)
         runs[name] = run_model(model, val, precision=precision)
         for v in variants:
-            r = variant_run(path, model, v, val, precision)
+            r = variant_run(path, model, v, val, precision, cache_dir)
             if r is not None:
                 runs[f'{name}, {v}'] = r
         log(f'[compare] {name}: {(time.monotonic() - t0) / 60:.1f} min')

@@ -5,6 +5,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from suit_ros.compare import VARIANTS, pairs_of
@@ -93,3 +94,24 @@ def test_an_overhang_variant_runs_only_where_it_changes_the_input():
                                'float32') is None
             out = variant_run('unused', model, f'{prefix}overhang {applies}', drives, 'float32')
             assert out is not None and out.evaluate(cfg.class_names) is not None
+
+
+def test_the_real_car_ends_variant_runs_the_same_drives_with_real_car_ends():
+    """``real car ends``: the validation drives (the same seeds, routes and objects) with
+    half the cars shaped at their ends as real cars are; ``tracking, real car ends`` the same
+    tracked; both scored against the same boxes as the drives they replace."""
+    from suit_ros.compare import variant_run
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.data.sequences import synthetic_split
+    from suit_ros.model.detector import SUITDetector
+    drives = synthetic_split('val', 1, 2)
+    cfg = model_config_from_dict({'temporal': 'none'}, 'test')
+    model = SUITDetector(cfg).eval()
+    plain = variant_run('unused', model, 'tracking', drives, 'float32')
+    for variant in ('real car ends', 'tracking, real car ends'):
+        out = variant_run('unused', model, variant, drives, 'float32')
+        assert out is not None and len(out.gt) == len(plain.gt) == 2
+        for a, b in zip(out.gt, plain.gt):
+            assert np.array_equal(a.boxes, b.boxes) and np.array_equal(a.labels, b.labels)
+    shaped = synthetic_split('val', 1, 2, preset_name='val-ends')
+    assert not np.array_equal(shaped[0][0].points, drives[0][0].points)
