@@ -35,6 +35,10 @@ def test_flags_override_the_yaml_which_overrides_defaults(tmp_path):
     assert params_from_args(parse('--overhang', 'drop', '--ground', 'local')).overhang == 'drop'
     with pytest.raises(SystemExit):
         parse('--overhang', 'cut')
+    assert params_from_args(parse()).box_fit == 'off'
+    assert params_from_args(parse('--box-fit', 'faces')).box_fit == 'faces'
+    with pytest.raises(SystemExit):
+        parse('--box-fit', 'snap')
     with pytest.raises(SystemExit):
         parse('--precision', 'float16')
     with pytest.raises(ConfigError, match='min_range'):

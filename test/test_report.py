@@ -135,8 +135,10 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
     assert len(list((out / 'bev').glob('*.png'))) == 2
     assert 'Real-data report' in capsys.readouterr().out
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep2'),
-                 '--pictures', '0', '--overhang', 'drop', '--ground', 'local']) == 0
+                 '--pictures', '0', '--overhang', 'drop', '--ground', 'local',
+                 '--box-fit', 'faces']) == 0
     assert 'overhang drop' in (tmp_path / 'rep2' / 'report.md').read_text()
+    assert 'box fit faces' in (tmp_path / 'rep2' / 'report.md').read_text()
 
 
 @pytest.mark.slow
