@@ -19,7 +19,10 @@
 #            both then level their input to its local ground (metadata: pillars.ground local);
 #   stage 8: the stage-7 SUIT model learns the overhang filter (returns that hang over a gap in
 #            their column dropped before the pillars; params/model_cpu_overhang.yaml) on leveled
-#            input, drives 288-415, two threads, 4,000 steps (67 min):
+#            input, drives 288-415, two threads, 4,000 steps (67 min);
+#   stage 9: the stage-8 SUIT model on the same drives regenerated with half the passenger cars
+#            shaped at their ends as real cars are (params/train_suit_ends.yaml), two threads,
+#            4,000 steps (67 min):
 #            SUIT                  -> suit_default.safetensors
 #   then the benchmark (docs/results.md). The SUIT runs of stages 2-5 are not in the shipped
 #   SUIT model's lineage (README, "More drives, not more steps"), but they shared the 2 cores
@@ -38,6 +41,7 @@ STAGE34_MIN=${STAGE34_MIN:-45}     # stages 3, 4 and 5
 STAGE6_MIN=${STAGE6_MIN:-30}
 STAGE7_MIN=${STAGE7_MIN:-60}
 STAGE8_MIN=${STAGE8_MIN:-85}
+STAGE9_MIN=${STAGE9_MIN:-70}
 resume=()
 [ -n "${RESUME:-}" ] && resume=(--resume)
 mkdir -p runs/prev
@@ -111,4 +115,18 @@ config = read_metadata(path)['config']
 config['sampling']['alpha'] = 0.2
 update_metadata(path, config=config)
 PY
+# stage 9: SUIT on its own drives regenerated with half the cars shaped at their ends as real
+# cars are (Realism.real_car_ends; docs/experiments/box_fit, run 18), from stage 8 as shipped
+"$suit" train --config params/train_suit_ends.yaml --out runs/suit_ends --threads 2 \
+  --max-minutes "$STAGE9_MIN" "${resume[@]}" > runs/suit_ends.log 2>&1
+cp runs/suit_ends/model.safetensors suit_ros/checkpoints/suit_default.safetensors
+"$py" - <<'PY'
+from suit_ros.checkpoint import read_metadata, update_metadata
+path = 'suit_ros/checkpoints/suit_default.safetensors'
+config = read_metadata(path)['config']
+config['pillars']['ground'] = 'local'
+config['sampling']['alpha'] = 0.2
+update_metadata(path, config=config)
+PY
+"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
 "$suit" compare --ablation --out docs

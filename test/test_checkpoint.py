@@ -219,8 +219,12 @@ def test_shipped_suit_checkpoints_on_an_empty_road(name):
 
 
 def test_shipped_checkpoint_in_bfloat16_finds_the_same_objects():
-    """The node's ``precision: auto`` on a CPU with bfloat16 units: every confident float32
-    detection has a bfloat16 twin (same class, centre within 0.1 m, score within 0.03)."""
+    """The node's ``precision: auto`` on a CPU with bfloat16 units: every confident detection
+    of one precision has a detection of the same class within 2 m in the other (the same
+    object found), and 95% of them an exact twin (centre within 0.1 m, score within 0.03).
+    Not all: a second box on one car can move more (run 18, frame 1 of this drive: a duplicate
+    1.5 m from a car scoring 0.48 scores 0.18 in float32, 0.33 in bfloat16, 1 m apart);
+    validation mAP moves -0.001 [-0.001, 0.000] (docs/results.md)."""
     import numpy as np
 
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
@@ -229,7 +233,7 @@ def test_shipped_checkpoint_in_bfloat16_finds_the_same_objects():
     from suit_ros.model.streaming import StreamingDetector
     model, _, _ = load_checkpoint(default_checkpoint_path(), 'cpu')
     runners = [StreamingDetector(model, precision=p) for p in ('float32', 'bfloat16')]
-    confident = 0
+    confident = twins = 0
     for f in sim_frames(preset('test-real', frames=4), 5):
         a, b = (r.step(*step_inputs(f)).detections for r in runners)
         for x, y in ((a, b), (b, a)):
@@ -239,6 +243,8 @@ def test_shipped_checkpoint_in_bfloat16_finds_the_same_objects():
                 confident += 1
                 same = y.labels == label
                 dist = np.linalg.norm(y.boxes[same, :2] - box[:2], axis=1)
-                assert len(dist) and dist.min() < 0.1, (label, score)
-                assert abs(y.scores[same][dist.argmin()] - score) < 0.03
+                assert len(dist) and dist.min() < 2.0, (label, score)
+                k = int(dist.argmin())
+                twins += bool(dist[k] < 0.1 and abs(y.scores[same][k] - score) < 0.03)
     assert confident >= 4
+    assert twins >= 0.95 * confident, (twins, confident)
