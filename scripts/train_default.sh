@@ -92,41 +92,30 @@ for name in ('suit_default', 'centerpoint_single'):
     config['pillars']['ground'] = 'local'
     update_metadata(path, config=config)
 PY
-# stage 8: SUIT learns the overhang filter on leveled input (docs/experiments/overhang, run 16);
-# its thresholds are chosen on the input it was trained on, so it is leveled first
-"$suit" train --config params/train_suit_overhang.yaml --out runs/suit_overhang --threads 2 \
-  --max-minutes "$STAGE8_MIN" "${resume[@]}" > runs/suit_overhang.log 2>&1
-cp runs/suit_overhang/model.safetensors suit_ros/checkpoints/suit_default.safetensors
-"$py" - <<'PY'
+# ship_suit RUN: RUN's SUIT model as suit_default: its input leveled to the local ground (as it
+# was trained), its memory keeping the cells scoring 0.2 or more (sampling.alpha, trained at
+# 0.1: run 16 scores more cells above 0.1 than stage 7, and its memory grew past 2% of the dense
+# one's; 0.2 halves it at no validation cost, docs/experiments/memory_size: metadata only), and
+# its published thresholds chosen on that input
+ship_suit() {
+  cp "$1/model.safetensors" suit_ros/checkpoints/suit_default.safetensors
+  "$py" - <<'PY'
 from suit_ros.checkpoint import read_metadata, update_metadata
 path = 'suit_ros/checkpoints/suit_default.safetensors'
 config = read_metadata(path)['config']
 config['pillars']['ground'] = 'local'
-update_metadata(path, config=config)
-PY
-"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
-# the memory keeps the cells scoring 0.2 or more (sampling.alpha, trained at 0.1): run 16 scores
-# more cells above 0.1 than stage 7, and its memory grew past 2% of the dense one's; 0.2 halves
-# it at no validation cost (docs/experiments/memory_size): metadata only
-"$py" - <<'PY'
-from suit_ros.checkpoint import read_metadata, update_metadata
-path = 'suit_ros/checkpoints/suit_default.safetensors'
-config = read_metadata(path)['config']
 config['sampling']['alpha'] = 0.2
 update_metadata(path, config=config)
 PY
+  "$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
+}
+# stage 8: SUIT learns the overhang filter on leveled input (docs/experiments/overhang, run 16)
+"$suit" train --config params/train_suit_overhang.yaml --out runs/suit_overhang --threads 2 \
+  --max-minutes "$STAGE8_MIN" "${resume[@]}" > runs/suit_overhang.log 2>&1
+ship_suit runs/suit_overhang
 # stage 9: SUIT on its own drives regenerated with half the cars shaped at their ends as real
 # cars are (Realism.real_car_ends; docs/experiments/box_fit, run 18), from stage 8 as shipped
 "$suit" train --config params/train_suit_ends.yaml --out runs/suit_ends --threads 2 \
   --max-minutes "$STAGE9_MIN" "${resume[@]}" > runs/suit_ends.log 2>&1
-cp runs/suit_ends/model.safetensors suit_ros/checkpoints/suit_default.safetensors
-"$py" - <<'PY'
-from suit_ros.checkpoint import read_metadata, update_metadata
-path = 'suit_ros/checkpoints/suit_default.safetensors'
-config = read_metadata(path)['config']
-config['pillars']['ground'] = 'local'
-config['sampling']['alpha'] = 0.2
-update_metadata(path, config=config)
-PY
-"$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
+ship_suit runs/suit_ends
 "$suit" compare --ablation --out docs
