@@ -29,6 +29,8 @@ from typing import Any, Literal, get_args
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.ops.geometry import CellIndex
+
 BoxFitMode = Literal['off', 'faces']
 BOX_FIT_MODES: tuple[BoxFitMode, ...] = get_args(BoxFitMode)
 
@@ -54,6 +56,11 @@ class FaceFit:
     min_face_points: int = 4
     side_cover: float = 0.7
 
+    @property
+    def margin(self) -> float:
+        """How far past a box its returns are searched for (m)."""
+        return self.max_shift + self.band
+
 
 def object_extent(values: NDArray[np.float64], lo: float, hi: float, gap: float
                   ) -> tuple[float, float] | None:
@@ -72,7 +79,7 @@ def _axis_shift(u: NDArray[np.float64], v: NDArray[np.float64], half: float, oth
                 sensor_u: float, cfg: FaceFit) -> float:
     """How far to move the box along the axis ``u`` (box-local coordinates of the returns:
     ``u`` along the axis, ``v`` across it; the box spans ``+-half`` and ``+-other_half``)."""
-    reach = half + cfg.max_shift + cfg.band
+    reach = half + cfg.margin
     keep = (np.abs(v) <= other_half + cfg.band) & (np.abs(u) <= reach)
     if int(keep.sum()) < cfg.min_points:
         return 0.0
@@ -97,25 +104,6 @@ def _axis_shift(u: NDArray[np.float64], v: NDArray[np.float64], half: float, oth
     return float(np.clip(shift, -cfg.max_shift, cfg.max_shift))
 
 
-def _near_any(points: NDArray[np.floating[Any]], boxes: NDArray[np.float32], cfg: FaceFit,
-              cell: float = 2.0) -> NDArray[np.bool_]:
-    """Which points lie in a ``cell`` m grid cell that some box's search square touches (a
-    cheap cut before the points are sorted: most of a cloud is far from every car)."""
-    reach = 0.5 * np.maximum(boxes[:, 3], boxes[:, 4]) + cfg.max_shift + cfg.band
-    lo = np.floor((boxes[:, :2] - reach[:, None]) / cell).astype(np.int64)
-    hi = np.floor((boxes[:, :2] + reach[:, None]) / cell).astype(np.int64)
-    origin, shape = lo.min(0), hi.max(0) - lo.min(0) + 1
-    touched = np.zeros((int(shape[0]), int(shape[1])), bool)
-    for a, b in zip(lo - origin, hi - origin):
-        touched[a[0]:b[0] + 1, a[1]:b[1] + 1] = True
-    fx = (points[:, 0] - origin[0] * cell) / cell
-    fy = (points[:, 1] - origin[1] * cell) / cell
-    inside = np.nonzero((fx >= 0) & (fx < shape[0]) & (fy >= 0) & (fy < shape[1]))[0]
-    keep = np.zeros(len(points), bool)
-    keep[inside] = touched[fx[inside].astype(np.int64), fy[inside].astype(np.int64)]
-    return keep
-
-
 def fit_to_faces(boxes: NDArray[np.floating[Any]], labels: NDArray[np.integer[Any]],
                  scores: NDArray[np.floating[Any]], points: NDArray[np.floating[Any]],
                  sensor_xy: NDArray[np.floating[Any]], class_names: tuple[str, ...],
@@ -134,16 +122,18 @@ def fit_to_faces(boxes: NDArray[np.floating[Any]], labels: NDArray[np.integer[An
     chosen = np.isin(labels, ids) & (np.asarray(scores) >= cfg.min_score)
     if len(pts) == 0 or not chosen.any():
         return out
-    pts = pts[_near_any(pts, out[chosen], cfg)]
+    reach = 0.5 * np.maximum(out[:, 3], out[:, 4]) + cfg.margin      # a search square
+    centre, r = out[chosen, :2], reach[chosen, None]
+    # most of a cloud is far from every car: cut it to the 2 m cells the squares touch first
+    pts = pts[CellIndex(pts, centre - r, centre + r, 2.0).points_near()]
     order = np.argsort(pts[:, 0], kind='stable')
     xs = pts[order, 0].astype(np.float64)
     sx, sy = float(sensor_xy[0]), float(sensor_xy[1])
     for i in np.nonzero(chosen)[0]:
         cx, cy, cz, length, width, height, yaw = (float(v) for v in out[i])
-        reach = 0.5 * max(length, width) + cfg.max_shift + cfg.band
-        a, b = np.searchsorted(xs, [cx - reach, cx + reach])
+        a, b = np.searchsorted(xs, [cx - reach[i], cx + reach[i]])
         near = pts[order[a:b], :3].astype(np.float64)
-        near = near[(np.abs(near[:, 1] - cy) <= reach)
+        near = near[(np.abs(near[:, 1] - cy) <= reach[i])
                     & (near[:, 2] >= cz - 0.5 * height + cfg.above_bottom)
                     & (near[:, 2] <= cz + 0.5 * height + cfg.above_bottom)]
         if len(near) < cfg.min_points:

@@ -97,14 +97,14 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         return run_model(model, sequences, precision='bfloat16')
     if variant == 'tracking':
         return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
-    if variant in ('real car ends', 'tracking, real car ends'):
+    base = variant.removeprefix('tracking, ')          # the same, under the node's tracker
+    tracker = TrackerConfig() if base != variant else None
+    if base == 'real car ends':
         from suit_ros.data.sequences import synthetic_split
         drives = synthetic_split('val', len(sequences), len(sequences[0]), cache_dir,
                                  preset_name='val-ends')
-        tracker = TrackerConfig() if variant.startswith('tracking') else None
         return run_model(model, drives, tracker=tracker, **kwargs)
-    if variant in ('box fit faces', 'tracking, box fit faces'):
-        tracker = TrackerConfig() if variant.startswith('tracking') else None
+    if base == 'box fit faces':
         return run_model(model, sequences, tracker=tracker, box_fit='faces', **kwargs)
     if variant == 'overhead' or variant.endswith(('overhang drop', 'overhang keep')):
         from suit_ros.data.overhead import overhead_drives

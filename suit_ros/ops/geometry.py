@@ -140,6 +140,20 @@ class CellIndex:
         """``1 / cell`` in the points' dtype (the kernels scale the points by it)."""
         return self.points.dtype.type(1.0 / self.cell)
 
+    def points_near(self) -> NDArray[np.bool_]:
+        """Which points lie in a cell that some rectangle touches."""
+        near = np.zeros(len(self.points), bool)
+        if not any(len(c) for c in self.cells):
+            return near
+        touched = np.zeros(int(self.shape[0]) * int(self.shape[1]), bool)
+        touched[np.concatenate(self.cells)] = True
+        f = self.points[:, :2] * self.inv_cell         # as the kernels scale them
+        rows = np.nonzero(np.isfinite(f).all(1))[0]
+        ij = np.floor(f[rows]).astype(np.int64) - self.origin
+        inside = (ij >= 0).all(1) & (ij < self.shape).all(1)
+        near[rows[inside]] = touched[ij[inside, 0] * self.shape[1] + ij[inside, 1]]
+        return near
+
     def box_lists(self) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """For each cell of the grid (row-major), the rectangles that touch it: ``boxes[
         start[k]:start[k + 1]]`` with ``start`` ``(cells + 1,)``."""
