@@ -180,6 +180,9 @@ class FrameMatches:
     tp: NDArray[np.bool_]             # (n,)
     errors: NDArray[np.float64]       # (n, 4) TP errors in TP_METRICS order (nan if not TP)
     npos: int
+    # (n, 2) of a TP: its centre's range from the ego origin minus its GT's (+: placed too
+    # far) and its length minus the GT's; nan if not TP (None where not computed)
+    placement: NDArray[np.float64] | None = None
 
 
 def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> FrameMatches:
@@ -193,6 +196,7 @@ def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> Fra
     n = len(ps)
     tp = np.zeros(n, bool)
     errors = np.full((n, len(TP_METRICS)), np.nan)
+    placement = np.full((n, 2), np.nan)
     if len(gb) and n:
         dist = np.hypot(pb[:, None, 0] - gb[None, :, 0], pb[:, None, 1] - gb[None, :, 1])
         taken = np.zeros(len(gb), bool)
@@ -207,7 +211,9 @@ def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> Fra
                 errors[j] = (row[k], 1 - inter / union,
                              float(_wrap_abs(np.array(pb[j, 6] - gb[k, 6]))),
                              float(np.hypot(*(pv[j] - gv[k]))))
-    return FrameMatches(ps, tp, errors, int(len(gb)))
+                placement[j] = (np.hypot(*pb[j, :2]) - np.hypot(*gb[k, :2]),
+                                pb[j, 3] - gb[k, 3])
+    return FrameMatches(ps, tp, errors, int(len(gb)), placement)
 
 
 def curve_from(matches: Sequence[FrameMatches]) -> tuple[ClassCurve, int]:

@@ -6,7 +6,8 @@ boxes published at the checkpoint's published thresholds) over any supported dat
 
 - ``report.json`` and ``report.md``: per class recall and precision at the published thresholds
   and over a sweep of thresholds, false positives per frame, nuScenes-style AP within
-  ``--max-range`` (50 m), car heading error and flip rate (matched cars);
+  ``--max-range`` (50 m), car heading error and flip rate, car placement (median range offset
+  from the ego and length error of the matched cars);
 - ``bev/<sequence>_<frame>.png``: a bird's-eye view per frame, points with GT, true positives,
   false positives, missed objects and ignored things in different colours.
 
@@ -46,6 +47,8 @@ class ClassCounts:
     heading_err: NDArray[np.float64]     # (n,) nan where not a TP
     npos: int
     frames: int
+    # (n, 2) range offset (+: too far from the ego) and length error; nan where not a TP
+    placement: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
 
     def at(self, threshold: float) -> dict[str, Any]:
         """Recall, precision, F1, counts and false positives per frame at a threshold."""
@@ -69,6 +72,15 @@ class ClassCounts:
                 'flipped': int((err > FLIP_RAD).sum()),
                 'flip_rate': _r(float((err > FLIP_RAD).mean())) if len(err) else None}
 
+    def placement_at(self, threshold: float) -> dict[str, Any]:
+        """Where the true positives at a threshold sit against their GT: median range offset
+        (+: farther from the ego than the GT) and median length error, in metres."""
+        keep = self.tp & (self.scores >= threshold)
+        p = self.placement[keep] if len(self.placement) == len(keep) else np.zeros((0, 2))
+        return {'matched': int(len(p)),
+                'range_offset_m': _r(float(np.median(p[:, 0]))) if len(p) else None,
+                'length_error_m': _r(float(np.median(p[:, 1]))) if len(p) else None}
+
 
 def _f(x: float | None, digits: int = 3) -> str:
     """A table cell: n/a for an undefined ratio (no GT, or nothing published)."""
@@ -84,17 +96,20 @@ def count_matches(gt: Sequence[Detections], det: Sequence[Detections], label: in
     """Match every frame once (greedy by score: a detection's match depends only on the
     higher-scored ones, so any threshold is a cut of the same matching)."""
     from suit_ros.evaluate import match_frame
-    scores, tp, err = [], [], []
+    scores, tp, err, place = [], [], [], []
     npos = 0
     for g, d in zip(gt, det):
         m = match_frame(g, d, label, match_dist)
         scores.append(m.scores)
         tp.append(m.tp)
         err.append(m.errors[:, 2])
+        place.append(m.placement if m.placement is not None
+                     else np.full((len(m.scores), 2), np.nan))
         npos += m.npos
     return ClassCounts(np.concatenate(scores) if scores else np.zeros(0),
                        np.concatenate(tp) if tp else np.zeros(0, bool),
-                       np.concatenate(err) if err else np.zeros(0), npos, len(gt))
+                       np.concatenate(err) if err else np.zeros(0), npos, len(gt),
+                       np.concatenate(place) if place else np.zeros((0, 2)))
 
 
 @dataclass
@@ -130,9 +145,10 @@ class Report:
                                  'ap': _r(self.ap[c]) if cc.npos else None,
                                  'sweep': [cc.at(t) for t in SWEEP]}
         if 'car' in self.counts:
-            out['car_heading'] = (
-                self.counts['car'].heading(self.thresholds[self.class_names.index('car')])
-                if self.published is None else self.published['car'].heading(0.0))
+            cars, at = ((self.counts['car'], self.thresholds[self.class_names.index('car')])
+                        if self.published is None else (self.published['car'], 0.0))
+            out['car_heading'] = cars.heading(at)
+            out['car_placement'] = cars.placement_at(at)
         return out
 
     def markdown(self) -> str:
@@ -157,6 +173,11 @@ class Report:
                       f'{h["matched"]} matched, mean error {h["mean_deg"]} deg, median '
                       f'{h["median_deg"]} deg, flipped (> 135 deg) {h["flipped"]} '
                       f'({h["flip_rate"]})']
+        if j.get('car_placement', {}).get('matched'):
+            p = j['car_placement']
+            lines += ['', f'Car placement (the same matched cars): median range offset '
+                      f'{p["range_offset_m"]:+.2f} m (+: farther from the ego than the label), '
+                      f'median length error {p["length_error_m"]:+.2f} m']
         lines += ['', '## Over thresholds (recall / precision / FP per frame)', '',
                   '| threshold | ' + ' | '.join(self.class_names) + ' |',
                   '|---|' + '---|' * len(self.class_names)]
@@ -274,6 +295,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                      help='KITTI-format folder (scored in the camera field of view only)')
     src.add_argument('--nuscenes', metavar='ROOT', help='nuScenes-format folder')
     src.add_argument('--synthetic', choices=['val', 'tune', 'demo'], help='a synthetic split')
+    parser.add_argument('--preset', default=None,
+                        help='the world of a --synthetic val or tune split (a preset of '
+                        'suit_ros/data/sim/config.py, e.g. val-ends-all; default val-real)')
     parser.add_argument('--out', required=True, help='folder for report.json/.md and bev/')
     parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
     parser.add_argument('--score-thresholds', type=float, nargs='+', metavar='T',
@@ -311,11 +335,16 @@ def _sequences(args: argparse.Namespace, class_names: Sequence[str]) -> tuple[li
         from suit_ros.data.sequences import nuscenes_sequences
         return nuscenes_sequences(args.nuscenes, args.version), f'nuScenes ({args.nuscenes})'
     from suit_ros.data.sequences import SPLIT_SEEDS, synthetic_sequence, synthetic_split
+    from suit_ros.data.sim.config import PRESETS
     if args.synthetic == 'demo':
         return [synthetic_sequence('demo-real', SPLIT_SEEDS['demo'], 100, args.cache_dir)], \
             'synthetic demo drive'
-    return synthetic_split(args.synthetic, 16, 40, args.cache_dir), \
-        f'synthetic {args.synthetic} split (16 drives)'
+    if args.preset is not None and args.preset not in PRESETS:
+        raise ConfigError(f'--preset {args.preset!r} is not a preset; one of '
+                          f'{", ".join(sorted(PRESETS))}')
+    return synthetic_split(args.synthetic, 16, 40, args.cache_dir, args.preset), \
+        f'synthetic {args.synthetic} split (16 drives' + \
+        (f', world {args.preset})' if args.preset else ')')
 
 
 def report_thresholds(meta: dict[str, Any], class_names: Sequence[str],

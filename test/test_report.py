@@ -56,6 +56,32 @@ def test_heading_flips_are_counted_on_true_positives():
     assert h['flip_rate'] == pytest.approx(1 / 3, abs=1e-4)
 
 
+def test_placement_is_signed_by_range_from_the_ego():
+    # a car ahead placed 0.5 m too far, one behind 0.3 m too near, one beside 0.2 m further
+    # out; the length 0.4 m too long on all three; a false positive adds nothing
+    gt = [Detections(np.array([[10, 0, 0, 4.5, 1.9, 1.6, 0], [-20, 0, 0, 4.5, 1.9, 1.6, 0],
+                               [0, 15, 0, 4.5, 1.9, 1.6, 0]]), np.zeros((3, 2)), np.ones(3),
+                     np.zeros(3, np.int64))]
+    det = [Detections(np.array([[10.5, 0, 0, 4.9, 1.9, 1.6, 0], [-19.7, 0, 0, 4.9, 1.9, 1.6, 0],
+                                [0, 15.2, 0, 4.9, 1.9, 1.6, 0], [30, 0, 0, 4.9, 1.9, 1.6, 0]]),
+                      np.zeros((4, 2)), np.array([0.9, 0.8, 0.7, 0.9]), np.zeros(4, np.int64))]
+    c = count_matches(gt, det, 0, 2.0)
+    np.testing.assert_allclose(c.placement[:3], [[0.5, 0.4], [-0.3, 0.4], [0.2, 0.4]],
+                               atol=1e-6)
+    assert np.isnan(c.placement[3]).all()
+    p = c.placement_at(0.5)
+    assert p['matched'] == 3
+    assert p['range_offset_m'] == pytest.approx(0.2)
+    assert p['length_error_m'] == pytest.approx(0.4)
+    assert c.placement_at(0.85)['range_offset_m'] == pytest.approx(0.5)
+    assert count_matches(gt, det, 0, 2.0).placement_at(0.95) == {
+        'matched': 0, 'range_offset_m': None, 'length_error_m': None}
+    rep = build_report(ModelRun(gt, det, [np.full(3, 20, np.uint32)], [0.0], [0], {}, [0],
+                                [np.zeros((0, 7), np.float32)]), ('car',), [0.5], 'test')
+    assert rep.to_json()['car_placement']['range_offset_m'] == pytest.approx(0.2)
+    assert 'median range offset +0.20 m' in rep.markdown()
+
+
 def test_best_f1_picks_the_best_cut_and_a_class_without_gt_the_highest():
     gt = [dets([10.0, 20.0], [1, 1])]
     det = [dets([10.0, 20.0, 40.0, 50.0], [0.9, 0.7, 0.3, 0.2])]
@@ -149,6 +175,9 @@ def test_report_command_fails_clearly(tmp_path, capsys):
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'r'),
                  '--score-thresholds', '0.1', '0.2']) == 1
     assert 'needs 1 or 4 values' in capsys.readouterr().err
+    assert main(['report', '--synthetic', 'tune', '--preset', 'val-nowhere',
+                 '--out', str(tmp_path / 'r')]) == 1
+    assert "'val-nowhere' is not a preset" in capsys.readouterr().err
 
 
 def test_carry_thresholds_take_the_factor_of_best_f1_on_outage_frames():

@@ -204,6 +204,9 @@ PRESETS['val-street'] = replace(PRESETS['val-real'], realism=Realism(street_obje
 # half the passenger cars with the ends of real ones (docs/experiments/box_fit, run 18)
 PRESETS['train-ends'] = replace(PRESETS['train-real'], realism=Realism(real_car_ends=0.5))
 PRESETS['val-ends'] = replace(PRESETS['val-real'], realism=Realism(real_car_ends=0.5))
+# every passenger car with the ends of real ones (run 19)
+PRESETS['train-ends-all'] = replace(PRESETS['train-real'], realism=Realism(real_car_ends=1.0))
+PRESETS['val-ends-all'] = replace(PRESETS['val-real'], realism=Realism(real_car_ends=1.0))
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:
