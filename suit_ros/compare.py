@@ -26,7 +26,9 @@ checkpoint changed in one way:
   tracker;
 - ``real car ends`` and ``tracking, real car ends``: the same drives with half their
   passenger cars shaped at their ends as real cars are (preset ``val-ends``,
-  :attr:`~suit_ros.data.sim.config.Realism.real_car_ends`; everything else as it was).
+  :attr:`~suit_ros.data.sim.config.Realism.real_car_ends`; everything else as it was);
+  ``all car ends`` and ``tracking, all car ends``: every passenger car so shaped (preset
+  ``val-ends-all``).
 
 Paired differences (same drive resamples): every checkpoint against the first, each variant
 against its checkpoint (``memory dropped`` and ``zero displacement`` as checkpoint minus
@@ -57,7 +59,10 @@ from suit_ros.structures import Frame
 VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', 'tracking',
             'overhead', 'ground local', 'ground as given', 'overhang drop', 'overhang keep',
             'overhead, overhang drop', 'overhead, overhang keep', 'box fit faces',
-            'tracking, box fit faces', 'real car ends', 'tracking, real car ends')
+            'tracking, box fit faces', 'real car ends', 'tracking, real car ends',
+            'all car ends', 'tracking, all car ends')
+# the validation drives regenerated with passenger cars shaped at their ends as real cars are
+CAR_END_WORLDS = {'real car ends': 'val-ends', 'all car ends': 'val-ends-all'}
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
@@ -99,10 +104,10 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
     base = variant.removeprefix('tracking, ')          # the same, under the node's tracker
     tracker = TrackerConfig() if base != variant else None
-    if base == 'real car ends':
+    if base in CAR_END_WORLDS:
         from suit_ros.data.sequences import synthetic_split
         drives = synthetic_split('val', len(sequences), len(sequences[0]), cache_dir,
-                                 preset_name='val-ends')
+                                 preset_name=CAR_END_WORLDS[base])
         return run_model(model, drives, tracker=tracker, **kwargs)
     if base == 'box fit faces':
         return run_model(model, sequences, tracker=tracker, box_fit='faces', **kwargs)

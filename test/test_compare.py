@@ -98,8 +98,9 @@ def test_an_overhang_variant_runs_only_where_it_changes_the_input():
 
 def test_the_real_car_ends_variant_runs_the_same_drives_with_real_car_ends():
     """``real car ends``: the validation drives (the same seeds, routes and objects) with
-    half the cars shaped at their ends as real cars are; ``tracking, real car ends`` the same
-    tracked; both scored against the same boxes as the drives they replace."""
+    half the cars shaped at their ends as real cars are (``all car ends``: every car);
+    ``tracking, ...`` the same tracked; all scored against the same boxes as the drives they
+    replace."""
     from suit_ros.compare import variant_run
     from suit_ros.config import model_config_from_dict
     from suit_ros.data.sequences import synthetic_split
@@ -108,10 +109,13 @@ def test_the_real_car_ends_variant_runs_the_same_drives_with_real_car_ends():
     cfg = model_config_from_dict({'temporal': 'none'}, 'test')
     model = SUITDetector(cfg).eval()
     plain = variant_run('unused', model, 'tracking', drives, 'float32')
-    for variant in ('real car ends', 'tracking, real car ends'):
+    for variant in ('real car ends', 'tracking, real car ends', 'all car ends',
+                    'tracking, all car ends'):
         out = variant_run('unused', model, variant, drives, 'float32')
         assert out is not None and len(out.gt) == len(plain.gt) == 2
         for a, b in zip(out.gt, plain.gt):
             assert np.array_equal(a.boxes, b.boxes) and np.array_equal(a.labels, b.labels)
     shaped = synthetic_split('val', 1, 2, preset_name='val-ends')
     assert not np.array_equal(shaped[0][0].points, drives[0][0].points)
+    every = synthetic_split('val', 1, 2, preset_name='val-ends-all')
+    assert not np.array_equal(every[0][0].points, shaped[0][0].points)
