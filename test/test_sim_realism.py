@@ -270,6 +270,11 @@ def test_real_car_ends_change_only_the_cars_shapes():
     changed = [not np.array_equal(a.body.parts, b.body.parts) for a, b in cars]
     expected = [id_fraction(a.instance_id) < 0.5 for a, _ in cars]
     assert changed == expected and 0 < sum(changed) < len(cars)
+    every = Simulation(preset('val-ends-all', frames=2), 3)
+    shaped = [(a, b) for a, b in zip(plain.actors, every.actors) if a.body is not None
+              and a.label == 0]
+    assert all(not np.array_equal(a.body.parts, b.body.parts) for a, b in shaped)
     assert preset('val-real').realism.real_car_ends == 0.0
+    assert preset('train-ends-all').realism.real_car_ends == 1.0
     with pytest.raises(ConfigError, match='real_car_ends'):
         preset('test', realism=Realism(real_car_ends=1.5))
