@@ -166,11 +166,12 @@ def main() -> int:
         '| classes | car, truck (buses included), pedestrian, cyclist (motorcycles included) | '
         'the same |',
         f'| size | {size["suit"]:.1f} MB | {size["single"]:.1f} MB |',
-        f'| last stage | {steps["suit"]} steps, {minutes["suit"]} min, 2 threads (stage 9) | '
+        f'| last stage | {steps["suit"]} steps, {minutes["suit"]} min, 2 threads (stage 10) | '
         f'{steps["single"]} steps, {minutes["single"]} min, 1 thread (stage 7) |', '',
         '**Data.** The embedded synthetic world, detailed variant (`train-real`: vehicles with a '
         'front and a back, articulated pedestrians, cyclists and motorcycles, street clutter; '
-        "SUIT's last stage in `train-ends`, half the cars with real car ends), "
+        "SUIT's last two stages in `train-ends`, half the cars with real car ends, then "
+        '`train-ends-all`, every car), '
         '576 drives over the stages (training drives 0-575, seeds 1000-1575; '
         f'{train["suit"].get("train_sequences", "?")} in the last stage, drives '
         f'{first_drive}-{first_drive + train["suit"].get("train_sequences", 0) - 1}) of '
@@ -199,7 +200,9 @@ def main() -> int:
         'memory_size). Stage 9, SUIT only: the stage-8 model on the same drives regenerated '
         'with half the passenger cars shaped at their ends as real cars are (a dark bumper '
         '0.1 m inside the box, the body set back 0.35 m; `params/train_suit_ends.yaml`, '
-        'the same recipe, 4,000 steps, 67 min; docs/experiments/box_fit, run 18). '
+        'the same recipe, 4,000 steps, 67 min; docs/experiments/box_fit, run 18). Stage 10, '
+        'SUIT only: the stage-9 model on the same drives with every passenger car so shaped '
+        '(`params/train_suit_ends_all.yaml`, 4,000 steps, 63 min; run 19). '
         'The single-frame model trained as in stage 8 lost 0.018 validation mAP '
         '(run 17) and keeps every return. AdamW, one-cycle following wall '
         'time, weight decay 0.01, rotation +-45 degrees, scaling 0.95-1.05, intensity dropout '

@@ -57,7 +57,7 @@ def test_model_yaml_base_and_overrides(tmp_path):
 
 def test_recipe_configs_load_and_match_the_shipped_checkpoints():
     """Every training config of the recipe (scripts/train_default.sh) loads with its model
-    config, and the shipped checkpoints hold the config of their last stage (stage 8 for SUIT,
+    config, and the shipped checkpoints hold the config of their last stage (stage 10 for SUIT,
     stage 7 for the single-frame model), leveled to their local ground as they run (and SUIT's
     memory sampling at alpha 0.2)."""
     from dataclasses import replace
@@ -70,7 +70,7 @@ def test_recipe_configs_load_and_match_the_shipped_checkpoints():
     for path in sorted((repo / 'params').glob('train_*.yaml')):
         tc = load_train_config(path)
         load_model_config(repo / tc.model_config)
-    for name, last in (('suit_default', 'train_suit_overhang.yaml'),
+    for name, last in (('suit_default', 'train_suit_ends_all.yaml'),
                        ('centerpoint_single', 'train_single_time10.yaml')):
         assert f'params/{last}' in recipe
         tc = load_train_config(repo / 'params' / last)
@@ -78,6 +78,7 @@ def test_recipe_configs_load_and_match_the_shipped_checkpoints():
         meta = read_metadata(repo / 'suit_ros/checkpoints' / f'{name}.safetensors')
         shipped = model_config_from_dict(meta['config'])
         assert shipped.pillars.ground == 'local'
+        assert meta['extra']['train_config'].get('preset', '') == tc.preset, name
         # set after training, as the recipe does: leveled input; SUIT's memory sampling
         runtime = ['pillars.ground'] + (['sampling.alpha'] if name == 'suit_default' else [])
         assert sorted(shipped.diff(stage)) == sorted(runtime), (name, shipped.diff(stage))
