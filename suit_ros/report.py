@@ -47,8 +47,7 @@ class ClassCounts:
     heading_err: NDArray[np.float64]     # (n,) nan where not a TP
     npos: int
     frames: int
-    # (n, 2) range offset (+: too far from the ego) and length error; nan where not a TP
-    placement: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 2)))
+    placement: NDArray[np.float64]       # (n, 2) range offset (+: too far), length error
 
     def at(self, threshold: float) -> dict[str, Any]:
         """Recall, precision, F1, counts and false positives per frame at a threshold."""
@@ -75,8 +74,7 @@ class ClassCounts:
     def placement_at(self, threshold: float) -> dict[str, Any]:
         """Where the true positives at a threshold sit against their GT: median range offset
         (+: farther from the ego than the GT) and median length error, in metres."""
-        keep = self.tp & (self.scores >= threshold)
-        p = self.placement[keep] if len(self.placement) == len(keep) else np.zeros((0, 2))
+        p = self.placement[self.tp & (self.scores >= threshold)]
         return {'matched': int(len(p)),
                 'range_offset_m': _r(float(np.median(p[:, 0]))) if len(p) else None,
                 'length_error_m': _r(float(np.median(p[:, 1]))) if len(p) else None}
@@ -103,8 +101,8 @@ def count_matches(gt: Sequence[Detections], det: Sequence[Detections], label: in
         scores.append(m.scores)
         tp.append(m.tp)
         err.append(m.errors[:, 2])
-        place.append(m.placement if m.placement is not None
-                     else np.full((len(m.scores), 2), np.nan))
+        assert m.placement is not None          # match_frame always measures it
+        place.append(m.placement)
         npos += m.npos
     return ClassCounts(np.concatenate(scores) if scores else np.zeros(0),
                        np.concatenate(tp) if tp else np.zeros(0, bool),
