@@ -183,6 +183,9 @@ class FrameMatches:
     # (n, 2) of a TP: its centre's range from the ego origin minus its GT's (+: placed too
     # far) and its length minus the GT's; nan if not TP (None where not computed)
     placement: NDArray[np.float64] | None = None
+    # (n,) of a TP: the index of its GT among the frame's GT of the class; -1 if not TP
+    # (None where not computed)
+    gt_index: NDArray[np.int64] | None = None
 
 
 def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> FrameMatches:
@@ -197,6 +200,7 @@ def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> Fra
     tp = np.zeros(n, bool)
     errors = np.full((n, len(TP_METRICS)), np.nan)
     placement = np.full((n, 2), np.nan)
+    gt_index = np.full(n, -1, np.int64)
     if len(gb) and n:
         dist = np.hypot(pb[:, None, 0] - gb[None, :, 0], pb[:, None, 1] - gb[None, :, 1])
         taken = np.zeros(len(gb), bool)
@@ -206,6 +210,7 @@ def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> Fra
             if row[k] < dist_th:
                 taken[k] = True
                 tp[j] = True
+                gt_index[j] = k
                 inter = np.prod(np.minimum(gb[k, 3:6], pb[j, 3:6]))
                 union = np.prod(gb[k, 3:6]) + np.prod(pb[j, 3:6]) - inter
                 errors[j] = (row[k], 1 - inter / union,
@@ -213,7 +218,7 @@ def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> Fra
                              float(np.hypot(*(pv[j] - gv[k]))))
                 placement[j] = (np.hypot(*pb[j, :2]) - np.hypot(*gb[k, :2]),
                                 pb[j, 3] - gb[k, 3])
-    return FrameMatches(ps, tp, errors, int(len(gb)), placement)
+    return FrameMatches(ps, tp, errors, int(len(gb)), placement, gt_index)
 
 
 def curve_from(matches: Sequence[FrameMatches]) -> tuple[ClassCurve, int]:

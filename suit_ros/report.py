@@ -7,7 +7,8 @@ boxes published at the checkpoint's published thresholds) over any supported dat
 - ``report.json`` and ``report.md``: per class recall and precision at the published thresholds
   and over a sweep of thresholds, false positives per frame, nuScenes-style AP within
   ``--max-range`` (50 m), car heading error and flip rate, car placement (median range offset
-  from the ego and length error of the matched cars);
+  from the ego and length error of the matched cars), and every missed object with what the
+  model made of it (the best score of its class there, the strongest box of another class);
 - ``bev/<sequence>_<frame>.png``: a bird's-eye view per frame, points with GT, true positives,
   false positives, missed objects and ignored things in different colours.
 
@@ -124,6 +125,8 @@ class Report:
     # the detections as published (carried boxes at their own thresholds; None: the cuts of
     # ``counts`` at ``thresholds``)
     published: dict[str, ClassCounts] | None = None
+    # the objects not found at the published thresholds (:func:`missed_objects`)
+    missed: list[dict[str, Any]] = field(default_factory=list)
 
     def at_published(self, c: str) -> dict[str, Any]:
         """Class ``c``'s counts as published."""
@@ -147,6 +150,7 @@ class Report:
                         if self.published is None else (self.published['car'], 0.0))
             out['car_heading'] = cars.heading(at)
             out['car_placement'] = cars.placement_at(at)
+        out['missed'] = self.missed
         return out
 
     def markdown(self) -> str:
@@ -186,8 +190,70 @@ class Report:
                 cells.append(f'{_f(s["recall"], 2)} / {_f(s["precision"], 2)} / '
                              f'{s["fp_per_frame"]:.1f}')
             lines.append(f'| {t:.2f} | ' + ' | '.join(cells) + ' |')
+        lines += _missed_markdown(self.missed)
         lines += [''] + [f'- {n}' for n in self.notes]
         return '\n'.join(lines) + '\n'
+
+
+MISSED_ROWS = 40                        # rows of the markdown's missed-objects table
+
+
+def _missed_markdown(missed: Sequence[dict[str, Any]]) -> list[str]:
+    """The missed-objects table (the first :data:`MISSED_ROWS`; all are in the JSON)."""
+    if not missed:
+        return []
+    lines = ['', '## Missed objects (at the published thresholds)', '',
+             "Best score: the highest score a box of the object's class got there (within the "
+             'match distance; a threshold below it would find the object). Other box: the '
+             'strongest box of another class there.', '',
+             '| frame | class | range (m) | returns | best score | other box |',
+             '|---|---|---|---|---|---|']
+    for m in missed[:MISSED_ROWS]:
+        other = 'none' if m['other'] is None else \
+            f'{m["other"]["class"]} {m["other"]["score"]:.2f}'
+        lines.append(f'| {m["frame"]} | {m["class"]} | {m["range_m"]:.1f} | '
+                     f'{m["returns"] if m["returns"] is not None else "n/a"} | '
+                     f'{m["best_score"]:.2f} | {other} |')
+    if len(missed) > MISSED_ROWS:
+        lines.append(f'\n({len(missed) - MISSED_ROWS} more in report.json)')
+    return lines
+
+
+def missed_objects(gt: Sequence[Detections], published: Sequence[Detections],
+                   decoded: Sequence[Detections], class_names: Sequence[str],
+                   num_points: Sequence[Any] | None, max_range: float = 50.0,
+                   match_dist: float = 2.0) -> list[dict[str, Any]]:
+    """Every scored GT object (within ``max_range``, with returns) that no published box
+    matches, with what the model made of it: the best score of a box of its class within
+    ``match_dist`` among the ``decoded`` ones (0: none) and the strongest box of another class
+    there; sorted by class, then range."""
+    from suit_ros.evaluate import filter_frames, match_frame
+    names = tuple(class_names)
+    ranges = dict.fromkeys(names, max_range)
+    gts, pubs, npts = filter_frames(gt, published, names, ranges, num_points)
+    _, decs, _ = filter_frames(gt, decoded, names, ranges, num_points)
+    rows = []
+    for i, (g, p, d, n) in enumerate(zip(gts, pubs, decs, npts)):
+        for k, c in enumerate(names):
+            m = match_frame(g, p, k, match_dist)
+            assert m.gt_index is not None          # match_frame always records it
+            found = set(m.gt_index[m.tp].tolist())
+            for j, gi in enumerate(np.flatnonzero(g.labels == k)):
+                if j in found:
+                    continue
+                b = g.boxes[gi]
+                near = np.hypot(d.boxes[:, 0] - b[0], d.boxes[:, 1] - b[1]) < match_dist
+                own = d.scores[near & (d.labels == k)]
+                other = np.flatnonzero(near & (d.labels != k))
+                best = other[np.argmax(d.scores[other])] if len(other) else None
+                rows.append({'frame': i, 'class': c, 'range_m': _r(np.hypot(b[0], b[1])),
+                             'returns': None if n is None else int(n[gi]),
+                             'best_score': _r(own.max()) if len(own) else 0.0,
+                             'other': None if best is None else
+                             {'class': names[int(d.labels[best])],
+                              'score': _r(d.scores[best])}})
+    rows.sort(key=lambda r: (names.index(r['class']), r['range_m']))
+    return rows
 
 
 def class_counts(gt: Sequence[Detections], det: Sequence[Detections],
@@ -214,12 +280,14 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
     ap = evaluate(run.gt, scored, names, dict.fromkeys(names, max_range),
                   run.num_points).class_ap
     published = None
+    boxes_out = run.as_published(thresholds, carry_thresholds or thresholds).scored_detections()
     if carry_thresholds is not None and any(c.any() for c in run.carried):
-        published = class_counts(run.gt, run.as_published(thresholds, carry_thresholds)
-                                 .scored_detections(), names, run.num_points, max_range,
+        published = class_counts(run.gt, boxes_out, names, run.num_points, max_range,
                                  match_dist)
+    missed = missed_objects(run.gt, boxes_out, scored, names, run.num_points, max_range,
+                            match_dist)
     return Report(names, [float(t) for t in thresholds], counts, ap, len(run.gt), source,
-                  published=published)
+                  published=published, missed=missed)
 
 
 def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det: Detections,
@@ -322,6 +390,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def _sequences(args: argparse.Namespace, class_names: Sequence[str]) -> tuple[list[Any], str]:
+    if args.preset is not None and args.synthetic not in ('val', 'tune'):
+        raise ConfigError('--preset sets the world of a --synthetic val or tune split; '
+                          'drop it for a dataset folder or the demo drive')
     if args.av2:
         from suit_ros.data.av2 import av2_sequences
         return list(av2_sequences(args.av2, class_names)), f'Argoverse 2 ({args.av2})'

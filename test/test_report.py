@@ -82,6 +82,32 @@ def test_placement_is_signed_by_range_from_the_ego():
     assert 'median range offset +0.20 m' in rep.markdown()
 
 
+def test_missed_objects_say_what_the_model_made_of_them():
+    # cars at 10 m (found), 20 m (its box scores 0.3 under the 0.5 cut; a pedestrian box at
+    # 0.6 sits on it), 30 m (nothing there), 60 m (out of range); a pedestrian at 15 m without
+    # returns (not scored); a duplicate car box on the found one takes nothing
+    gt = [dets([10.0, 20.0, 30.0, 60.0, 15.0], [1] * 5, [0, 0, 0, 0, 1])]
+    det = [dets([10.2, 9.9, 20.3, 20.1], [0.9, 0.6, 0.3, 0.6], [0, 0, 0, 1])]
+    run = ModelRun(gt, det, [np.array([50, 40, 3, 20, 0], np.uint32)], [0.0], [0], {}, [0],
+                   [None])
+    rep = build_report(run, ('car', 'pedestrian'), [0.5, 0.5], 'test')
+    assert rep.missed == [
+        {'frame': 0, 'class': 'car', 'range_m': 20.0, 'returns': 40, 'best_score': 0.3,
+         'other': {'class': 'pedestrian', 'score': 0.6}},
+        {'frame': 0, 'class': 'car', 'range_m': 30.0, 'returns': 3, 'best_score': 0.0,
+         'other': None}]
+    assert rep.to_json()['missed'] == rep.missed
+    md = rep.markdown()
+    assert '| 0 | car | 20.0 | 40 | 0.30 | pedestrian 0.60 |' in md
+    assert '| 0 | car | 30.0 | 3 | 0.00 | none |' in md
+    # at a cut of 0.25 the 20 m car is found; nothing is missed in a run that finds all
+    assert [m['range_m'] for m in build_report(run, ('car', 'pedestrian'), [0.25, 0.5],
+                                               'test').missed] == [30.0]
+    run.det = [dets([10.0, 20.0, 30.0], [0.9, 0.9, 0.9])]
+    full = build_report(run, ('car', 'pedestrian'), [0.5, 0.5], 'test')
+    assert full.missed == [] and 'Missed objects' not in full.markdown()
+
+
 def test_best_f1_picks_the_best_cut_and_a_class_without_gt_the_highest():
     gt = [dets([10.0, 20.0], [1, 1])]
     det = [dets([10.0, 20.0, 40.0, 50.0], [0.9, 0.7, 0.3, 0.2])]
@@ -178,6 +204,10 @@ def test_report_command_fails_clearly(tmp_path, capsys):
     assert main(['report', '--synthetic', 'tune', '--preset', 'val-nowhere',
                  '--out', str(tmp_path / 'r')]) == 1
     assert "'val-nowhere' is not a preset" in capsys.readouterr().err
+    assert main(['report', '--av2', str(tmp_path / 'data'), '--preset', 'val-ends-all',
+                 '--out', str(tmp_path / 'r')]) == 1
+    assert '--preset sets the world of a --synthetic val or tune split' in \
+        capsys.readouterr().err
 
 
 def test_carry_thresholds_take_the_factor_of_best_f1_on_outage_frames():
