@@ -7,8 +7,9 @@ boxes published at the checkpoint's published thresholds) over any supported dat
 - ``report.json`` and ``report.md``: per class recall and precision at the published thresholds
   and over a sweep of thresholds, false positives per frame, nuScenes-style AP within
   ``--max-range`` (50 m), car heading error and flip rate, car placement (median range offset
-  from the ego and length error of the matched cars), and every missed object with what the
-  model made of it (the best score of its class there, the strongest box of another class);
+  from the ego and length error of the matched cars), every missed object with what the
+  model made of it (the best score of its class there, the strongest box of another class)
+  and every false positive with the nearest labelled object;
 - ``bev/<sequence>_<frame>.png``: a bird's-eye view per frame, points with GT, true positives,
   false positives, missed objects and ignored things in different colours.
 
@@ -125,8 +126,10 @@ class Report:
     # the detections as published (carried boxes at their own thresholds; None: the cuts of
     # ``counts`` at ``thresholds``)
     published: dict[str, ClassCounts] | None = None
-    # the objects not found at the published thresholds (:func:`missed_objects`)
+    # the objects not found and the false positives at the published thresholds
+    # (:func:`findings`)
     missed: list[dict[str, Any]] = field(default_factory=list)
+    false: list[dict[str, Any]] = field(default_factory=list)
 
     def at_published(self, c: str) -> dict[str, Any]:
         """Class ``c``'s counts as published."""
@@ -151,6 +154,7 @@ class Report:
             out['car_heading'] = cars.heading(at)
             out['car_placement'] = cars.placement_at(at)
         out['missed'] = self.missed
+        out['false_positives'] = self.false
         return out
 
     def markdown(self) -> str:
@@ -190,70 +194,112 @@ class Report:
                 cells.append(f'{_f(s["recall"], 2)} / {_f(s["precision"], 2)} / '
                              f'{s["fp_per_frame"]:.1f}')
             lines.append(f'| {t:.2f} | ' + ' | '.join(cells) + ' |')
-        lines += _missed_markdown(self.missed)
+        lines += _findings_markdown(self.missed, self.false)
         lines += [''] + [f'- {n}' for n in self.notes]
         return '\n'.join(lines) + '\n'
 
 
-MISSED_ROWS = 40                        # rows of the markdown's missed-objects table
+TABLE_ROWS = 40                         # rows of each of the markdown's per-object tables
 
 
-def _missed_markdown(missed: Sequence[dict[str, Any]]) -> list[str]:
-    """The missed-objects table (the first :data:`MISSED_ROWS`; all are in the JSON)."""
-    if not missed:
+def _table(title: str, intro: str, header: Sequence[str], rows: Sequence[Sequence[str]]
+           ) -> list[str]:
+    """A markdown table of the first :data:`TABLE_ROWS` rows (all are in the JSON)."""
+    if not rows:
         return []
-    lines = ['', '## Missed objects (at the published thresholds)', '',
-             "Best score: the highest score a box of the object's class got there (within the "
-             'match distance; a threshold below it would find the object). Other box: the '
-             'strongest box of another class there.', '',
-             '| frame | class | range (m) | returns | best score | other box |',
-             '|---|---|---|---|---|---|']
-    for m in missed[:MISSED_ROWS]:
-        other = 'none' if m['other'] is None else \
-            f'{m["other"]["class"]} {m["other"]["score"]:.2f}'
-        lines.append(f'| {m["frame"]} | {m["class"]} | {m["range_m"]:.1f} | '
-                     f'{m["returns"] if m["returns"] is not None else "n/a"} | '
-                     f'{m["best_score"]:.2f} | {other} |')
-    if len(missed) > MISSED_ROWS:
-        lines.append(f'\n({len(missed) - MISSED_ROWS} more in report.json)')
+    lines = ['', f'## {title}', '', intro, '', '| ' + ' | '.join(header) + ' |',
+             '|' + '---|' * len(header)]
+    lines += ['| ' + ' | '.join(r) + ' |' for r in rows[:TABLE_ROWS]]
+    if len(rows) > TABLE_ROWS:
+        lines.append(f'\n({len(rows) - TABLE_ROWS} more in report.json)')
     return lines
 
 
-def missed_objects(gt: Sequence[Detections], published: Sequence[Detections],
-                   decoded: Sequence[Detections], class_names: Sequence[str],
-                   num_points: Sequence[Any] | None, max_range: float = 50.0,
-                   match_dist: float = 2.0) -> list[dict[str, Any]]:
-    """Every scored GT object (within ``max_range``, with returns) that no published box
+def _box_cell(box: dict[str, Any] | None, key: str) -> str:
+    return 'none' if box is None else f'{box["class"]} {box[key]:.2f}'
+
+
+def _findings_markdown(missed: Sequence[dict[str, Any]], false: Sequence[dict[str, Any]]
+                       ) -> list[str]:
+    """The missed-objects and false-positives tables."""
+    lines = _table(
+        'Missed objects (at the published thresholds)',
+        "Best score: the highest score a box of the object's class got there (within the match "
+        'distance; a threshold below it would find the object). Other box: the strongest box '
+        'of another class there.',
+        ('frame', 'class', 'range (m)', 'returns', 'best score', 'other box'),
+        [(str(m['frame']), m['class'], f'{m["range_m"]:.1f}',
+          'n/a' if m['returns'] is None else str(m['returns']), f'{m["best_score"]:.2f}',
+          _box_cell(m['other'], 'score')) for m in missed])
+    lines += _table(
+        'False positives (published boxes that match no object)',
+        f'Nearest object: the nearest labelled object of any class within {NEAR_M:.0f} m '
+        '(distance in metres) and whether a published box of its class found it: near a '
+        'found object of the same class, a duplicate or a misplaced box; near one of another '
+        'class, a wrong class; none, a box on the background (see the pictures).',
+        ('frame', 'class', 'score', 'range (m)', 'nearest object', 'found'),
+        [(str(f['frame']), f['class'], f'{f["score"]:.2f}', f'{f["range_m"]:.1f}',
+          _box_cell(f['nearest'], 'distance_m'),
+          '' if f['nearest'] is None else ('yes' if f['nearest']['found'] else 'no'))
+         for f in false])
+    return lines
+
+
+NEAR_M = 4.0                            # how far a false positive's nearest object is looked for
+
+
+def findings(gt: Sequence[Detections], published: Sequence[Detections],
+             decoded: Sequence[Detections], class_names: Sequence[str],
+             num_points: Sequence[Any] | None, max_range: float = 50.0,
+             match_dist: float = 2.0) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The objects missed and the false positives, at the published boxes.
+
+    Missed: every scored GT object (within ``max_range``, with returns) that no published box
     matches, with what the model made of it: the best score of a box of its class within
     ``match_dist`` among the ``decoded`` ones (0: none) and the strongest box of another class
-    there; sorted by class, then range."""
+    there; sorted by class, then range. False: every published box that matches no object,
+    with the nearest scored object of any class within :data:`NEAR_M` and whether it was
+    found; sorted by class, then descending score.
+    """
     from suit_ros.evaluate import filter_frames, match_frame
     names = tuple(class_names)
     ranges = dict.fromkeys(names, max_range)
     gts, pubs, npts = filter_frames(gt, published, names, ranges, num_points)
     _, decs, _ = filter_frames(gt, decoded, names, ranges, num_points)
-    rows = []
+    missed: list[dict[str, Any]] = []
+    false: list[dict[str, Any]] = []
     for i, (g, p, d, n) in enumerate(zip(gts, pubs, decs, npts)):
-        for k, c in enumerate(names):
+        found = np.zeros(len(g), bool)
+        unmatched = np.zeros(len(p), bool)
+        for k in range(len(names)):
             m = match_frame(g, p, k, match_dist)
             assert m.gt_index is not None          # match_frame always records it
-            found = set(m.gt_index[m.tp].tolist())
-            for j, gi in enumerate(np.flatnonzero(g.labels == k)):
-                if j in found:
-                    continue
-                b = g.boxes[gi]
-                near = np.hypot(d.boxes[:, 0] - b[0], d.boxes[:, 1] - b[1]) < match_dist
-                own = d.scores[near & (d.labels == k)]
-                other = np.flatnonzero(near & (d.labels != k))
-                best = other[np.argmax(d.scores[other])] if len(other) else None
-                rows.append({'frame': i, 'class': c, 'range_m': _r(np.hypot(b[0], b[1])),
-                             'returns': None if n is None else int(n[gi]),
-                             'best_score': _r(own.max()) if len(own) else 0.0,
-                             'other': None if best is None else
-                             {'class': names[int(d.labels[best])],
-                              'score': _r(d.scores[best])}})
-    rows.sort(key=lambda r: (names.index(r['class']), r['range_m']))
-    return rows
+            found[np.flatnonzero(g.labels == k)[m.gt_index[m.tp]]] = True
+            unmatched[np.flatnonzero(p.labels == k)[~m.tp]] = True
+        for gi in np.flatnonzero(~found):
+            b, k = g.boxes[gi], int(g.labels[gi])
+            near = np.hypot(d.boxes[:, 0] - b[0], d.boxes[:, 1] - b[1]) < match_dist
+            own = d.scores[near & (d.labels == k)]
+            other = np.flatnonzero(near & (d.labels != k))
+            best = other[np.argmax(d.scores[other])] if len(other) else None
+            missed.append({'frame': i, 'class': names[k], 'range_m': _r(np.hypot(b[0], b[1])),
+                           'returns': None if n is None else int(n[gi]),
+                           'best_score': _r(own.max()) if len(own) else 0.0,
+                           'other': None if best is None else
+                           {'class': names[int(d.labels[best])],
+                            'score': _r(d.scores[best])}})
+        for j in np.flatnonzero(unmatched):
+            b = p.boxes[j]
+            dist = np.hypot(g.boxes[:, 0] - b[0], g.boxes[:, 1] - b[1])
+            q = int(np.argmin(dist)) if len(g) else -1
+            false.append({'frame': i, 'class': names[int(p.labels[j])],
+                          'score': _r(p.scores[j]), 'range_m': _r(np.hypot(b[0], b[1])),
+                          'nearest': None if q < 0 or dist[q] > NEAR_M else
+                          {'class': names[int(g.labels[q])], 'distance_m': _r(dist[q]),
+                           'found': bool(found[q])}})
+    missed.sort(key=lambda r: (names.index(r['class']), r['range_m']))
+    false.sort(key=lambda r: (names.index(r['class']), -r['score']))
+    return missed, false
 
 
 def class_counts(gt: Sequence[Detections], det: Sequence[Detections],
@@ -284,10 +330,10 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
     if carry_thresholds is not None and any(c.any() for c in run.carried):
         published = class_counts(run.gt, boxes_out, names, run.num_points, max_range,
                                  match_dist)
-    missed = missed_objects(run.gt, boxes_out, scored, names, run.num_points, max_range,
-                            match_dist)
+    missed, false = findings(run.gt, boxes_out, scored, names, run.num_points, max_range,
+                             match_dist)
     return Report(names, [float(t) for t in thresholds], counts, ap, len(run.gt), source,
-                  published=published, missed=missed)
+                  published=published, missed=missed, false=false)
 
 
 def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det: Detections,

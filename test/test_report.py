@@ -82,7 +82,7 @@ def test_placement_is_signed_by_range_from_the_ego():
     assert 'median range offset +0.20 m' in rep.markdown()
 
 
-def test_missed_objects_say_what_the_model_made_of_them():
+def test_missed_objects_and_false_positives_say_what_the_model_made_of_them():
     # cars at 10 m (found), 20 m (its box scores 0.3 under the 0.5 cut; a pedestrian box at
     # 0.6 sits on it), 30 m (nothing there), 60 m (out of range); a pedestrian at 15 m without
     # returns (not scored); a duplicate car box on the found one takes nothing
@@ -97,15 +97,28 @@ def test_missed_objects_say_what_the_model_made_of_them():
         {'frame': 0, 'class': 'car', 'range_m': 30.0, 'returns': 3, 'best_score': 0.0,
          'other': None}]
     assert rep.to_json()['missed'] == rep.missed
+    # the false positives: the pedestrian box on the missed car, and the duplicate car box
+    # on the found one
+    assert rep.false == [
+        {'frame': 0, 'class': 'car', 'score': 0.6, 'range_m': 9.9,
+         'nearest': {'class': 'car', 'distance_m': 0.1, 'found': True}},
+        {'frame': 0, 'class': 'pedestrian', 'score': 0.6, 'range_m': 20.1,
+         'nearest': {'class': 'car', 'distance_m': 0.1, 'found': False}}]
+    assert rep.to_json()['false_positives'] == rep.false
     md = rep.markdown()
     assert '| 0 | car | 20.0 | 40 | 0.30 | pedestrian 0.60 |' in md
     assert '| 0 | car | 30.0 | 3 | 0.00 | none |' in md
+    assert '| 0 | pedestrian | 0.60 | 20.1 | car 0.10 | no |' in md
     # at a cut of 0.25 the 20 m car is found; nothing is missed in a run that finds all
     assert [m['range_m'] for m in build_report(run, ('car', 'pedestrian'), [0.25, 0.5],
                                                'test').missed] == [30.0]
-    run.det = [dets([10.0, 20.0, 30.0], [0.9, 0.9, 0.9])]
+    # a box far from every object is on the background
+    run.det = [dets([10.0, 20.0, 30.0, 45.0], [0.9, 0.9, 0.9, 0.7])]
     full = build_report(run, ('car', 'pedestrian'), [0.5, 0.5], 'test')
     assert full.missed == [] and 'Missed objects' not in full.markdown()
+    assert full.false == [{'frame': 0, 'class': 'car', 'score': 0.7, 'range_m': 45.0,
+                           'nearest': None}]
+    assert '| 0 | car | 0.70 | 45.0 | none |  |' in full.markdown()
 
 
 def test_best_f1_picks_the_best_cut_and_a_class_without_gt_the_highest():
