@@ -207,6 +207,11 @@ PRESETS['val-ends'] = replace(PRESETS['val-real'], realism=Realism(real_car_ends
 # every passenger car with the ends of real ones (run 19)
 PRESETS['train-ends-all'] = replace(PRESETS['train-real'], realism=Realism(real_car_ends=1.0))
 PRESETS['val-ends-all'] = replace(PRESETS['val-real'], realism=Realism(real_car_ends=1.0))
+# and the street objects of real sidewalks (run 20: what the real false positives sit on)
+PRESETS['train-street-ends'] = replace(PRESETS['train-real'],
+                                       realism=Realism(real_car_ends=1.0, street_objects=1.0))
+PRESETS['val-street-ends'] = replace(PRESETS['val-real'],
+                                     realism=Realism(real_car_ends=1.0, street_objects=1.0))
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:
