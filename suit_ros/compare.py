@@ -28,7 +28,9 @@ checkpoint changed in one way:
   passenger cars shaped at their ends as real cars are (preset ``val-ends``,
   :attr:`~suit_ros.data.sim.config.Realism.real_car_ends`; everything else as it was);
   ``all car ends`` and ``tracking, all car ends``: every passenger car so shaped (preset
-  ``val-ends-all``).
+  ``val-ends-all``); ``street objects`` and ``tracking, street objects``: every car so
+  shaped and the sidewalks holding the street objects of real ones (preset
+  ``val-street-ends``).
 
 Paired differences (same drive resamples): every checkpoint against the first, each variant
 against its checkpoint (``memory dropped`` and ``zero displacement`` as checkpoint minus
@@ -60,9 +62,12 @@ VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', '
             'overhead', 'ground local', 'ground as given', 'overhang drop', 'overhang keep',
             'overhead, overhang drop', 'overhead, overhang keep', 'box fit faces',
             'tracking, box fit faces', 'real car ends', 'tracking, real car ends',
-            'all car ends', 'tracking, all car ends')
-# the validation drives regenerated with passenger cars shaped at their ends as real cars are
-CAR_END_WORLDS = {'real car ends': 'val-ends', 'all car ends': 'val-ends-all'}
+            'all car ends', 'tracking, all car ends', 'street objects',
+            'tracking, street objects')
+# the validation drives regenerated in another world: passenger cars shaped at their ends as
+# real cars are; and with the street objects of real sidewalks too
+WORLDS = {'real car ends': 'val-ends', 'all car ends': 'val-ends-all',
+          'street objects': 'val-street-ends'}
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']
@@ -104,10 +109,10 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         return run_model(model, sequences, tracker=TrackerConfig(), **kwargs)
     base = variant.removeprefix('tracking, ')          # the same, under the node's tracker
     tracker = TrackerConfig() if base != variant else None
-    if base in CAR_END_WORLDS:
+    if base in WORLDS:
         from suit_ros.data.sequences import synthetic_split
         drives = synthetic_split('val', len(sequences), len(sequences[0]), cache_dir,
-                                 preset_name=CAR_END_WORLDS[base])
+                                 preset_name=WORLDS[base])
         return run_model(model, drives, tracker=tracker, **kwargs)
     if base == 'box fit faces':
         return run_model(model, sequences, tracker=tracker, box_fit='faces', **kwargs)

@@ -276,5 +276,7 @@ def test_real_car_ends_change_only_the_cars_shapes():
     assert all(not np.array_equal(a.body.parts, b.body.parts) for a, b in shaped)
     assert preset('val-real').realism.real_car_ends == 0.0
     assert preset('train-ends-all').realism.real_car_ends == 1.0
+    for name in ('train-street-ends', 'val-street-ends'):
+        assert preset(name).realism.real_car_ends == preset(name).realism.street_objects == 1.0
     with pytest.raises(ConfigError, match='real_car_ends'):
         preset('test', realism=Realism(real_car_ends=1.5))
