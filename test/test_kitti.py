@@ -242,8 +242,28 @@ def test_evaluation_scores_only_the_camera_view(object_root):
     assert len(scored.det[0]) == len(frame.gt) and len(scored.gt[0]) == len(frame.gt)
     result = scored.evaluate(('car', 'truck', 'pedestrian', 'cyclist'))
     assert result.class_ap['car'] == pytest.approx(1.0)
+    # each detection's carried flag goes with it: the published cut stays consistent
+    run.carried = [np.r_[np.zeros(len(frame.gt), bool), True]]
+    scored = camera_fov_run(run, seqs)
+    assert scored.carried[0].tolist() == [False] * len(frame.gt)
+    published = scored.published([0.5] * 4, [0.5] * 4)
+    assert len(published[0]) == (scores[:-1] >= 0.5).sum()
     with pytest.raises(ValueError, match='frames'):
         camera_fov_run(run, seqs * 2)
+
+
+@pytest.mark.slow
+def test_report_runs_on_a_kitti_folder(object_root, tmp_path):
+    """``suit-ros report --kitti`` with the shipped checkpoint: the camera view is scored and
+    the published cut, the missed objects and the false positives follow it."""
+    from suit_ros.cli import main
+    assert main(['report', '--kitti', str(object_root / 'training'), '--out',
+                 str(tmp_path / 'r'), '--pictures', '0']) == 0
+    report = json.loads((tmp_path / 'r' / 'report.json').read_text())
+    assert report['frames'] == 2 and 'camera field of view' in report['source']
+    gt = sum(c['published']['gt'] for c in report['classes'].values())
+    found = sum(c['published']['tp'] for c in report['classes'].values())
+    assert gt > 0 and len(report['missed']) == gt - found
 
 
 def write_tracking(root, rng, frames=5):

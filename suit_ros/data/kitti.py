@@ -479,15 +479,19 @@ def camera_fov_run(run: Any, sequences: Sequence[KittiSequence],
     """Restrict a :class:`~suit_ros.evaluate.ModelRun` over ``sequences`` to the camera's view.
 
     Detections and GT whose centres the camera does not see are dropped before matching (KITTI
-    labels nothing outside the view, so detections there would count as false positives).
+    labels nothing outside the view, so detections there would count as false positives); a
+    detection's carried flag goes with it.
     """
     calibs = [s.calib for s in sequences for _ in range(len(s))]
     if len(calibs) != len(run.det):
         raise ValueError(f'the run has {len(run.det)} frames, the sequences {len(calibs)}')
-    det, gt, num = [], [], []
-    for calib, d, g, n in zip(calibs, run.det, run.gt, run.num_points):
-        det.append(d.select(in_camera_fov(d.boxes[:, :3], calib, image_width)))
+    det, gt, num, carried = [], [], [], []
+    for k, (calib, d, g, n) in enumerate(zip(calibs, run.det, run.gt, run.num_points)):
+        seen = in_camera_fov(d.boxes[:, :3], calib, image_width)
+        det.append(d.select(seen))
+        if run.carried:
+            carried.append(run.carried[k][seen])
         keep = in_camera_fov(g.boxes[:, :3], calib, image_width)
         gt.append(g.select(keep))
         num.append(n[keep] if n is not None else None)
-    return replace(run, det=det, gt=gt, num_points=num)
+    return replace(run, det=det, gt=gt, num_points=num, carried=carried)
