@@ -469,6 +469,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     metrics = _finish(tc, out, module, mcfg, dev, step, time.monotonic() - start, rank, world)
     if log:
         log.close()
-    if world > 1:
+    if world > 1:       # every rank past its last collective before any tears down (gloo
+        torch.distributed.barrier()         # aborts a rank whose peer is gone mid-exchange)
         torch.distributed.destroy_process_group()
     return metrics

@@ -186,6 +186,7 @@ def _ddp_worker(rank, world, port, out):
     loss.backward()
     grads = torch.cat([p.grad.flatten() for p in model.parameters() if p.grad is not None])
     torch.save({'grads': grads, 'loss': loss.detach()}, out / f'rank{rank}.pt')
+    dist.barrier()                  # as train() does: no rank tears down while its peer talks
     dist.destroy_process_group()
 
 
