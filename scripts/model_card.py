@@ -241,6 +241,16 @@ def main() -> int:
                   'ones.'
                   + (f' Single frame with tracking: mAP {fmt(g, "mAP")}, NDS {fmt(g, "NDS")}, '
                      f'mAVE {fmt(g, "mAVE")}.' if g else '')]
+    st, ends = runs.get('suit, tracking, street objects'), runs.get('suit, tracking, all car ends')
+    if st and ends:
+        lines += ['', '**Sidewalk furniture** (the validation drives with every car shaped and '
+                  'the street objects of real sidewalks added: trash cans, hydrants, parking '
+                  'meters, posts, planters, bus shelters; preset `val-street-ends`, which the '
+                  'shipped models never trained on): tracked mAP '
+                  f'{fmt(st, "mAP")} against {fmt(ends, "mAP")} on the same drives without '
+                  f'them; pedestrian AP {fmt(st, "AP pedestrian")} against '
+                  f'{fmt(ends, "AP pedestrian")}. Expect more false pedestrians on streets full '
+                  'of such objects (docs/experiments/street, run 20).']
     lines += real_dev_lines(meta)
     lines += carry_lines()
     lines += ['', 'Limitations: trained only on the synthetic world (see docs/results.md for the '
