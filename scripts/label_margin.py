@@ -17,13 +17,16 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterable
 import sys
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.structures import Frame
 
-def near_side_gap(points: NDArray[np.floating], box: NDArray[np.floating],
-                  origin: NDArray[np.floating]) -> tuple[float, int]:
+
+def near_side_gap(points: NDArray[np.floating[Any]], box: NDArray[np.floating[Any]],
+                  origin: NDArray[np.floating[Any]]) -> tuple[float, int]:
     """Metres between the labelled side facing ``origin`` and the nearest returns (5th
     percentile across the box), and the returns counted (within 0.5 m of the box's sides,
     0.15 m above its bottom up to 0.3 m above its top)."""
@@ -43,7 +46,8 @@ def near_side_gap(points: NDArray[np.floating], box: NDArray[np.floating],
     return float(np.percentile(across[m], 5) + w / 2), int(m.sum())
 
 
-def side_view(box: NDArray[np.floating], origin: NDArray[np.floating]) -> tuple[float, float]:
+def side_view(box: NDArray[np.floating[Any]], origin: NDArray[np.floating[Any]]
+              ) -> tuple[float, float]:
     """Range from ``origin`` and the angle (0-90 degrees) between the line of sight and the
     box's axis."""
     dx, dy = float(box[0] - origin[0]), float(box[1] - origin[1])
@@ -51,7 +55,7 @@ def side_view(box: NDArray[np.floating], origin: NDArray[np.floating]) -> tuple[
     return float(np.hypot(dx, dy)), min(a, 180.0 - a)
 
 
-def frames_of(args: argparse.Namespace) -> Iterable[object]:
+def frames_of(args: argparse.Namespace) -> Iterable[Frame]:
     if args.av2:
         from suit_ros.data.av2 import av2_sequences
         for seq in av2_sequences(args.av2):
@@ -74,14 +78,16 @@ def main() -> int:
     car = CLASS_NAMES.index('car')
     gaps = []
     for f in frames_of(args):
-        g = f.gt                                                        # type: ignore[attr-defined]
-        T = f.T_base_lidar                                              # type: ignore[attr-defined]
+        g = f.gt
+        if g is None:
+            continue
+        T = f.T_base_lidar
         origin = np.zeros(3) if T is None else T[:3, 3]
         for i in np.flatnonzero(g.labels == car):
             r, angle = side_view(g.boxes[i], origin)
             if not (4.0 <= r <= 15.0 and angle >= 45.0):
                 continue
-            gap, n = near_side_gap(f.points, g.boxes[i], origin)       # type: ignore[attr-defined]
+            gap, n = near_side_gap(f.points, g.boxes[i], origin)
             if n < 100:
                 continue
             gaps.append(gap)

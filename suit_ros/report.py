@@ -436,9 +436,6 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def _sequences(args: argparse.Namespace, class_names: Sequence[str]) -> tuple[list[Any], str]:
-    if args.preset is not None and args.synthetic not in ('val', 'tune'):
-        raise ConfigError('--preset sets the world of a --synthetic val or tune split; '
-                          'drop it for a dataset folder or the demo drive')
     if args.av2:
         from suit_ros.data.av2 import av2_sequences
         return list(av2_sequences(args.av2, class_names)), f'Argoverse 2 ({args.av2})'
@@ -479,6 +476,9 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, published_thresholds
     from suit_ros.evaluate import run_model
     from suit_ros.tracking import TrackerConfig
+    if args.preset is not None and args.synthetic not in ('val', 'tune'):
+        raise ConfigError('--preset sets the world of a --synthetic val or tune split; '
+                          'drop it for a dataset folder or the demo drive')
     model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
     names = tuple(cfg.class_names)
     thresholds = report_thresholds(meta, names, args.score_thresholds)
