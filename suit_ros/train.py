@@ -67,6 +67,9 @@ class TrainConfig:
     # checkpoint records it (pillars.ground), so the node runs it so by default
     ground: Literal['', 'as_given', 'local'] = ''
     preset: str = ''                 # synthetic world of the training drives ('': train-real)
+    # the same drives again in further worlds, trained on alongside (each adds train_sequences
+    # drives): a world change learned without dropping the drives the model already knows
+    more_presets: tuple[str, ...] = ()
     freeze: tuple[str, ...] = ()     # modules kept as loaded (pillars, backbone, fusion, ...)
     outage_probability: float = 0.0  # clips with a sensor sector lost (ClipSampler)
     outage_width_deg: tuple[float, float] = (60.0, 180.0)
@@ -97,6 +100,13 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     if not 0.0 <= tc.overhead_probability <= 1.0:
         raise ConfigError(f'{path}: overhead_probability must be in [0, 1], not '
                           f'{tc.overhead_probability}')
+    from suit_ros.data.sim.config import PRESETS
+    unknown_worlds = [p for p in (tc.preset, *tc.more_presets) if p and p not in PRESETS]
+    if unknown_worlds:
+        raise ConfigError(f'{path}: unknown synthetic world(s) {unknown_worlds}; choose from '
+                          f'{", ".join(sorted(PRESETS))}')
+    if tc.more_presets and tc.dataset != 'synthetic':
+        raise ConfigError(f'{path}: more_presets are synthetic worlds; dataset is {tc.dataset}')
     if not tc.occlusion_weight >= 0:
         raise ConfigError(f'{path}: occlusion_weight must be >= 0, not {tc.occlusion_weight}')
     if not 0.0 <= tc.outage_probability <= 1.0 or tc.distill_weight < 0:
@@ -182,6 +192,10 @@ def training_sequences(tc: TrainConfig, class_names: tuple[str, ...]) -> Any:
                                preset_name=tc.preset or None,
                                points_dtype=np.float16,     # half the RAM; inputs are float32
                                first=tc.train_first_sequence)
+        for name in tc.more_presets:
+            data += synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir,
+                                    preset_name=name, points_dtype=np.float16,
+                                    first=tc.train_first_sequence)
     elif tc.dataset == 'bags':
         from suit_ros.data.sequences import bag_sequences
         data = bag_sequences(tc.dataset_paths)

@@ -86,6 +86,32 @@ def test_train_config_strict(tmp_path):
         load_train_config(tmp_path / 'ground.yaml')
     assert load_train_config(
         REPO / 'docs/experiments/ground/configs/train_suit_ground14.yaml').ground == 'local'
+    mix = load_train_config(REPO / 'params/train_suit_street_mix.yaml')
+    assert (mix.preset, mix.more_presets) == ('train-ends-all', ('train-street-ends',))
+    (tmp_path / 'world.yaml').write_text('more_presets: [train-streets]\n')
+    with pytest.raises(ConfigError, match=r'unknown synthetic world.*train-streets'):
+        load_train_config(tmp_path / 'world.yaml')
+    (tmp_path / 'mixbag.yaml').write_text('dataset: bags\nmore_presets: [train-real]\n')
+    with pytest.raises(ConfigError, match='more_presets are synthetic'):
+        load_train_config(tmp_path / 'mixbag.yaml')
+
+
+def test_more_presets_add_the_same_drives_in_another_world(tmp_path):
+    """``more_presets``: the training set holds the config's drives once per world, the
+    extra world's drives after the first's, each the drive its world would give alone."""
+    from suit_ros.data.sim.config import PRESETS
+    from suit_ros.train import TrainConfig, training_sequences
+    assert 'train-street-ends' in PRESETS
+    tc = TrainConfig(preset='train-ends-all', more_presets=('train-street-ends',),
+                     train_sequences=1, train_frames=2, train_first_sequence=0,
+                     cache_dir=str(tmp_path))
+    data = training_sequences(tc, ('car', 'truck', 'pedestrian', 'cyclist'))
+    assert len(data) == 2
+    plain, street = data
+    assert len(plain) == len(street) == 2
+    # the same drive (ego path, actors) in two worlds: the poses agree, the returns do not
+    np.testing.assert_allclose(plain[1].pose, street[1].pose)
+    assert len(plain[1].points) != len(street[1].points)
 
 
 def test_training_clips_are_leveled_when_the_config_asks():
