@@ -36,9 +36,10 @@ def main() -> int:
     parser.add_argument('--out', default='')
     parser.add_argument('--grid', choices=['velocity', 'scores', 'sweeps'], default='sweeps',
                         help='which choice to make (see the module docstring)')
+    parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
     import torch
-    torch.set_num_threads(2)
+    torch.set_num_threads(args.threads)
     from suit_ros.accuracy import car_motion
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint
     from suit_ros.data.sequences import synthetic_split
