@@ -123,6 +123,9 @@ class Report:
     frames: int
     source: str
     notes: list[str] = field(default_factory=list)
+    # AP at each match distance (m) of the nuScenes-style mean (found but misplaced boxes
+    # score at 2-4 m, not at 0.5-1 m)
+    ap_by_distance: dict[str, dict[float, float]] = field(default_factory=dict)
     # the detections as published (carried boxes at their own thresholds; None: the cuts of
     # ``counts`` at ``thresholds``)
     published: dict[str, ClassCounts] | None = None
@@ -145,8 +148,11 @@ class Report:
                                'notes': self.notes, 'classes': {}}
         for c in self.class_names:
             cc = self.counts[c]
+            by_dist = self.ap_by_distance.get(c, {})
             out['classes'][c] = {'published': self.at_published(c),
                                  'ap': _r(self.ap[c]) if cc.npos else None,
+                                 'ap_by_distance': ({f'{d:g}': _r(v) for d, v in by_dist.items()}
+                                                    if cc.npos else None),
                                  'sweep': [cc.at(t) for t in SWEEP]}
         if 'car' in self.counts:
             cars, at = ((self.counts['car'], self.thresholds[self.class_names.index('car')])
@@ -166,13 +172,15 @@ class Report:
                  + ('' if self.published is None else
                     ' (boxes held by the carry branch where the cloud has no returns: the '
                     "checkpoint's carry thresholds)"),
-                 '', '| class | GT | recall | precision | FP / frame | AP (nuScenes-style) |',
-                 '|---|---|---|---|---|---|']
+                 '', '| class | GT | recall | precision | FP / frame | AP (nuScenes-style) '
+                 '| AP at 0.5 / 1 / 2 / 4 m |',
+                 '|---|---|---|---|---|---|---|']
         for c in self.class_names:
             p = j['classes'][c]['published']
             ap = j['classes'][c]['ap']
+            by_dist = ' / '.join(_f(v) for v in (j['classes'][c]['ap_by_distance'] or {}).values())
             lines.append(f'| {c} | {p["gt"]} | {_f(p["recall"])} | {_f(p["precision"])} | '
-                         f'{p["fp_per_frame"]:.2f} | {_f(ap)} |')
+                         f'{p["fp_per_frame"]:.2f} | {_f(ap)} | {by_dist or "n/a"} |')
         if 'car_heading' in j:
             h = j['car_heading']
             lines += ['', f'Car heading (matched cars at the published threshold): '
@@ -323,8 +331,7 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
     names = tuple(class_names)
     scored = run.scored_detections()
     counts = class_counts(run.gt, scored, names, run.num_points, max_range, match_dist)
-    ap = evaluate(run.gt, scored, names, dict.fromkeys(names, max_range),
-                  run.num_points).class_ap
+    result = evaluate(run.gt, scored, names, dict.fromkeys(names, max_range), run.num_points)
     published = None
     boxes_out = run.as_published(thresholds, carry_thresholds or thresholds).scored_detections()
     if carry_thresholds is not None and any(c.any() for c in run.carried):
@@ -332,8 +339,9 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
                                  match_dist)
     missed, false = findings(run.gt, boxes_out, scored, names, run.num_points, max_range,
                              match_dist)
-    return Report(names, [float(t) for t in thresholds], counts, ap, len(run.gt), source,
-                  published=published, missed=missed, false=false)
+    return Report(names, [float(t) for t in thresholds], counts, result.class_ap, len(run.gt),
+                  source, published=published, missed=missed, false=false,
+                  ap_by_distance={c: dict(sorted(result.ap[c].items())) for c in result.ap})
 
 
 def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det: Detections,

@@ -139,6 +139,15 @@ def test_report_drops_ignored_and_out_of_range_and_draws(tmp_path):
     assert (p['gt'], p['tp'], p['fp']) == (1, 1, 1)        # 60 m: out; 3 m: ignored
     assert rep.to_json()['car_heading']['matched'] == 1
     assert '| car | 1 | 1.000 | 0.500 |' in rep.markdown()
+    # AP by match distance: the box 0.2 m off is found at every distance; its mean is the AP
+    by_dist = rep.to_json()['classes']['car']['ap_by_distance']
+    assert list(by_dist) == ['0.5', '1', '2', '4']
+    assert np.mean(list(by_dist.values())) == pytest.approx(rep.to_json()['classes']['car']['ap'],
+                                                            abs=1e-3)
+    far = build_report(ModelRun(gt, [dets([11.5, 3.0], [0.9, 0.8])],
+                                [np.array([20, 20], np.uint32)], [0.0], [0], {}, [0], [ignore]),
+                       ('car',), [0.5], 'test').to_json()['classes']['car']['ap_by_distance']
+    assert far['0.5'] == far['1'] == 0.0 and far['2'] > 0.5      # 1.5 m off: found at 2 and 4 m
     # carried boxes at their own thresholds: the one at 25 m (0.6) goes at a carry cut of 0.7,
     # a carried one at 0.3 stays at a cut of 0.2
     run.det = [dets([10.2, 3.0, 60.0, 25.0, 30.0], [0.9, 0.8, 0.8, 0.6, 0.3])]
