@@ -75,13 +75,16 @@ class RunMetrics:
 
     Frames are matched once per bucket, class and distance threshold
     (:func:`suit_ros.evaluate.match_frame`); a selection (a bootstrap resample, frames may
-    repeat) only re-accumulates the curves.
+    repeat) only re-accumulates the curves. ``ranges``: the scored range per class (default
+    :data:`suit_ros.evaluate.CLASS_RANGES`).
     """
 
-    def __init__(self, run: ModelRun, class_names: Sequence[str]) -> None:
+    def __init__(self, run: ModelRun, class_names: Sequence[str],
+                 ranges: dict[str, float] | None = None) -> None:
         self.class_names = tuple(class_names)
         self.num_frames = len(run.gt)
-        gts, dets, npts = filter_frames(run.gt, run.det, class_names, num_points=run.num_points)
+        gts, dets, npts = filter_frames(run.gt, run.det, class_names, ranges,
+                                        num_points=run.num_points)
         labels = range(len(class_names))
         self.flat: dict[tuple[Bucket, int, float], _Flat] = {}
         for bucket in BUCKETS:

@@ -34,6 +34,7 @@ from suit_ros.box_fit import BOX_FIT_MODES
 from suit_ros.errors import ConfigError, DatasetError
 from suit_ros.ground import GROUND_MODES
 from suit_ros.overhang import OVERHANG_MODES
+from suit_ros.place_bootstrap import CELL, APIntervals
 from suit_ros.structures import Detections
 
 SWEEP = tuple(round(0.1 + 0.05 * i, 2) for i in range(18))     # 0.10 .. 0.95
@@ -133,6 +134,10 @@ class Report:
     # (:func:`findings`)
     missed: list[dict[str, Any]] = field(default_factory=list)
     false: list[dict[str, Any]] = field(default_factory=list)
+    # AP intervals over resampled places (suit_ros/place_bootstrap.py), and against a
+    # baseline checkpoint when ``baseline`` names one (the second run of ``intervals``)
+    intervals: APIntervals | None = None
+    baseline: str = ''
 
     def at_published(self, c: str) -> dict[str, Any]:
         """Class ``c``'s counts as published."""
@@ -149,8 +154,11 @@ class Report:
         for c in self.class_names:
             cc = self.counts[c]
             by_dist = self.ap_by_distance.get(c, {})
+            iv = self.intervals
             out['classes'][c] = {'published': self.at_published(c),
                                  'ap': _r(self.ap[c]) if cc.npos else None,
+                                 'ap_interval': ([_r(v) for v in iv.interval[c][0]]
+                                                 if iv is not None and cc.npos else None),
                                  'ap_by_distance': ({f'{d:g}': _r(v) for d, v in by_dist.items()}
                                                     if cc.npos else None),
                                  'sweep': [cc.at(t) for t in SWEEP]}
@@ -161,6 +169,15 @@ class Report:
             out['car_placement'] = cars.placement_at(at)
         out['missed'] = self.missed
         out['false_positives'] = self.false
+        if self.intervals is not None:
+            iv = self.intervals
+            out['places'] = {'places': iv.places, 'resamples': iv.resamples}
+            if self.baseline:
+                out['baseline'] = {
+                    'checkpoint': self.baseline,
+                    'classes': {c: {'ap': _r(iv.ap[c][1]), 'difference': _r(iv.difference[c][0]),
+                                    'interval': [_r(v) for v in iv.difference[c][1]]}
+                                for c in self.class_names if self.counts[c].npos}}
         return out
 
     def markdown(self) -> str:
@@ -179,8 +196,25 @@ class Report:
             p = j['classes'][c]['published']
             ap = j['classes'][c]['ap']
             by_dist = ' / '.join(_f(v) for v in (j['classes'][c]['ap_by_distance'] or {}).values())
+            iv = j['classes'][c]['ap_interval']
+            ap_cell = _f(ap) + (f' [{_f(iv[0])}, {_f(iv[1])}]' if iv else '')
             lines.append(f'| {c} | {p["gt"]} | {_f(p["recall"])} | {_f(p["precision"])} | '
-                         f'{p["fp_per_frame"]:.2f} | {_f(ap)} | {by_dist or "n/a"} |')
+                         f'{p["fp_per_frame"]:.2f} | {ap_cell} | {by_dist or "n/a"} |')
+        if 'places' in j:
+            lines += ['', f'AP intervals: 95% over {j["places"]["resamples"]} resamples of the '
+                      f'{j["places"]["places"]} places the frames cover ({CELL:g} m squares; a '
+                      'box goes with the nearest labelled object within 4 m: '
+                      'suit_ros/place_bootstrap.py). A small set gives a wide interval.']
+        if 'baseline' in j:
+            lines += ['', f'## Against the baseline ({j["baseline"]["checkpoint"]})', '',
+                      'Paired: the same place resamples score both; the difference is this '
+                      'checkpoint minus the baseline.', '',
+                      '| class | AP | baseline AP | difference [95% interval] |',
+                      '|---|---|---|---|']
+            for c, b in j['baseline']['classes'].items():
+                lines.append(f'| {c} | {_f(j["classes"][c]["ap"])} | {_f(b["ap"])} | '
+                             f'{b["difference"]:+.3f} [{b["interval"][0]:+.3f}, '
+                             f'{b["interval"][1]:+.3f}] |')
         if 'car_heading' in j:
             h = j['car_heading']
             lines += ['', f'Car heading (matched cars at the published threshold): '
@@ -438,6 +472,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--match-dist', type=float, default=2.0, help='BEV centre distance (m)')
     parser.add_argument('--pictures', type=int, default=50,
                         help="bird's-eye PNGs for the first N frames (0: none)")
+    parser.add_argument('--baseline', default='', metavar='CHECKPOINT',
+                        help='also run this checkpoint the same way and give the paired AP '
+                        'difference per class with its interval over places')
+    parser.add_argument('--resamples', type=int, default=500,
+                        help='place resamples of the AP intervals (0: none)')
     parser.add_argument('--version', default='v1.0-mini', help='nuScenes table version')
     parser.add_argument('--kitti-intensity-scale', type=float, default=1.0)
     parser.add_argument('--cache-dir', default='data_cache')
@@ -487,15 +526,26 @@ def run(args: argparse.Namespace) -> int:
     if args.preset is not None and args.synthetic not in ('val', 'tune'):
         raise ConfigError('--preset sets the world of a --synthetic val or tune split; '
                           'drop it for a dataset folder or the demo drive')
+    if args.resamples < 0 or (args.baseline and args.resamples == 0):
+        raise ConfigError('--resamples must be >= 0, and > 0 with --baseline')
     model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
     names = tuple(cfg.class_names)
     thresholds = report_thresholds(meta, names, args.score_thresholds)
     seqs, source = _sequences(args, names)
     if not seqs or not any(len(s) for s in seqs):
         raise DatasetError('the dataset holds no frame')
+    baseline = None
+    if args.baseline:
+        baseline, base_cfg, _ = load_checkpoint(args.baseline)
+        if tuple(base_cfg.class_names) != names:
+            raise ConfigError(f'--baseline {args.baseline} detects {base_cfg.class_names}, '
+                              f'the checkpoint {names}: compare checkpoints of one class list')
     filt = None if args.no_tracking else TrackerConfig()
     result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
                        box_fit=args.box_fit)
+    base_run = None if baseline is None else run_model(
+        baseline, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
+        box_fit=args.box_fit)
     notes = ['as the node by default: 3 sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.ground is not None or cfg.pillars.ground != 'as_given':
@@ -510,12 +560,20 @@ def run(args: argparse.Namespace) -> int:
     if args.kitti:
         from suit_ros.data.kitti import camera_fov_run
         result = camera_fov_run(result, seqs)
+        base_run = None if base_run is None else camera_fov_run(base_run, seqs)
         notes.append('KITTI labels only the front camera view: only it is scored')
     carry = (None if args.score_thresholds
              else published_thresholds(meta, list(names), carried=True))
     report = build_report(result, names, thresholds, source, args.max_range, args.match_dist,
                           carry)
     report.notes += notes
+    if args.resamples:
+        from suit_ros.place_bootstrap import ap_intervals, cut_into_places
+        runs = [result] + ([] if base_run is None else [base_run])
+        places = cut_into_places(result.gt, [r.scored_detections() for r in runs],
+                                 result.num_points)
+        report.intervals = ap_intervals(places, names, args.max_range, args.resamples)
+        report.baseline = args.baseline
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / 'report.json').write_text(json.dumps(report.to_json(), indent=2), encoding='utf-8')

@@ -1,6 +1,8 @@
 """``suit-ros report`` and the published thresholds: counts, cuts, pictures, the command."""
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 from test_av2 import write_log
@@ -213,6 +215,20 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
                  '--box-fit', 'faces']) == 0
     assert 'overhang drop' in (tmp_path / 'rep2' / 'report.md').read_text()
     assert 'box fit faces' in (tmp_path / 'rep2' / 'report.md').read_text()
+    # against a baseline: the paired AP difference per class over resampled places
+    assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep3'),
+                 '--pictures', '0', '--baseline', 'centerpoint_single',
+                 '--resamples', '50']) == 0
+    j3 = json.loads((tmp_path / 'rep3' / 'report.json').read_text())
+    assert j3['baseline']['checkpoint'] == 'centerpoint_single'
+    assert j3['places']['resamples'] == 50 and j3['places']['places'] >= 1
+    for c, b in j3['baseline']['classes'].items():
+        assert b['difference'] == pytest.approx(j3['classes'][c]['ap'] - b['ap'], abs=2e-4)
+        assert b['interval'][0] <= b['interval'][1]
+    assert '## Against the baseline (centerpoint_single)' in \
+        (tmp_path / 'rep3' / 'report.md').read_text()
+    assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep4'),
+                 '--baseline', 'centerpoint_single', '--resamples', '0']) == 1
 
 
 @pytest.mark.slow
