@@ -7,7 +7,8 @@ varies from one street to the next is which objects are there, so the resampling
 object belongs to the square its centre is in, and a detection to the square of the nearest
 labelled object within :data:`REACH` m (the largest match distance: a box and the object it
 could match stay together), else to its own. Every frame's share of a place goes with it, so
-an object seen in both sweeps is drawn (or not) once.
+an object seen in both sweeps is drawn (or not) once (squares are cut in each sweep's sensor
+frame: while the vehicle moves, an object near an edge may fall on either side in two sweeps).
 
 Each resample draws as many places as there are, with replacement, and recomputes AP per class
 from matches made once (:class:`~suit_ros.accuracy.RunMetrics`). With a baseline the same
