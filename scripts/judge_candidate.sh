@@ -25,15 +25,7 @@ suit="$root/.venv/bin/suit-ros"
 py="$root/.venv/bin/python"
 cand="$run/candidate.safetensors"
 cp "$run/model.safetensors" "$cand"
-"$py" - "$cand" <<'PY'
-import sys
-from suit_ros.checkpoint import read_metadata, update_metadata
-path = sys.argv[1]
-config = read_metadata(path)['config']
-config['pillars']['ground'] = 'local'
-config['sampling']['alpha'] = 0.2
-update_metadata(path, config=config, description=f'candidate from {path}')
-PY
+"$py" scripts/ship_metadata.py "$cand" "candidate from $run"
 "$suit" choose-thresholds --checkpoint "$cand" --write > "$run/thresholds.txt"
 tail -6 "$run/thresholds.txt"
 dev="$root/../shared/data"

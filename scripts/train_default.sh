@@ -103,15 +103,7 @@ PY
 # metadata (the model card shows it)
 ship_suit() {
   cp "$1/model.safetensors" suit_ros/checkpoints/suit_default.safetensors
-  "$py" - "$2" <<'PY'
-import sys
-from suit_ros.checkpoint import read_metadata, update_metadata
-path = 'suit_ros/checkpoints/suit_default.safetensors'
-config = read_metadata(path)['config']
-config['pillars']['ground'] = 'local'
-config['sampling']['alpha'] = 0.2
-update_metadata(path, config=config, description=sys.argv[1])
-PY
+  "$py" scripts/ship_metadata.py suit_ros/checkpoints/suit_default.safetensors "$2"
   "$suit" choose-thresholds --checkpoint suit_ros/checkpoints/suit_default.safetensors --write
 }
 # stage 8: SUIT learns the overhang filter on leveled input (docs/experiments/overhang, run 16)
