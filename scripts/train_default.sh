@@ -24,7 +24,11 @@
 #            shaped at their ends as real cars are (params/train_suit_ends.yaml), two threads,
 #            4,000 steps (67 min);
 #   stage 10: the stage-9 SUIT model on the same drives regenerated with every passenger car
-#            so shaped (params/train_suit_ends_all.yaml), two threads, 4,000 steps (63 min):
+#            so shaped (params/train_suit_ends_all.yaml), two threads, 4,000 steps (63 min);
+#   stage 11: the stage-10 SUIT model on the same drives twice, as it knows them and with the
+#            street objects of real sidewalks, half the clips each (more_presets): 62 min
+#            (params/train_suit_street_mix.yaml, run 21), then 45 min more
+#            (params/train_suit_street_mix_cont.yaml, run 22), two threads:
 #            SUIT                  -> suit_default.safetensors
 #   then the benchmark (docs/results.md). The SUIT runs of stages 2-5 are not in the shipped
 #   SUIT model's lineage (README, "More drives, not more steps"), but they shared the 2 cores
@@ -45,6 +49,8 @@ STAGE7_MIN=${STAGE7_MIN:-60}
 STAGE8_MIN=${STAGE8_MIN:-85}
 STAGE9_MIN=${STAGE9_MIN:-70}
 STAGE10_MIN=${STAGE10_MIN:-70}
+STAGE11A_MIN=${STAGE11A_MIN:-62}
+STAGE11B_MIN=${STAGE11B_MIN:-45}
 resume=()
 [ -n "${RESUME:-}" ] && resume=(--resume)
 mkdir -p runs/prev
@@ -126,4 +132,14 @@ ship_suit runs/suit_ends_all "SUIT that has seen every car shaped at its ends as
 are: the stage-9 model (run 18) fine-tuned 63 min (4,000 steps, two threads) on the same drives \
 288-415 in the train-ends-all world (every passenger car with real ends) at lr 1e-4, frozen \
 batch norm; docs/experiments/box_fit, run 19"
+# stage 11: the same drives plain and with the street objects, half the clips each
+# (docs/experiments/street, runs 21 and 22), from stage 10 as shipped
+"$suit" train --config params/train_suit_street_mix.yaml --out runs/suit_street_mix --threads 2 \
+  --max-minutes "$STAGE11A_MIN" "${resume[@]}" > runs/suit_street_mix.log 2>&1
+"$suit" train --config params/train_suit_street_mix_cont.yaml --out runs/suit_street_mix_cont \
+  --threads 2 --max-minutes "$STAGE11B_MIN" "${resume[@]}" > runs/suit_street_mix_cont.log 2>&1
+ship_suit runs/suit_street_mix_cont "SUIT that has seen the street objects of real sidewalks: \
+the stage-10 model (run 19) fine-tuned 62 min (4,500 steps, two threads) on its drives 288-415 \
+as it knows them and with the street objects, half the clips each (run 21), then 45 min more \
+(3,180 steps; run 22), lr 1e-4, frozen batch norm; docs/experiments/street, run 22"
 "$suit" compare --ablation --out docs

@@ -70,7 +70,7 @@ def test_recipe_configs_load_and_match_the_shipped_checkpoints():
     for path in sorted((repo / 'params').glob('train_*.yaml')):
         tc = load_train_config(path)
         load_model_config(repo / tc.model_config)
-    for name, last in (('suit_default', 'train_suit_ends_all.yaml'),
+    for name, last in (('suit_default', 'train_suit_street_mix_cont.yaml'),
                        ('centerpoint_single', 'train_single_time10.yaml')):
         assert f'params/{last}' in recipe
         tc = load_train_config(repo / 'params' / last)

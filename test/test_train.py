@@ -86,7 +86,7 @@ def test_train_config_strict(tmp_path):
         load_train_config(tmp_path / 'ground.yaml')
     assert load_train_config(
         REPO / 'docs/experiments/ground/configs/train_suit_ground14.yaml').ground == 'local'
-    mix = load_train_config(REPO / 'docs/experiments/street/configs/train_suit_street_mix.yaml')
+    mix = load_train_config(REPO / 'params/train_suit_street_mix.yaml')
     assert (mix.preset, mix.more_presets) == ('train-ends-all', ('train-street-ends',))
     (tmp_path / 'world.yaml').write_text('more_presets: [train-streets]\n')
     with pytest.raises(ConfigError, match=r'unknown synthetic world.*train-streets'):
