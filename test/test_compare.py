@@ -122,3 +122,10 @@ def test_the_real_car_ends_variant_runs_the_same_drives_with_real_car_ends():
     assert not np.array_equal(every[0][0].points, shaped[0][0].points)
     street = synthetic_split('val', 1, 2, preset_name='val-street-ends')
     assert len(street[0][0].points) != len(every[0][0].points)
+    # bystanders: the street drives with some pedestrians moved, scored where they stand
+    moved = variant_run('unused', model, 'tracking, bystanders', drives, 'float32')
+    assert moved is not None and len(moved.gt) == 2
+    by = synthetic_split('val', 1, 2, preset_name='val-bystanders')
+    ped = cfg.class_names.index('pedestrian')
+    assert not np.array_equal(by[0][0].gt.boxes[by[0][0].gt.labels == ped],
+                              street[0][0].gt.boxes[street[0][0].gt.labels == ped])

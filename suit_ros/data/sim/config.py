@@ -68,6 +68,10 @@ class Realism:
         (a set-back body over a dark bumper, seats behind the glass:
         :func:`~suit_ros.data.sim.bodies.car_body`), drawn from each car's id so that the
         rest of the world is unchanged; 0 (default): none, the world byte for byte as before.
+    :param bystanders: share of pedestrians (drawn from their ids) that stand beside a street
+        object or a parked vehicle near their start, as real ones wait at a post, a meter or
+        a car door (:mod:`~suit_ros.data.sim.bystanders`); 0 (default): none, the world byte
+        for byte as before.
     """
 
     clutter: float = 1.0
@@ -78,6 +82,7 @@ class Realism:
     ego_body: bool = True
     street_objects: float = 0.0
     real_car_ends: float = 0.0
+    bystanders: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -144,7 +149,7 @@ def _validate_realism(r: Realism) -> None:
     """Raise ConfigError on out-of-range realism values."""
     if r.clutter < 0:
         raise ConfigError(f'realism.clutter must be >= 0 (0: no clutter), got {r.clutter}')
-    for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends'):
+    for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends', 'bystanders'):
         value = getattr(r, name)
         if not 0.0 <= value <= 1.0:
             raise ConfigError(f'realism.{name} is a probability in [0, 1], got {value}')
@@ -212,6 +217,11 @@ PRESETS['train-street-ends'] = replace(PRESETS['train-real'],
                                        realism=Realism(real_car_ends=1.0, street_objects=1.0))
 PRESETS['val-street-ends'] = replace(PRESETS['val-real'],
                                      realism=Realism(real_car_ends=1.0, street_objects=1.0))
+# and half the pedestrians standing beside street objects and parked cars (run 23)
+PRESETS['train-bystanders'] = replace(
+    PRESETS['train-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, bystanders=0.5))
+PRESETS['val-bystanders'] = replace(
+    PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, bystanders=0.5))
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:

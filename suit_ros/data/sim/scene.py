@@ -16,6 +16,7 @@ from numpy.typing import NDArray
 
 from suit_ros.data.sim.actors import Actor, Trajectories, dress_actors, make_actors, make_ego
 from suit_ros.data.sim.bodies import ego_body
+from suit_ros.data.sim.bystanders import place_bystanders
 from suit_ros.data.sim.clutter import CLUTTER_ID, StaticScene, furnish
 from suit_ros.data.sim.config import Realism, SimConfig
 from suit_ros.data.sim.lidar import GROUND, Porosity, RangeImage, cast, ray_directions
@@ -121,8 +122,10 @@ class Simulation:
         """Dress the actors, furnish the streets and lay out the surface table."""
         rng = np.random.default_rng([self.seed, 0xDE7A])
         dress_actors(self.actors, realism, rng)
-        self.trajectories = Trajectories.sample(self.actors)
         self.scene = furnish(self.world, self.cfg, realism, rng)
+        place_bystanders(self.actors, self.scene, self.world, realism.bystanders,
+                         np.random.default_rng([self.seed, 0xB757]))
+        self.trajectories = Trajectories.sample(self.actors)
         ego = ego_body(self.ego.size) if realism.ego_body else None
         bodies = [a.body for a in self.actors if a.body is not None]
         if len(bodies) != len(self.actors):
