@@ -32,7 +32,10 @@ checkpoint changed in one way:
   shaped and the sidewalks holding the street objects of real ones (preset
   ``val-street-ends``); ``bystanders`` and ``tracking, bystanders``: those drives with half
   the pedestrians standing beside a street object or a parked car (preset ``val-bystanders``,
-  :mod:`~suit_ros.data.sim.bystanders`; scored against the boxes where they stand).
+  :mod:`~suit_ros.data.sim.bystanders`; scored against the boxes where they stand);
+  ``dark tops`` and ``tracking, dark tops``: the street-objects drives with half the passenger
+  cars seen only below the belt (preset ``val-dark-tops``,
+  :attr:`~suit_ros.data.sim.config.Realism.dark_tops`).
 
 Paired differences (same drive resamples): every checkpoint against the first, each variant
 against its checkpoint (``memory dropped`` and ``zero displacement`` as checkpoint minus
@@ -65,11 +68,13 @@ VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', '
             'overhead, overhang drop', 'overhead, overhang keep', 'box fit faces',
             'tracking, box fit faces', 'real car ends', 'tracking, real car ends',
             'all car ends', 'tracking, all car ends', 'street objects',
-            'tracking, street objects', 'bystanders', 'tracking, bystanders')
+            'tracking, street objects', 'bystanders', 'tracking, bystanders', 'dark tops',
+            'tracking, dark tops')
 # the validation drives regenerated in another world: passenger cars shaped at their ends as
 # real cars are; and with the street objects of real sidewalks too; and pedestrians beside them
 WORLDS = {'real car ends': 'val-ends', 'all car ends': 'val-ends-all',
-          'street objects': 'val-street-ends', 'bystanders': 'val-bystanders'}
+          'street objects': 'val-street-ends', 'bystanders': 'val-bystanders',
+          'dark tops': 'val-dark-tops'}
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']

@@ -99,7 +99,8 @@ def test_an_overhang_variant_runs_only_where_it_changes_the_input():
 def test_the_real_car_ends_variant_runs_the_same_drives_with_real_car_ends():
     """``real car ends``: the validation drives (the same seeds, routes and objects) with
     half the cars shaped at their ends as real cars are (``all car ends``: every car;
-    ``street objects``: every car, and the street objects on the sidewalks);
+    ``street objects``: every car, and the street objects on the sidewalks; ``dark tops``: and
+    half the cars seen only below the belt);
     ``tracking, ...`` the same tracked; all scored against the same boxes as the drives they
     replace."""
     from suit_ros.compare import variant_run
@@ -111,7 +112,8 @@ def test_the_real_car_ends_variant_runs_the_same_drives_with_real_car_ends():
     model = SUITDetector(cfg).eval()
     plain = variant_run('unused', model, 'tracking', drives, 'float32')
     for variant in ('real car ends', 'tracking, real car ends', 'all car ends',
-                    'tracking, all car ends', 'street objects', 'tracking, street objects'):
+                    'tracking, all car ends', 'street objects', 'tracking, street objects',
+                    'dark tops', 'tracking, dark tops'):
         out = variant_run('unused', model, variant, drives, 'float32')
         assert out is not None and len(out.gt) == len(plain.gt) == 2
         for a, b in zip(out.gt, plain.gt):

@@ -54,7 +54,7 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int) -> str:
     for name in ('realism', 'exact_sectors'):   # off: the box world, keys as before they existed
         if not cfg[name]:
             del cfg[name]
-    for name in ('street_objects', 'real_car_ends', 'bystanders'):
+    for name in ('street_objects', 'real_car_ends', 'bystanders', 'dark_tops'):
         if cfg.get('realism') and not cfg['realism'][name]:
             del cfg['realism'][name]             # off: the world (and its key) as before
     blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 2}, sort_keys=True, default=str)

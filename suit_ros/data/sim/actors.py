@@ -201,7 +201,9 @@ def dress_actors(actors: list[Actor], realism: Realism, rng: np.random.Generator
         if name == 'car':
             kind, a.size = vehicle_kind(rng)
             real = id_fraction(a.instance_id) < realism.real_car_ends
-            a.body = car_body(kind, a.size, paint(rng, realism), realism, real_ends=real)
+            dark = id_fraction(a.instance_id * 13 + 5) < realism.dark_tops
+            a.body = car_body(kind, a.size, paint(rng, realism), realism, real_ends=real,
+                              dark_top=dark)
         elif name == 'truck':
             a.body = heavy_body(a.size, paint(rng, realism), realism)
         elif name == 'pedestrian':

@@ -83,10 +83,12 @@ def glass(realism: Realism) -> tuple[float, float, float]:
 
 BUMPER = (0.08, 0.5, 0.0)                   # black plastic: little light back
 SEATS = (0.2, 0.8, 0.0)
+DARK_ROOF = (0.05, 0.16, 0.0)               # a dark top: one hit in six returns
+DIM_SEATS = (0.1, 0.3, 0.0)                 # seats behind tinted glass
 
 
 def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, float],
-             realism: Realism, real_ends: bool = False) -> Body:
+             realism: Realism, real_ends: bool = False, dark_top: bool = False) -> Body:
     """A passenger vehicle of ``kind`` (see :data:`VEHICLE_KINDS`) filling ``size``.
 
     :param real_ends: ends as real cars have them (:attr:`Realism.real_car_ends`): a bumper
@@ -94,6 +96,9 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
         ends; the painted body above it set back 0.35 m and the cabin's glass another 0.3 m
         (a sloped screen); seats behind the glass. Real cars' returns start about 0.35 m
         inside their labelled ends, synthetic boxy ones at them (docs/experiments/box_fit).
+    :param dark_top: seen only below the belt (:attr:`Realism.dark_tops`): tinted glass that
+        sends nothing back (rays it passes reach dim seats), a roof that returns one hit in
+        six, as real cars' sloped glass and roofs do at grazing incidence beyond 20 m.
     """
     l, w, h = (float(v) for v in size)
     p = _Parts()
@@ -122,19 +127,23 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
     elif tail > 0:
         p.add((rear, cab_rear), (-wb, wb), (low + 0.05, belt + 0.04), coat)     # trunk step
     roof_top = h - 0.06
+    pane = glass(realism)
+    roof, seats = coat, SEATS
+    if dark_top:
+        pane, roof, seats = (pane[0], 0.0, pane[2]), DARK_ROOF, DIM_SEATS
     if kind == 'van':                       # glass up front, a closed cargo box behind
         split = cab_front - 0.35 * (cab_front - cab_rear)
-        p.add((split, cab_front), (-wb + 0.05, wb - 0.05), (belt, roof_top), glass(realism))
+        p.add((split, cab_front), (-wb + 0.05, wb - 0.05), (belt, roof_top), pane)
         p.add((cab_rear, split), (-wb, wb), (belt, roof_top), coat)
     else:
         slope = 0.3 if real_ends else 0.0
         p.add((cab_rear + slope, cab_front - slope), (-wb + 0.1, wb - 0.1), (belt, roof_top),
-              glass(realism))
+              pane)
     if real_ends:                           # seats, seen through the glass
         p.add((cab_rear + 0.5, cab_front - 0.6), (-wb + 0.25, wb - 0.25),
-              (belt - 0.1, belt + 0.45), SEATS)
+              (belt - 0.1, belt + 0.45), seats)
     inset = 0.12 if kind in ('van', 'suv') else 0.3
-    p.add((cab_rear + inset, cab_front - 0.4), (-wb + 0.12, wb - 0.12), (roof_top, h), coat)
+    p.add((cab_rear + inset, cab_front - 0.4), (-wb + 0.12, wb - 0.12), (roof_top, h), roof)
     for side in (-1.0, 1.0):                                                    # mirrors
         p.add((cab_front - 0.2, cab_front), _band(side * w / 2, -side * 0.09),
               (belt, belt + 0.14), coat)

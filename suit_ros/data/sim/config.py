@@ -72,6 +72,10 @@ class Realism:
         object or a parked vehicle near their start, as real ones wait at a post, a meter or
         a car door (:mod:`~suit_ros.data.sim.bystanders`); 0 (default): none, the world byte
         for byte as before.
+    :param dark_tops: share of passenger cars (drawn from their ids) seen only below the belt:
+        glass that returns nothing, a roof that returns one hit in six, dim seats behind the
+        glass (:func:`~suit_ros.data.sim.bodies.car_body`); 0 (default): none, the world byte
+        for byte as before.
     """
 
     clutter: float = 1.0
@@ -83,6 +87,7 @@ class Realism:
     street_objects: float = 0.0
     real_car_ends: float = 0.0
     bystanders: float = 0.0
+    dark_tops: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -149,7 +154,8 @@ def _validate_realism(r: Realism) -> None:
     """Raise ConfigError on out-of-range realism values."""
     if r.clutter < 0:
         raise ConfigError(f'realism.clutter must be >= 0 (0: no clutter), got {r.clutter}')
-    for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends', 'bystanders'):
+    for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends', 'bystanders',
+                 'dark_tops'):
         value = getattr(r, name)
         if not 0.0 <= value <= 1.0:
             raise ConfigError(f'realism.{name} is a probability in [0, 1], got {value}')
@@ -222,6 +228,11 @@ PRESETS['train-bystanders'] = replace(
     PRESETS['train-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, bystanders=0.5))
 PRESETS['val-bystanders'] = replace(
     PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, bystanders=0.5))
+# or with half the passenger cars seen only below the belt (run 24)
+PRESETS['train-dark-tops'] = replace(
+    PRESETS['train-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, dark_tops=0.5))
+PRESETS['val-dark-tops'] = replace(
+    PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, dark_tops=0.5))
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:
