@@ -7,16 +7,12 @@ import pytest
 
 from suit_ros import CLASS_NAMES
 from suit_ros.data.sim import Realism, preset
-from suit_ros.data.sim.actors import id_fraction
+from suit_ros.data.sim.actors import dark_top
 from suit_ros.data.sim.bodies import DARK_ROOF, car_body
 from suit_ros.data.sim.scene import Simulation
 from suit_ros.errors import ConfigError
 
 CAR = CLASS_NAMES.index('car')
-
-
-def dark(instance_id: int) -> bool:
-    return id_fraction(instance_id * 13 + 5) < 0.5
 
 
 def test_the_presets_and_their_keys():
@@ -52,13 +48,13 @@ def test_only_the_chosen_cars_change_and_they_return_less_up_high():
     for a, b in zip(plain.actors, tops.actors):
         assert np.array_equal(a.body.parts, b.body.parts) and np.array_equal(a.s, b.s)
         changed = not np.array_equal(a.body.return_prob, b.body.return_prob)
-        assert changed == (a.label == CAR and dark(a.instance_id)), a.instance_id
+        assert changed == (a.label == CAR and dark_top(a.instance_id, 0.5)), a.instance_id
     upper = {True: 0, False: 0}      # the chosen cars' own returns above 3/4 of their height
     total = {True: 0, False: 0}
     for k in range(12):
         for f, world in ((plain.render(k), False), (tops.render(k), True)):
             for box, label, inst in zip(f.gt.boxes, f.gt.labels, f.instance_ids):
-                if label != CAR or not dark(int(inst)):
+                if label != CAR or not dark_top(int(inst), 0.5):
                     continue
                 z = f.cloud['z'][f.surface_instance == inst] - (box[2] - box[5] / 2)
                 upper[world] += int(np.sum(z > 0.75 * box[5]))

@@ -192,6 +192,12 @@ def id_fraction(instance_id: int) -> float:
     return ((instance_id * 2654435761) % 2**32) / 2**32
 
 
+def dark_top(instance_id: int, share: float) -> bool:
+    """Whether a passenger car is seen only below the belt (:attr:`Realism.dark_tops`): drawn
+    from its id (a hash apart from the ones that shape car ends and place bystanders)."""
+    return id_fraction(instance_id * 13 + 5) < share
+
+
 def dress_actors(actors: list[Actor], realism: Realism, rng: np.random.Generator) -> None:
     """Give every actor a :class:`Body` (and a size that fits it): cars become sedans,
     hatchbacks, SUVs, vans or pickups; trucks and buses get cabs, cargo boxes or window bands;
@@ -201,9 +207,8 @@ def dress_actors(actors: list[Actor], realism: Realism, rng: np.random.Generator
         if name == 'car':
             kind, a.size = vehicle_kind(rng)
             real = id_fraction(a.instance_id) < realism.real_car_ends
-            dark = id_fraction(a.instance_id * 13 + 5) < realism.dark_tops
             a.body = car_body(kind, a.size, paint(rng, realism), realism, real_ends=real,
-                              dark_top=dark)
+                              dark_top=dark_top(a.instance_id, realism.dark_tops))
         elif name == 'truck':
             a.body = heavy_body(a.size, paint(rng, realism), realism)
         elif name == 'pedestrian':
