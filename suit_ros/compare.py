@@ -69,7 +69,7 @@ VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', '
             'tracking, box fit faces', 'real car ends', 'tracking, real car ends',
             'all car ends', 'tracking, all car ends', 'street objects',
             'tracking, street objects', 'bystanders', 'tracking, bystanders', 'dark tops',
-            'tracking, dark tops')
+            'tracking, dark tops', 'occluders', 'tracking, occluders')
 # the validation drives regenerated in another world: passenger cars shaped at their ends as
 # real cars are; and with the street objects of real sidewalks too; and pedestrians beside them
 WORLDS = {'real car ends': 'val-ends', 'all car ends': 'val-ends-all',
@@ -121,6 +121,9 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
         drives = synthetic_split('val', len(sequences), len(sequences[0]), cache_dir,
                                  preset_name=WORLDS[base])
         return run_model(model, drives, tracker=tracker, **kwargs)
+    if base == 'occluders':
+        from suit_ros.data.occluders import occluded_drives
+        return run_model(model, occluded_drives(sequences), tracker=tracker, **kwargs)
     if base == 'box fit faces':
         return run_model(model, sequences, tracker=tracker, box_fit='faces', **kwargs)
     if variant == 'overhead' or variant.endswith(('overhang drop', 'overhang keep')):

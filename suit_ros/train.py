@@ -61,6 +61,8 @@ class TrainConfig:
     lift_m: float = 0.0              # ground height offset, uniform +-lift_m per clip
     point_dropout: float = 0.0       # half the clips lose up to this fraction of points
     overhead_probability: float = 0.0   # clips with canopies/awnings over objects (overhead)
+    # clips with screens standing between the sensor and some objects (suit_ros/data/occluders)
+    occluder_probability: float = 0.0
     # the input's height reference in training (suit_ros/ground.py; '' keeps the model
     # config's pillars.ground): local levels every frame's points to their ground and lowers
     # its GT boxes by it, as ``ground: local`` shows the model its input at inference; the
@@ -97,9 +99,12 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     if unknown:
         raise ConfigError(f'{path}: freeze names modules {sorted(unknown)}; choose from '
                           f'{", ".join(FREEZABLE)}')
-    if not 0.0 <= tc.overhead_probability <= 1.0:
-        raise ConfigError(f'{path}: overhead_probability must be in [0, 1], not '
-                          f'{tc.overhead_probability}')
+    for name in ('overhead_probability', 'occluder_probability'):
+        if not 0.0 <= getattr(tc, name) <= 1.0:
+            raise ConfigError(f'{path}: {name} must be in [0, 1], not {getattr(tc, name)}')
+    if tc.occluder_probability > 0 and tc.carry_gt:
+        raise ConfigError(f'{path}: occluder_probability and carry_gt cannot be combined (a '
+                          'screen may hide an object that carry_gt would keep)')
     from suit_ros.data.sim.config import PRESETS
     unknown_worlds = [p for p in (tc.preset, *tc.more_presets) if p and p not in PRESETS]
     if unknown_worlds:
@@ -288,7 +293,8 @@ def _augmented(clips: list[list[Frame]], tc: TrainConfig, rng: np.random.Generat
     """A batch's clips augmented as the config asks, then leveled with ``ground``."""
     if tc.augment:
         from suit_ros.data import augment
-        clips = [augment.apply_clip(_overhead(c, tc, rng), _draw(tc, rng)) for c in clips]
+        clips = [augment.apply_clip(_overhead(_occluded(c, tc, rng), tc, rng), _draw(tc, rng))
+                 for c in clips]
     if ground is not None:
         from suit_ros.ground import leveled_frame
         clips = [[leveled_frame(f, ground) for f in c] for c in clips]
@@ -302,6 +308,17 @@ def _overhead(clip: list[Frame], tc: TrainConfig, rng: np.random.Generator) -> l
         return clip
     from suit_ros.data.overhead import with_overhead
     return with_overhead(clip, rng)
+
+
+def _occluded(clip: list[Frame], tc: TrainConfig, rng: np.random.Generator) -> list[Frame]:
+    """The clip with screens before some objects in ``occluder_probability`` of the clips (no
+    draw at 0, so older recipes replay the same augmentations); an object a screen hides
+    entirely loses its label, as one without returns has none."""
+    if tc.occluder_probability <= 0 or rng.random() >= tc.occluder_probability:
+        return clip
+    from suit_ros.data.occluders import with_screens
+    from suit_ros.data.sequences import training_view
+    return [training_view(f) for f in with_screens(clip, rng)]
 
 
 def _draw(tc: TrainConfig, rng: np.random.Generator) -> Any:
