@@ -1,0 +1,140 @@
+"""Occluders: screens cast into frames as the sensor sees them, fixed in the world, drawn before
+objects; the training option and the evaluation variant."""
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from suit_ros.data.occluders import Screen, draw_screens, occlude, occluded_drives, with_screens
+from suit_ros.errors import ConfigError
+from suit_ros.ops.geometry import count_points_in_boxes, pose_from_xyz_rpy
+from suit_ros.structures import Detections, Frame
+
+SENSOR = (0.0, 0.0, 2.0)
+
+
+def _frame(points: np.ndarray, x_ego: float = 0.0, gt: Detections | None = None) -> Frame:
+    pts = np.asarray(points, np.float32)
+    if pts.shape[1] == 3:
+        pts = np.c_[pts, np.full(len(pts), 0.5), np.zeros(len(pts))].astype(np.float32)
+    num = None if gt is None else count_points_in_boxes(pts[:, :3], gt.boxes)
+    return Frame(pts, pose_from_xyz_rpy((x_ego, 0.0, 0.0), (0, 0, 0)), 0, 'base_link', gt,
+                 num)
+
+
+# a screen across the x axis 5 m ahead, 4 m wide, 1.5 m high, standing on z = 0
+WALL = Screen((5.0, -2.0), (5.0, 2.0), 0.0, 1.5, 0.1)
+
+
+def test_a_return_behind_the_screen_moves_onto_it_along_its_ray():
+    pts = np.array([[10.0, 0.0, 0.0],      # behind, its ray crosses the screen at 1.0 m up
+                    [10.0, 0.0, 2.0],      # behind, its ray passes over (2.0 m > 1.5 m)
+                    [3.0, 0.0, 0.5],       # in front of the screen
+                    [10.0, 6.0, 0.5],      # behind, but its ray passes beside the screen
+                    [10.0, 0.0, -8.0]])    # its ray meets the screen below the ground
+    out = occlude(_frame(pts), [WALL], SENSOR)
+    p = out.points
+    np.testing.assert_allclose(p[0, :3], [5.0, 0.0, 1.0], atol=1e-5)   # 2 + 0.5 * (0 - 2)
+    assert p[0, 3] == pytest.approx(0.1)                                # the screen's intensity
+    np.testing.assert_array_equal(p[1:], _frame(pts).points[1:])
+    assert len(p) == len(pts)                                           # nothing added or lost
+
+
+def test_a_low_screen_hides_a_cars_lower_half_and_shows_its_roof():
+    rng = np.random.default_rng(0)
+    car = np.c_[rng.uniform(18, 22, 400), rng.uniform(-1, 1, 400), rng.uniform(0.2, 1.6, 400)]
+    box = np.array([[20.0, 0.0, 0.9, 4.0, 2.0, 1.8, 0.0]])
+    gt = Detections(box, np.zeros((1, 2)), np.ones(1), np.zeros(1, np.int64))
+    f = _frame(car, gt=gt)
+    low = Screen((10.0, -3.0), (10.0, 3.0), 0.0, 1.2, 0.1)
+    out = occlude(f, [low], SENSOR)
+    kept = out.points[:, 0] > 17.0
+    # a ray from 2 m up reaching the car at height z crosses x = 10 at 2 + (z - 2) * 10 / x
+    crossing = 2.0 + (car[:, 2] - 2.0) * 10.0 / car[:, 0]
+    np.testing.assert_array_equal(kept, crossing > 1.2)
+    assert 0 < kept.sum() < len(car)
+    assert out.num_points is not None and f.num_points is not None
+    assert out.num_points[0] == f.num_points[0] - (~kept).sum()
+    assert out.gt is f.gt
+
+
+def test_screens_stay_in_the_world_while_the_ego_moves():
+    world = np.array([[12.0, 0.5, 0.5], [14.0, -0.5, 0.3]])        # behind the screen
+    screen = Screen((8.0, -2.0), (8.0, 2.0), 0.0, 2.5, 0.2)          # odometry frame
+    for x_ego in (0.0, 2.0, 4.0):
+        out = occlude(_frame(world - [x_ego, 0, 0], x_ego), [screen], SENSOR)
+        assert np.allclose(out.points[:, 0] + x_ego, 8.0, atol=1e-4)  # on the screen
+    # once the ego has passed the screen, the returns are seen again
+    out = occlude(_frame(world - [9.0, 0, 0], 9.0), [screen], SENSOR)
+    np.testing.assert_allclose(out.points[:, :3], world - [9.0, 0, 0], atol=1e-6)
+
+
+def test_drawn_screens_stand_between_the_sensor_and_part_of_their_object():
+    boxes = np.array([[20.0, 5.0, 0.9, 4.5, 1.9, 1.6, 0.3],
+                      [-15.0, -10.0, 0.9, 0.6, 0.6, 1.8, 0.0],
+                      [2.0, 1.0, 0.9, 4.5, 1.9, 1.6, 0.0]])             # the last one too near
+    for k, target in enumerate(boxes):
+        gt = Detections(target[None], np.zeros((1, 2)), np.ones(1), np.zeros(1, np.int64))
+        f = _frame(np.zeros((0, 3)), 0.0, gt)
+        c, s = np.cos(target[6]), np.sin(target[6])
+        grid = np.array([[target[0] + x * c - y * s, target[1] + x * s + y * c, 0.3]
+                         for x in np.linspace(-0.5, 0.5, 41) * target[3]
+                         for y in np.linspace(-0.5, 0.5, 41) * target[4]])
+        for seed in range(20):
+            screens = draw_screens(f, np.random.default_rng(seed), SENSOR, extra=0)
+            assert len(screens) == (0 if k == 2 else 1)
+            for sc in screens:
+                assert 0.8 <= sc.height <= 3.0 and 0.02 <= sc.intensity <= 0.3
+                # as tall as the sky, it hides some but not all rays to its object
+                tall = replace(sc, height=100.0, ground=-50.0)
+                moved = np.abs(occlude(_frame(grid), [tall], SENSOR).points[:, :3] - grid
+                               ).sum(1) > 1e-6
+                assert 0 < moved.mean() < 1
+    gt = Detections(boxes, np.zeros((3, 2)), np.ones(3), np.array([0, 2, 0]))
+    f = _frame(np.zeros((0, 3)), 0.0, gt)
+    a = draw_screens(f, np.random.default_rng(3), SENSOR)
+    assert a == draw_screens(f, np.random.default_rng(3), SENSOR)     # fixed per seed
+    assert 2 <= len(a) <= 3                      # one or two of the objects, and one extra
+
+
+def test_clips_and_drives_keep_their_labels_and_are_fixed_per_seed():
+    rng = np.random.default_rng(1)
+    pts = np.c_[rng.uniform(-30, 30, (5000, 2)), rng.uniform(-1.9, -1.7, 5000)]
+    boxes = np.array([[15.0, 3.0, -1.0, 4.5, 1.9, 1.6, 0.0],
+                      [-20.0, -4.0, -1.0, 4.5, 1.9, 1.6, 0.0]])
+    gt = Detections(boxes, np.zeros((2, 2)), np.ones(2), np.zeros(2, np.int64))
+    drive = [_frame(pts - [t, 0, 0], float(t), gt) for t in range(4)]
+    a, b = occluded_drives([drive], window=2), occluded_drives([drive], window=2)
+    assert len(a[0]) == 4
+    assert all(np.array_equal(x.points, y.points) for x, y in zip(a[0], b[0]))
+    assert all(x.gt is f.gt for x, f in zip(a[0], drive))
+    assert any(not np.array_equal(x.points, f.points) for x, f in zip(a[0], drive))
+    clip = with_screens(drive[:2], np.random.default_rng(5))
+    assert [len(c.points) for c in clip] == [len(f.points) for f in drive[:2]]
+
+
+def test_the_training_option_is_validated_and_draws_nothing_when_off(tmp_path: Path):
+    from suit_ros.train import TrainConfig, _occluded, load_train_config
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('occluder_probability: 1.5\n')
+    with pytest.raises(ConfigError, match='occluder_probability must be in'):
+        load_train_config(bad)
+    both = tmp_path / 'both.yaml'
+    both.write_text('occluder_probability: 0.5\ncarry_gt: true\n')
+    with pytest.raises(ConfigError, match='cannot be combined'):
+        load_train_config(both)
+    clip = [_frame(np.array([[10.0, 0.0, 0.5]]))]
+    rng = np.random.default_rng(0)
+    assert _occluded(clip, TrainConfig(), rng) is clip
+    assert rng.random() == np.random.default_rng(0).random()     # no draw at 0
+    # on: an object the screens hide entirely loses its label
+    box = np.array([[20.0, 0.0, 0.9, 4.0, 2.0, 1.8, 0.0]])
+    gt = Detections(box, np.zeros((1, 2)), np.ones(1), np.zeros(1, np.int64))
+    f = _frame(np.array([[20.0, 0.0, 0.5], [19.0, 0.5, 1.0]]), gt=gt)
+    hidden = [occlude(f, [Screen((10.0, -5.0), (10.0, 5.0), -5.0, 10.0, 0.1)])]
+    from suit_ros.data.sequences import training_view
+    assert hidden[0].num_points is not None and hidden[0].num_points[0] == 0
+    assert len(training_view(hidden[0]).gt) == 0
