@@ -9,6 +9,7 @@ boxes published at the checkpoint's published thresholds) over any supported dat
   ``--max-range`` (50 m), car heading error and flip rate, car placement (median range offset
   from the ego and length error of the matched cars), every missed object with what the
   model made of it (the best score of its class there, the strongest box of another class)
+  and what the sensor saw of it (its returns' extent along and across its box, their heights),
   and every false positive with the nearest labelled object;
 - ``bev/<sequence>_<frame>.png``: a bird's-eye view per frame, points with GT, true positives,
   false positives, missed objects and ignored things in different colours.
@@ -21,7 +22,7 @@ bicycles and motorcycles on AV2) count as neither true nor false positives
 from __future__ import annotations
 
 import argparse
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import json
 from pathlib import Path
@@ -257,6 +258,13 @@ def _table(title: str, intro: str, header: Sequence[str], rows: Sequence[Sequenc
     return lines
 
 
+def _seen_cell(seen: dict[str, float] | None) -> str:
+    if seen is None:
+        return 'n/a'
+    return (f'{seen["length_m"]:.1f} x {seen["width_m"]:.1f}, '
+            f'{seen["low_m"]:.1f}-{seen["high_m"]:.1f}')
+
+
 def _box_cell(box: dict[str, Any] | None, key: str) -> str:
     return 'none' if box is None else f'{box["class"]} {box[key]:.2f}'
 
@@ -266,13 +274,16 @@ def _findings_markdown(missed: Sequence[dict[str, Any]], false: Sequence[dict[st
     """The missed-objects and false-positives tables."""
     lines = _table(
         'Missed objects (at the published thresholds)',
-        "Best score: the highest score a box of the object's class got there (within the match "
-        'distance; a threshold below it would find the object). Other box: the strongest box '
-        'of another class there.',
-        ('frame', 'class', 'range (m)', 'returns', 'best score', 'other box'),
+        'Seen: the extent of its returns along and across its box and their heights above '
+        "the box's bottom (10th-90th percentile): a patch where the box is long is an object "
+        "seen in part. Best score: the highest score a box of the object's class got there "
+        '(within the match distance; a threshold below it would find the object). Other box: '
+        'the strongest box of another class there.',
+        ('frame', 'class', 'range (m)', 'returns', 'seen: along x across, heights (m)',
+         'best score', 'other box'),
         [(str(m['frame']), m['class'], f'{m["range_m"]:.1f}',
-          'n/a' if m['returns'] is None else str(m['returns']), f'{m["best_score"]:.2f}',
-          _box_cell(m['other'], 'score')) for m in missed])
+          'n/a' if m['returns'] is None else str(m['returns']), _seen_cell(m.get('seen')),
+          f'{m["best_score"]:.2f}', _box_cell(m['other'], 'score')) for m in missed])
     lines += _table(
         'False positives (published boxes that match no object)',
         f'Nearest object: the nearest labelled object of any class within {NEAR_M:.0f} m '
@@ -325,6 +336,7 @@ def findings(gt: Sequence[Detections], published: Sequence[Detections],
             other = np.flatnonzero(near & (d.labels != k))
             best = other[np.argmax(d.scores[other])] if len(other) else None
             missed.append({'frame': i, 'class': names[k], 'range_m': _r(np.hypot(b[0], b[1])),
+                           'box': [_r(v) for v in b],
                            'returns': None if n is None else int(n[gi]),
                            'best_score': _r(own.max()) if len(own) else 0.0,
                            'other': None if best is None else
@@ -342,6 +354,38 @@ def findings(gt: Sequence[Detections], published: Sequence[Detections],
     missed.sort(key=lambda r: (names.index(r['class']), r['range_m']))
     false.sort(key=lambda r: (names.index(r['class']), -r['score']))
     return missed, false
+
+
+def seen_of(points: NDArray[np.floating[Any]], box: Sequence[float]) -> dict[str, float] | None:
+    """What the sensor saw of an object: the extent of its returns along and across its box
+    (m) and their heights above the box's bottom (10th and 90th percentiles, m); None without
+    returns. A car seen whole spans its length; one seen in part, a patch."""
+    from suit_ros.ops.geometry import points_in_boxes
+    b = np.asarray(box, np.float64).reshape(1, 7)
+    p = np.asarray(points, np.float64)[:, :3]
+    inside = points_in_boxes(p, b)[:, 0] if len(p) else np.zeros(0, bool)
+    if not inside.any():
+        return None
+    q = p[inside]
+    c, s = np.cos(b[0, 6]), np.sin(b[0, 6])
+    d = q[:, :2] - b[0, :2]
+    along, across = d @ np.array([c, s]), d @ np.array([-s, c])
+    low, high = np.percentile(q[:, 2] - (b[0, 2] - b[0, 5] / 2), [10, 90])
+    return {'length_m': _r(np.ptp(along)), 'width_m': _r(np.ptp(across)), 'low_m': _r(low),
+            'high_m': _r(high)}
+
+
+def add_seen(missed: Sequence[dict[str, Any]],
+             points_of: Callable[[int], NDArray[np.floating[Any]]]) -> None:
+    """Give every missed object (:func:`findings`) what the sensor saw of it (:func:`seen_of`),
+    reading each frame's points (``points_of(frame)``) once."""
+    by_frame: dict[int, list[dict[str, Any]]] = {}
+    for m in missed:
+        by_frame.setdefault(int(m['frame']), []).append(m)
+    for i, rows in by_frame.items():
+        pts = points_of(i)
+        for m in rows:
+            m['seen'] = seen_of(pts, m['box'])
 
 
 def class_counts(gt: Sequence[Detections], det: Sequence[Detections],
@@ -567,6 +611,8 @@ def run(args: argparse.Namespace) -> int:
     report = build_report(result, names, thresholds, source, args.max_range, args.match_dist,
                           carry)
     report.notes += notes
+    frames = [(seq, k) for seq in seqs for k in range(len(seq))]
+    add_seen(report.missed, lambda i: frames[i][0][frames[i][1]].points)
     if args.resamples:
         from suit_ros.place_bootstrap import ap_intervals, cut_into_places
         runs = [result] + ([] if base_run is None else [base_run])

@@ -16,7 +16,7 @@ from suit_ros.checkpoint import (
 )
 from suit_ros.cli import main
 from suit_ros.evaluate import ModelRun
-from suit_ros.report import SWEEP, build_report, count_matches, draw_bev
+from suit_ros.report import SWEEP, add_seen, build_report, count_matches, draw_bev, seen_of
 from suit_ros.structures import Detections
 from suit_ros.thresholds_cli import best_f1
 
@@ -93,11 +93,12 @@ def test_missed_objects_and_false_positives_say_what_the_model_made_of_them():
     run = ModelRun(gt, det, [np.array([50, 40, 3, 20, 0], np.uint32)], [0.0], [0], {}, [0],
                    [None])
     rep = build_report(run, ('car', 'pedestrian'), [0.5, 0.5], 'test')
+    box20, box30 = [20.0, 0, 0, 4.5, 1.9, 1.6, 0], [30.0, 0, 0, 4.5, 1.9, 1.6, 0]
     assert rep.missed == [
-        {'frame': 0, 'class': 'car', 'range_m': 20.0, 'returns': 40, 'best_score': 0.3,
-         'other': {'class': 'pedestrian', 'score': 0.6}},
-        {'frame': 0, 'class': 'car', 'range_m': 30.0, 'returns': 3, 'best_score': 0.0,
-         'other': None}]
+        {'frame': 0, 'class': 'car', 'range_m': 20.0, 'box': box20, 'returns': 40,
+         'best_score': 0.3, 'other': {'class': 'pedestrian', 'score': 0.6}},
+        {'frame': 0, 'class': 'car', 'range_m': 30.0, 'box': box30, 'returns': 3,
+         'best_score': 0.0, 'other': None}]
     assert rep.to_json()['missed'] == rep.missed
     # the false positives: the pedestrian box on the missed car, and the duplicate car box
     # on the found one
@@ -108,8 +109,26 @@ def test_missed_objects_and_false_positives_say_what_the_model_made_of_them():
          'nearest': {'class': 'car', 'distance_m': 0.1, 'found': False}}]
     assert rep.to_json()['false_positives'] == rep.false
     md = rep.markdown()
-    assert '| 0 | car | 20.0 | 40 | 0.30 | pedestrian 0.60 |' in md
-    assert '| 0 | car | 30.0 | 3 | 0.00 | none |' in md
+    assert '| 0 | car | 20.0 | 40 | n/a | 0.30 | pedestrian 0.60 |' in md
+    assert '| 0 | car | 30.0 | 3 | n/a | 0.00 | none |' in md
+    # what the sensor saw of them: the 20 m car's near end only (a 0.5 x 1.2 m patch,
+    # 0.2-1.0 m above its bottom), nothing of the 30 m one in these points
+    rng = np.random.default_rng(0)
+    patch = np.c_[rng.uniform(17.75, 18.25, 200), rng.uniform(-0.6, 0.6, 200),
+                  rng.uniform(-0.6, 0.2, 200)]
+    add_seen(rep.missed, lambda i: np.r_[patch, [[50.0, 0.0, 0.0]]])
+    seen = rep.missed[0]['seen']
+    assert seen['length_m'] == pytest.approx(0.5, abs=0.02)
+    assert seen['width_m'] == pytest.approx(1.2, abs=0.03)
+    low, high = np.percentile(patch[:, 2] + 0.8, [10, 90])      # the box's bottom at -0.8
+    assert seen['low_m'] == pytest.approx(low, abs=1e-3) and 0.2 < low < 0.4
+    assert seen['high_m'] == pytest.approx(high, abs=1e-3) and 0.8 < high < 1.0
+    assert rep.missed[1]['seen'] is None
+    assert seen_of(patch, box30) is None and seen_of(np.zeros((0, 3)), box20) is None
+    md = rep.markdown()
+    assert f'| 0 | car | 20.0 | 40 | 0.5 x 1.2, {low:.1f}-{high:.1f} | 0.30 | pedestrian 0.60 |' \
+        in md
+    assert '| 0 | car | 30.0 | 3 | n/a | 0.00 | none |' in md
     assert '| 0 | pedestrian | 0.60 | 20.1 | car 0.10 | no |' in md
     # at a cut of 0.25 the 20 m car is found; nothing is missed in a run that finds all
     assert [m['range_m'] for m in build_report(run, ('car', 'pedestrian'), [0.25, 0.5],
@@ -208,6 +227,8 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
                  '--score-thresholds', '0.3', '--pictures', '2']) == 0
     j = (out / 'report.json').read_text()
     assert '"published_thresholds"' in j and '"car_heading"' in j
+    missed = json.loads(j)['missed']
+    assert all('seen' in m for m in missed)             # read from each frame's points
     assert len(list((out / 'bev').glob('*.png'))) == 2
     assert 'Real-data report' in capsys.readouterr().out
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep2'),
