@@ -64,8 +64,9 @@ REAL_DEV = {'suit': 'docs/real_dev/suit.json', 'single': 'docs/real_dev/single.j
             'suit_carry': 'docs/real_dev/suit_carry.json'}
 CARRY = 'suit_ros/checkpoints/suit_carry.safetensors'
 OUTAGE = 'docs/outage/shipped.json'
-CARRY_VAL = 'docs/experiments/memory_carry/val_run12/results.json'
+CARRY_VAL = 'docs/experiments/memory_carry/val_run26/results.json'
 # measured with `suit-ros bench --threads 1 --frames 30 --skip-node` on each checkpoint, one run
+# (on run 12's suit_carry: run 26 is the same network on run 22's weights)
 CARRY_STEP = ("Its step is 1.3-1.4x suit_default's (the memory's carry and the second head: "
               '51 ms against 36-39 ms at 37k points, one thread).')
 
@@ -90,7 +91,8 @@ def carry_lines() -> list[str]:
             f'recall {fmt(ct, "recall_from_frame_3", 2)} against '
             f'{fmt(dt, "recall_from_frame_3", 2)}, sector precision '
             f'{fmt(ct, "sector_precision_from_frame_3", 2)}; validation mAP against '
-            f'run 16 {fmt(diff, "mAP")}, NDS {fmt(diff, "NDS")}. The boxes it holds '
+            f'its base (run 22, suit_default) {fmt(diff, "mAP")}, NDS {fmt(diff, "NDS")}. '
+            'The boxes it holds '
             'where the cloud has no returns are published at '
             + ', '.join(f'{k} {v:.2f}' for k, v in thr.items())
             + f' ({meta.get("carry_publish_thresholds_source", "")}). {CARRY_STEP}']
