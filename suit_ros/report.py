@@ -274,11 +274,11 @@ def _findings_markdown(missed: Sequence[dict[str, Any]], false: Sequence[dict[st
     """The missed-objects and false-positives tables."""
     lines = _table(
         'Missed objects (at the published thresholds)',
-        'Seen: the extent of its returns along and across its box and their heights above '
-        "the box's bottom (10th-90th percentile): a patch where the box is long is an object "
-        "seen in part. Best score: the highest score a box of the object's class got there "
-        '(within the match distance; a threshold below it would find the object). Other box: '
-        'the strongest box of another class there.',
+        'Seen: the extent of its returns along and across its box (first to last) and their '
+        "heights above the box's bottom (10th-90th percentile): a patch where the box is long "
+        "is an object seen in part. Best score: the highest score a box of the object's class "
+        'got there (within the match distance; a threshold below it would find the object). '
+        'Other box: the strongest box of another class there.',
         ('frame', 'class', 'range (m)', 'returns', 'seen: along x across, heights (m)',
          'best score', 'other box'),
         [(str(m['frame']), m['class'], f'{m["range_m"]:.1f}',
@@ -357,12 +357,16 @@ def findings(gt: Sequence[Detections], published: Sequence[Detections],
 
 
 def seen_of(points: NDArray[np.floating[Any]], box: Sequence[float]) -> dict[str, float] | None:
-    """What the sensor saw of an object: the extent of its returns along and across its box
-    (m) and their heights above the box's bottom (10th and 90th percentiles, m); None without
-    returns. A car seen whole spans its length; one seen in part, a patch."""
+    """What the sensor saw of an object: the extent of its returns (the current sweep's, time
+    lag 0 where the points have one) along and across its box, first to last (m), and their
+    heights above the box's bottom (10th and 90th percentiles, m); None without returns. A car
+    seen whole spans its length; one seen in part, a patch."""
     from suit_ros.ops.geometry import points_in_boxes
     b = np.asarray(box, np.float64).reshape(1, 7)
-    p = np.asarray(points, np.float64)[:, :3]
+    pts = np.asarray(points)
+    if pts.ndim == 2 and pts.shape[1] > 4:
+        pts = pts[pts[:, 4] == 0]
+    p = np.asarray(pts, np.float64)[:, :3]
     inside = points_in_boxes(p, b)[:, 0] if len(p) else np.zeros(0, bool)
     if not inside.any():
         return None

@@ -102,6 +102,9 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     for name in ('overhead_probability', 'occluder_probability'):
         if not 0.0 <= getattr(tc, name) <= 1.0:
             raise ConfigError(f'{path}: {name} must be in [0, 1], not {getattr(tc, name)}')
+    if not tc.augment and (tc.overhead_probability > 0 or tc.occluder_probability > 0):
+        raise ConfigError(f'{path}: overhead_probability and occluder_probability draw into '
+                          'augmented clips; with augment: false set them to 0')
     if tc.occluder_probability > 0 and tc.carry_gt:
         raise ConfigError(f'{path}: occluder_probability and carry_gt cannot be combined (a '
                           'screen may hide an object that carry_gt would keep)')

@@ -61,15 +61,35 @@ def test_a_low_screen_hides_a_cars_lower_half_and_shows_its_roof():
     assert out.gt is f.gt
 
 
-def test_screens_stay_in_the_world_while_the_ego_moves():
+def test_screens_stay_in_the_world_while_the_ego_moves_and_turns():
     world = np.array([[12.0, 0.5, 0.5], [14.0, -0.5, 0.3]])        # behind the screen
     screen = Screen((8.0, -2.0), (8.0, 2.0), 0.0, 2.5, 0.2)          # odometry frame
-    for x_ego in (0.0, 2.0, 4.0):
-        out = occlude(_frame(world - [x_ego, 0, 0], x_ego), [screen], SENSOR)
-        assert np.allclose(out.points[:, 0] + x_ego, 8.0, atol=1e-4)  # on the screen
+    for x_ego, yaw in ((0.0, 0.0), (2.0, 0.1), (4.0, -0.15)):
+        pose = pose_from_xyz_rpy((x_ego, 0.3, 0.0), (0, 0, yaw))
+        local = (world - pose[:3, 3]) @ pose[:3, :3]                # odometry -> ego frame
+        f = replace(_frame(local), pose=pose)
+        before = f.points.copy()
+        out = occlude(f, [screen], (0.0, 0.0, 2.0))
+        np.testing.assert_array_equal(f.points, before)              # the input is kept
+        back = out.points[:, :3].astype(np.float64) @ pose[:3, :3].T + pose[:3, 3]
+        np.testing.assert_allclose(back[:, 0], 8.0, atol=1e-4)      # on the screen
     # once the ego has passed the screen, the returns are seen again
     out = occlude(_frame(world - [9.0, 0, 0], 9.0), [screen], SENSOR)
     np.testing.assert_allclose(out.points[:, :3], world - [9.0, 0, 0], atol=1e-6)
+
+
+def test_a_box_loses_the_returns_moved_off_it_and_gains_none_from_a_screen():
+    rng = np.random.default_rng(2)
+    far = np.c_[rng.uniform(19, 21, 300), rng.uniform(-0.8, 0.8, 300), rng.uniform(0.2, 1.4, 300)]
+    near = np.c_[rng.uniform(8.5, 9.9, 50), rng.uniform(-0.3, 0.3, 50), rng.uniform(0.2, 1.0, 50)]
+    boxes = np.array([[20.0, 0.0, 0.8, 2.0, 1.6, 1.6, 0.0],     # hidden by the screen
+                      [10.0, 0.0, 0.8, 4.0, 4.0, 1.6, 0.0]])    # the screen stands in it,
+    # its returns in front of the screen; the far box's land on the screen inside it
+    gt = Detections(boxes, np.zeros((2, 2)), np.ones(2), np.zeros(2, np.int64))
+    f = _frame(np.r_[far, near], gt=gt)
+    assert f.num_points is not None and list(f.num_points) == [300, 50]
+    out = occlude(f, [Screen((10.0, -3.0), (10.0, 3.0), 0.0, 3.0, 0.1)], SENSOR)
+    assert out.num_points is not None and list(out.num_points) == [0, 50]
 
 
 def test_drawn_screens_stand_between_the_sensor_and_part_of_their_object():
@@ -93,6 +113,20 @@ def test_drawn_screens_stand_between_the_sensor_and_part_of_their_object():
                 moved = np.abs(occlude(_frame(grid), [tall], SENSOR).points[:, :3] - grid
                                ).sum(1) > 1e-6
                 assert 0 < moved.mean() < 1
+    # no screen passes through an object: a row of parked cars in front of the target
+    row = np.array([[20.0, 5.0, 0.9, 4.5, 1.9, 1.6, 0.3]] +
+                   [[x, 2.5, 0.9, 4.5, 1.9, 1.6, 0.0] for x in (6.0, 11.0, 16.0)])
+    gt_row = Detections(row, np.zeros((4, 2)), np.ones(4), np.zeros(4, np.int64))
+    f_row = _frame(np.zeros((0, 3)), 0.0, gt_row)
+    for seed in range(20):
+        for sc in draw_screens(f_row, np.random.default_rng(seed), SENSOR):
+            seg = np.linspace(sc.a, sc.b, 200)
+            for b in row:
+                c, s = np.cos(b[6]), np.sin(b[6])
+                d = seg - b[:2]
+                inside = (np.abs(d @ [c, s]) <= b[3] / 2) & (np.abs(d @ [-s, c]) <= b[4] / 2)
+                assert not inside.any()
+            assert np.hypot(*np.linspace(sc.a, sc.b, 50).T).min() >= 2.0 - 1e-6
     gt = Detections(boxes, np.zeros((3, 2)), np.ones(3), np.array([0, 2, 0]))
     f = _frame(np.zeros((0, 3)), 0.0, gt)
     a = draw_screens(f, np.random.default_rng(3), SENSOR)
@@ -116,7 +150,8 @@ def test_clips_and_drives_keep_their_labels_and_are_fixed_per_seed():
     assert [len(c.points) for c in clip] == [len(f.points) for f in drive[:2]]
 
 
-def test_the_training_option_is_validated_and_draws_nothing_when_off(tmp_path: Path):
+def test_the_training_option_is_validated_and_draws_nothing_when_off(tmp_path: Path,
+                                                                    monkeypatch):
     from suit_ros.train import TrainConfig, _occluded, load_train_config
     bad = tmp_path / 'bad.yaml'
     bad.write_text('occluder_probability: 1.5\n')
@@ -126,6 +161,10 @@ def test_the_training_option_is_validated_and_draws_nothing_when_off(tmp_path: P
     both.write_text('occluder_probability: 0.5\ncarry_gt: true\n')
     with pytest.raises(ConfigError, match='cannot be combined'):
         load_train_config(both)
+    plain = tmp_path / 'plain.yaml'
+    plain.write_text('occluder_probability: 0.5\naugment: false\n')
+    with pytest.raises(ConfigError, match='augment: false'):
+        load_train_config(plain)
     clip = [_frame(np.array([[10.0, 0.0, 0.5]]))]
     rng = np.random.default_rng(0)
     assert _occluded(clip, TrainConfig(), rng) is clip
@@ -135,6 +174,11 @@ def test_the_training_option_is_validated_and_draws_nothing_when_off(tmp_path: P
     gt = Detections(box, np.zeros((1, 2)), np.ones(1), np.zeros(1, np.int64))
     f = _frame(np.array([[20.0, 0.0, 0.5], [19.0, 0.5, 1.0]]), gt=gt)
     hidden = [occlude(f, [Screen((10.0, -5.0), (10.0, 5.0), -5.0, 10.0, 0.1)])]
-    from suit_ros.data.sequences import training_view
     assert hidden[0].num_points is not None and hidden[0].num_points[0] == 0
-    assert len(training_view(hidden[0]).gt) == 0
+    # the training path: screens cast, and the object they hide entirely unlabelled
+    import suit_ros.data.occluders as occluders
+    wall = Screen((10.0, -5.0), (10.0, 5.0), -5.0, 10.0, 0.1)
+    monkeypatch.setattr(occluders, 'draw_screens', lambda *args, **kwargs: [wall])
+    out = _occluded([f, f], TrainConfig(occluder_probability=1.0), np.random.default_rng(0))
+    assert [len(o.gt) for o in out] == [0, 0]
+    assert np.allclose(out[0].points[:, 0], 10.0, atol=1e-4)

@@ -228,7 +228,8 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
     j = (out / 'report.json').read_text()
     assert '"published_thresholds"' in j and '"car_heading"' in j
     missed = json.loads(j)['missed']
-    assert all('seen' in m for m in missed)             # read from each frame's points
+    assert missed and all('seen' in m for m in missed)  # read from each frame's points
+    assert any(m['seen'] is not None for m in missed)
     assert len(list((out / 'bev').glob('*.png'))) == 2
     assert 'Real-data report' in capsys.readouterr().out
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep2'),

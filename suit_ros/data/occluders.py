@@ -16,8 +16,9 @@ added or removed: the ray pattern stays the sensor's.
 
 :func:`draw_screens` places screens in front of some objects (covering 30-90% of the object's
 width as the sensor sees it, from one side, at a random distance between the sensor and the
-object) and a few at random places (so that a screen is no cue for an object). The labels
-stay; an object hidden entirely loses its label in training (as one with no return does).
+object) and a few at random places (so that a screen is no cue for an object); none passes
+through an object. The labels stay; an object hidden entirely loses its label in training (as
+one with no return does).
 """
 from __future__ import annotations
 
@@ -27,12 +28,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.geometry import count_points_in_boxes
+from suit_ros.data.drawn import ground_near, windowed_drives
+from suit_ros.ops.geometry import count_points_in_boxes, se3_inverse
 from suit_ros.structures import Frame
 
-# the sensor above base_link's origin in a model frame (the frame keeps no extrinsic); the
-# synthetic sensor models and the Argoverse 2 roof LiDAR sit 1.6-2.0 m up
-SENSOR_HEIGHT_M = 1.8
+# where the sensor is in a model frame's base_link (the frame keeps no extrinsic): the synthetic
+# sensor models sit 0.76-0.94 m ahead of the rear axle and 1.60-1.84 m up (data/sim/config.py).
+# A model frame's earlier sweeps are cast from here too, where the ego is now (it moved up to
+# 2 m since): an approximation that :func:`occluded_drives` (sensor frames) does not make
+SENSOR_IN_BASE = (0.85, 0.0, 1.75)
 
 
 @dataclass(frozen=True)
@@ -45,13 +49,6 @@ class Screen:
     ground: float
     height: float
     intensity: float
-
-
-def _ground_near(points: NDArray[np.floating[Any]], x: float, y: float, fallback: float
-                 ) -> float:
-    """The ground height near ``(x, y)``: the 5th percentile of the heights within 3 m."""
-    near = points[np.hypot(points[:, 0] - x, points[:, 1] - y) < 3.0, 2]
-    return float(np.percentile(near, 5)) if len(near) >= 20 else fallback
 
 
 def _screen_before(box: NDArray[np.float64], sensor: NDArray[np.float64],
@@ -76,13 +73,28 @@ def _screen_before(box: NDArray[np.float64], sensor: NDArray[np.float64],
         window = (lo - beyond, lo + cover)
     else:
         window = (hi - cover, hi + beyond)
+    if dist * np.cos(0.5 * (window[1] - window[0])) < 2.0:
+        return None                     # a wide screen this near would stand in the ego
     ang = theta + np.asarray(window)
     ends: NDArray[np.float64] = sensor[:2] + dist * np.stack([np.cos(ang), np.sin(ang)], 1)
     return ends
 
 
+def _crosses(seg: NDArray[np.float64], boxes: NDArray[np.floating[Any]],
+             margin: float = 0.2) -> bool:
+    """Whether the segment ``(2, 2)`` passes through a box's footprint grown by ``margin``."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    t = np.linspace(0.0, 1.0, 41)[:, None]
+    xy = seg[0] + t * (seg[1] - seg[0])                                  # (41, 2)
+    d = xy[:, None, :] - b[None, :, :2]
+    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
+    along = np.abs(d[..., 0] * c + d[..., 1] * s) <= b[:, 3] / 2 + margin
+    across = np.abs(-d[..., 0] * s + d[..., 1] * c) <= b[:, 4] / 2 + margin
+    return bool((along & across).any())
+
+
 def draw_screens(frame: Frame, rng: np.random.Generator,
-                 sensor: tuple[float, float, float] = (0.0, 0.0, SENSOR_HEIGHT_M),
+                 sensor: tuple[float, float, float] = SENSOR_IN_BASE,
                  targets: int = 3, extra: int = 1, reach_m: float = 40.0) -> list[Screen]:
     """Screens in front of up to ``targets`` of ``frame``'s GT objects 5-``reach_m`` m away
     and ``extra`` at random places 4-30 m away, fixed in the odometry frame (``frame.pose``
@@ -99,13 +111,17 @@ def draw_screens(frame: Frame, rng: np.random.Generator,
             if found is not None:
                 bottom = float(boxes[j, 2] - boxes[j, 5] / 2)
                 mid = found.mean(0)
-                placed.append((found, _ground_near(pts, mid[0], mid[1], bottom)))
+                ground = ground_near(pts, mid[0], mid[1])
+                placed.append((found, bottom if ground is None else ground))
     for _ in range(extra):
         r, a = rng.uniform(4.0, 30.0), rng.uniform(-np.pi, np.pi)
         mid = s[:2] + r * np.array([np.cos(a), np.sin(a)])
         along = np.array([-np.sin(a), np.cos(a)]) * rng.uniform(0.5, 3.0)
+        ground = ground_near(pts, mid[0], mid[1])
         placed.append((np.stack([mid - along, mid + along]),
-                       _ground_near(pts, mid[0], mid[1], s[2] - SENSOR_HEIGHT_M)))
+                       s[2] - SENSOR_IN_BASE[2] if ground is None else ground))
+    if frame.gt is not None and len(frame.gt):
+        placed = [(seg, g) for seg, g in placed if not _crosses(seg, frame.gt.boxes)]
     screens = []
     for seg, ground in placed:
         w = np.concatenate([seg, np.full((2, 1), ground), np.ones((2, 1))], 1) @ frame.pose.T
@@ -116,18 +132,19 @@ def draw_screens(frame: Frame, rng: np.random.Generator,
 
 
 def occlude(frame: Frame, screens: list[Screen],
-            sensor: tuple[float, float, float] = (0.0, 0.0, SENSOR_HEIGHT_M)) -> Frame:
+            sensor: tuple[float, float, float] = SENSOR_IN_BASE) -> Frame:
     """``frame`` as its sensor at ``sensor`` (the points' frame) sees it with ``screens``
     standing: each return whose ray crosses a screen below its top is moved onto the screen,
     with the screen's intensity. ``num_points`` (the current sweep's returns in each GT box:
-    time lag 0 where the points have one) loses the returns moved out of each box and gains
-    those moved into it; GT and the rest are kept."""
+    time lag 0 where the points have one) loses the returns moved off each box; GT and the
+    rest are kept."""
     if not screens or len(frame.points) == 0:
         return frame
     pts = frame.points.copy()
     p = pts[:, :3].astype(np.float64)
+    moved = np.zeros(len(p), bool)
     s = np.asarray(sensor, np.float64)
-    inv = np.linalg.inv(frame.pose)
+    inv = se3_inverse(np.asarray(frame.pose, np.float64))
     for sc in screens:
         ends = np.array([[*sc.a, sc.ground, 1.0], [*sc.b, sc.ground, 1.0]]) @ inv.T
         a, d = ends[0, :2] - s[:2], ends[1, :2] - ends[0, :2]
@@ -145,20 +162,20 @@ def occlude(frame: Frame, screens: list[Screen],
         p[hit, :2] = s[:2] + t[hit, None] * ray[hit]
         p[hit, 2] = z[hit]
         pts[hit, 3] = sc.intensity
+        moved |= hit
     pts[:, :3] = p.astype(pts.dtype)
     num = frame.num_points
     if frame.gt is not None and num is not None and len(num):
-        # the returns each box lost or gained (counted in the box) off the source's count
+        # the current returns each box lost (where they were) off the source's count; a
+        # screen's returns are the screen's, wherever they land
         current = pts[:, 4] == 0 if pts.shape[1] > 4 else np.ones(len(pts), bool)
-        before = count_points_in_boxes(frame.points[current, :3], frame.gt.boxes)
-        after = count_points_in_boxes(pts[current, :3], frame.gt.boxes)
-        num = np.maximum(num.astype(np.int64) + after.astype(np.int64) - before, 0
-                         ).astype(num.dtype)
+        lost = count_points_in_boxes(frame.points[current & moved, :3], frame.gt.boxes)
+        num = np.maximum(num.astype(np.int64) - lost.astype(np.int64), 0).astype(num.dtype)
     return replace(frame, points=pts, num_points=num)
 
 
 def with_screens(clip: list[Frame], rng: np.random.Generator,
-                 sensor: tuple[float, float, float] = (0.0, 0.0, SENSOR_HEIGHT_M)
+                 sensor: tuple[float, float, float] = SENSOR_IN_BASE
                  ) -> list[Frame]:
     """A clip with screens drawn on its first frame cast into every frame."""
     screens = draw_screens(clip[0], rng, sensor)
@@ -170,12 +187,5 @@ def occluded_drives(drives: list[list[Frame]], seed: int = 0, window: int = 10
     """Drives (sensor frames: the sensor at the points' origin) with screens before their
     objects (fixed draws per drive; a new set every ``window`` frames): the evaluation set of
     the occluder robustness (``suit-ros compare --variant occluders``)."""
-    out = []
-    origin = (0.0, 0.0, 0.0)
-    for d, frames in enumerate(drives):
-        rng = np.random.default_rng([seed, d])
-        seq: list[Frame] = []
-        for a in range(0, len(frames), window):
-            seq += with_screens(list(frames[a:a + window]), rng, origin)
-        out.append(seq)
-    return out
+    return windowed_drives(drives, lambda clip, rng: with_screens(clip, rng, (0.0, 0.0, 0.0)),
+                           seed, window)

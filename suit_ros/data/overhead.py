@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.data.drawn import ground_near, windowed_drives
 from suit_ros.structures import Frame
 
 SMALL_FOOTPRINT_M2 = 1.5       # a box footprint below this is a pedestrian or a rider
@@ -54,13 +55,12 @@ def draw_slabs(frame: Frame, rng: np.random.Generator, small_probability: float 
             if rng.random() < (small_probability if small else large_probability):
                 dx, dy = rng.normal(0.0, 0.7, 2)
                 places.append((box[0] + dx, box[1] + dy, box[2] - box[5] / 2))
-    pts = frame.points
     for _ in range(len(places) + extra):
         r, a = rng.uniform(5.0, reach_m), rng.uniform(-np.pi, np.pi)
         x, y = r * np.cos(a), r * np.sin(a)
-        near = pts[np.hypot(pts[:, 0] - x, pts[:, 1] - y) < 3.0, 2]
-        if len(near) >= 20:
-            places.append((x, y, float(np.percentile(near, 5))))
+        ground = ground_near(frame.points, x, y)
+        if ground is not None:
+            places.append((x, y, ground))
     slabs = []
     for x, y, ground in places:
         world = frame.pose @ np.array([x, y, ground, 1.0])
@@ -117,11 +117,4 @@ def overhead_drives(drives: list[list[Frame]], seed: int = 0, window: int = 10
     """Drives with slabs over their objects (fixed draws per drive; a new set of slabs every
     ``window`` frames): the evaluation set of the overhead robustness (``suit-ros compare
     --variant overhead``)."""
-    out = []
-    for d, frames in enumerate(drives):
-        rng = np.random.default_rng([seed, d])
-        seq: list[Frame] = []
-        for a in range(0, len(frames), window):
-            seq += with_overhead(list(frames[a:a + window]), rng)
-        out.append(seq)
-    return out
+    return windowed_drives(drives, with_overhead, seed, window)
