@@ -65,10 +65,11 @@ REAL_DEV = {'suit': 'docs/real_dev/suit.json', 'single': 'docs/real_dev/single.j
 CARRY = 'suit_ros/checkpoints/suit_carry.safetensors'
 OUTAGE = 'docs/outage/shipped.json'
 CARRY_VAL = 'docs/experiments/memory_carry/val_run26/results.json'
-# measured with `suit-ros bench --threads 1 --frames 30 --skip-node` on each checkpoint, one run
-# (on run 12's suit_carry: run 26 is the same network on run 22's weights)
-CARRY_STEP = ("Its step is 1.3-1.4x suit_default's (the memory's carry and the second head: "
-              '51 ms against 36-39 ms at 37k points, one thread).')
+# measured with `suit-ros bench --threads 1 --frames 30 --skip-node` on each checkpoint,
+# alternated (default, carry, default, carry, default), 2026-12-05, run 26
+CARRY_STEP = ("Its step is 1.3x suit_default's (the memory's carry and the second head: "
+              'model step p50 49.0-49.4 ms against 37.6-37.7 ms at 37k points, 72.9-73.0 '
+              'against 61.8-63.0 ms at 260k, one thread).')
 
 
 def carry_lines() -> list[str]:
