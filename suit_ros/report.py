@@ -10,7 +10,7 @@ boxes published at the checkpoint's published thresholds) over any supported dat
   from the ego and length error of the matched cars), every missed object with what the
   model made of it (the best score of its class there, the strongest box of another class)
   and what the sensor saw of it (its returns' extent along and across its box, their heights),
-  and every false positive with the nearest labelled object;
+  and every false positive with its box and the nearest labelled object;
 - ``bev/<sequence>_<frame>.png``: a bird's-eye view per frame, points with GT, true positives,
   false positives, missed objects and ignored things in different colours.
 
@@ -348,6 +348,7 @@ def findings(gt: Sequence[Detections], published: Sequence[Detections],
             q = int(np.argmin(dist)) if len(g) else -1
             false.append({'frame': i, 'class': names[int(p.labels[j])],
                           'score': _r(p.scores[j]), 'range_m': _r(np.hypot(b[0], b[1])),
+                          'box': [_r(v) for v in b],
                           'nearest': None if q < 0 or dist[q] > NEAR_M else
                           {'class': names[int(g.labels[q])], 'distance_m': _r(dist[q]),
                            'found': bool(found[q])}})

@@ -104,8 +104,10 @@ def test_missed_objects_and_false_positives_say_what_the_model_made_of_them():
     # on the found one
     assert rep.false == [
         {'frame': 0, 'class': 'car', 'score': 0.6, 'range_m': 9.9,
+         'box': [9.9, 0, 0, 4.5, 1.9, 1.6, 0],
          'nearest': {'class': 'car', 'distance_m': 0.1, 'found': True}},
         {'frame': 0, 'class': 'pedestrian', 'score': 0.6, 'range_m': 20.1,
+         'box': [20.1, 0, 0, 4.5, 1.9, 1.6, 0],
          'nearest': {'class': 'car', 'distance_m': 0.1, 'found': False}}]
     assert rep.to_json()['false_positives'] == rep.false
     md = rep.markdown()
@@ -138,7 +140,7 @@ def test_missed_objects_and_false_positives_say_what_the_model_made_of_them():
     full = build_report(run, ('car', 'pedestrian'), [0.5, 0.5], 'test')
     assert full.missed == [] and 'Missed objects' not in full.markdown()
     assert full.false == [{'frame': 0, 'class': 'car', 'score': 0.7, 'range_m': 45.0,
-                           'nearest': None}]
+                           'box': [45.0, 0, 0, 4.5, 1.9, 1.6, 0], 'nearest': None}]
     assert '| 0 | car | 0.70 | 45.0 | none |  |' in full.markdown()
 
 
