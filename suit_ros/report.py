@@ -10,7 +10,7 @@ boxes published at the checkpoint's published thresholds) over any supported dat
   from the ego and length error of the matched cars), every missed object with what the
   model made of it (the best score of its class there, the strongest box of another class)
   and what the sensor saw of it (its returns' extent along and across its box, their heights),
-  and every false positive with its box and the nearest labelled object;
+  and every false positive with its box, the nearest labelled object and what is in it;
 - ``bev/<sequence>_<frame>.png``: a bird's-eye view per frame, points with GT, true positives,
   false positives, missed objects and ignored things in different colours.
 
@@ -289,11 +289,16 @@ def _findings_markdown(missed: Sequence[dict[str, Any]], false: Sequence[dict[st
         f'Nearest object: the nearest labelled object of any class within {NEAR_M:.0f} m '
         '(distance in metres) and whether a published box of its class found it: near a '
         'found object of the same class, a duplicate or a misplaced box; near one of another '
-        'class, a wrong class; none, a box on the background (see the pictures).',
-        ('frame', 'class', 'score', 'range (m)', 'nearest object', 'found'),
+        'class, a wrong class; none, a box on the background (see the pictures). In it: the '
+        'returns in the box, their extent along and across it and their heights above its '
+        'bottom, as for the misses.',
+        ('frame', 'class', 'score', 'range (m)', 'nearest object', 'found',
+         'in it: returns; along x across, heights (m)'),
         [(str(f['frame']), f['class'], f'{f["score"]:.2f}', f'{f["range_m"]:.1f}',
           _box_cell(f['nearest'], 'distance_m'),
-          '' if f['nearest'] is None else ('yes' if f['nearest']['found'] else 'no'))
+          '' if f['nearest'] is None else ('yes' if f['nearest']['found'] else 'no'),
+          'n/a' if f.get('seen') is None else
+          f'{f["seen"]["returns"]}; {_seen_cell(f["seen"])}')
          for f in false])
     return lines
 
@@ -358,10 +363,10 @@ def findings(gt: Sequence[Detections], published: Sequence[Detections],
 
 
 def seen_of(points: NDArray[np.floating[Any]], box: Sequence[float]) -> dict[str, float] | None:
-    """What the sensor saw of an object: the extent of its returns (the current sweep's, time
-    lag 0 where the points have one) along and across its box, first to last (m), and their
+    """What the sensor saw in a box: its returns (the current sweep's, time lag 0 where the
+    points have one), their extent along and across the box, first to last (m), and their
     heights above the box's bottom (10th and 90th percentiles, m); None without returns. A car
-    seen whole spans its length; one seen in part, a patch."""
+    seen whole spans its length; one seen in part, a patch; a false box on a pole, a column."""
     from suit_ros.ops.geometry import points_in_boxes
     b = np.asarray(box, np.float64).reshape(1, 7)
     pts = np.asarray(points)
@@ -376,20 +381,20 @@ def seen_of(points: NDArray[np.floating[Any]], box: Sequence[float]) -> dict[str
     d = q[:, :2] - b[0, :2]
     along, across = d @ np.array([c, s]), d @ np.array([-s, c])
     low, high = np.percentile(q[:, 2] - (b[0, 2] - b[0, 5] / 2), [10, 90])
-    return {'length_m': _r(np.ptp(along)), 'width_m': _r(np.ptp(across)), 'low_m': _r(low),
-            'high_m': _r(high)}
+    return {'returns': int(inside.sum()), 'length_m': _r(np.ptp(along)),
+            'width_m': _r(np.ptp(across)), 'low_m': _r(low), 'high_m': _r(high)}
 
 
-def add_seen(missed: Sequence[dict[str, Any]],
+def add_seen(rows: Sequence[dict[str, Any]],
              points_of: Callable[[int], NDArray[np.floating[Any]]]) -> None:
-    """Give every missed object (:func:`findings`) what the sensor saw of it (:func:`seen_of`),
-    reading each frame's points (``points_of(frame)``) once."""
+    """Give every missed object or false positive (:func:`findings`) what the sensor saw in
+    its box (:func:`seen_of`), reading each frame's points (``points_of(frame)``) once."""
     by_frame: dict[int, list[dict[str, Any]]] = {}
-    for m in missed:
+    for m in rows:
         by_frame.setdefault(int(m['frame']), []).append(m)
-    for i, rows in by_frame.items():
+    for i, in_frame in by_frame.items():
         pts = points_of(i)
-        for m in rows:
+        for m in in_frame:
             m['seen'] = seen_of(pts, m['box'])
 
 
@@ -617,7 +622,7 @@ def run(args: argparse.Namespace) -> int:
                           carry)
     report.notes += notes
     frames = [(seq, k) for seq in seqs for k in range(len(seq))]
-    add_seen(report.missed, lambda i: frames[i][0][frames[i][1]].points)
+    add_seen([*report.missed, *report.false], lambda i: frames[i][0][frames[i][1]].points)
     if args.resamples:
         from suit_ros.place_bootstrap import ap_intervals, cut_into_places
         runs = [result] + ([] if base_run is None else [base_run])

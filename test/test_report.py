@@ -118,8 +118,10 @@ def test_missed_objects_and_false_positives_say_what_the_model_made_of_them():
     rng = np.random.default_rng(0)
     patch = np.c_[rng.uniform(17.75, 18.25, 200), rng.uniform(-0.6, 0.6, 200),
                   rng.uniform(-0.6, 0.2, 200)]
-    add_seen(rep.missed, lambda i: np.r_[patch, [[50.0, 0.0, 0.0]]])
+    assert '| 0 | pedestrian | 0.60 | 20.1 | car 0.10 | no | n/a |' in md
+    add_seen([*rep.missed, *rep.false], lambda i: np.r_[patch, [[50.0, 0.0, 0.0]]])
     seen = rep.missed[0]['seen']
+    assert seen['returns'] == 200
     assert seen['length_m'] == pytest.approx(0.5, abs=0.02)
     assert seen['width_m'] == pytest.approx(1.2, abs=0.03)
     low, high = np.percentile(patch[:, 2] + 0.8, [10, 90])      # the box's bottom at -0.8
@@ -131,7 +133,14 @@ def test_missed_objects_and_false_positives_say_what_the_model_made_of_them():
     assert f'| 0 | car | 20.0 | 40 | 0.5 x 1.2, {low:.1f}-{high:.1f} | 0.30 | pedestrian 0.60 |' \
         in md
     assert '| 0 | car | 30.0 | 3 | n/a | 0.00 | none |' in md
-    assert '| 0 | pedestrian | 0.60 | 20.1 | car 0.10 | no |' in md
+    # the false pedestrian box on the missed car (x from 17.85 m) holds most of the patch;
+    # the duplicate car box at 9.9 m holds nothing of these points
+    fp = rep.false[1]['seen']
+    assert fp['returns'] == int((patch[:, 0] >= 17.85).sum()) and rep.false[0]['seen'] is None
+    assert (f'| 0 | pedestrian | 0.60 | 20.1 | car 0.10 | no | {fp["returns"]}; '
+            f'{fp["length_m"]:.1f} x {fp["width_m"]:.1f}, {fp["low_m"]:.1f}-{fp["high_m"]:.1f} |'
+            ) in md
+    assert '| 0 | car | 0.60 | 9.9 | car 0.10 | yes | n/a |' in md
     # at a cut of 0.25 the 20 m car is found; nothing is missed in a run that finds all
     assert [m['range_m'] for m in build_report(run, ('car', 'pedestrian'), [0.25, 0.5],
                                                'test').missed] == [30.0]
@@ -141,7 +150,7 @@ def test_missed_objects_and_false_positives_say_what_the_model_made_of_them():
     assert full.missed == [] and 'Missed objects' not in full.markdown()
     assert full.false == [{'frame': 0, 'class': 'car', 'score': 0.7, 'range_m': 45.0,
                            'box': [45.0, 0, 0, 4.5, 1.9, 1.6, 0], 'nearest': None}]
-    assert '| 0 | car | 0.70 | 45.0 | none |  |' in full.markdown()
+    assert '| 0 | car | 0.70 | 45.0 | none |  | n/a |' in full.markdown()
 
 
 def test_best_f1_picks_the_best_cut_and_a_class_without_gt_the_highest():
