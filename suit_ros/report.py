@@ -367,22 +367,18 @@ def seen_of(points: NDArray[np.floating[Any]], box: Sequence[float]) -> dict[str
     points have one), their extent along and across the box, first to last (m), and their
     heights above the box's bottom (10th and 90th percentiles, m); None without returns. A car
     seen whole spans its length; one seen in part, a patch; a false box on a pole, a column."""
-    from suit_ros.ops.geometry import points_in_boxes
-    b = np.asarray(box, np.float64).reshape(1, 7)
+    from suit_ros.ops.geometry import in_box_frames
+    b = np.asarray(box, np.float64)
     pts = np.asarray(points)
     if pts.ndim == 2 and pts.shape[1] > 4:
         pts = pts[pts[:, 4] == 0]
-    p = np.asarray(pts, np.float64)[:, :3]
-    inside = points_in_boxes(p, b)[:, 0] if len(p) else np.zeros(0, bool)
+    along, across, up = (v[:, 0] for v in in_box_frames(np.asarray(pts)[:, :3], b))
+    inside = (np.abs(along) <= b[3] / 2) & (np.abs(across) <= b[4] / 2) & (np.abs(up) <= b[5] / 2)
     if not inside.any():
         return None
-    q = p[inside]
-    c, s = np.cos(b[0, 6]), np.sin(b[0, 6])
-    d = q[:, :2] - b[0, :2]
-    along, across = d @ np.array([c, s]), d @ np.array([-s, c])
-    low, high = np.percentile(q[:, 2] - (b[0, 2] - b[0, 5] / 2), [10, 90])
-    return {'returns': int(inside.sum()), 'length_m': _r(np.ptp(along)),
-            'width_m': _r(np.ptp(across)), 'low_m': _r(low), 'high_m': _r(high)}
+    low, high = np.percentile(up[inside] + b[5] / 2, [10, 90])
+    return {'returns': int(inside.sum()), 'length_m': _r(np.ptp(along[inside])),
+            'width_m': _r(np.ptp(across[inside])), 'low_m': _r(low), 'high_m': _r(high)}
 
 
 def add_seen(rows: Sequence[dict[str, Any]],

@@ -29,7 +29,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.data.drawn import ground_near, windowed_drives
-from suit_ros.ops.geometry import count_points_in_boxes, se3_inverse
+from suit_ros.ops.geometry import (
+    count_points_in_boxes,
+    in_box_frames,
+    se3_inverse,
+    transform_points,
+)
 from suit_ros.structures import Frame
 
 # where the sensor is in a model frame's base_link (the frame keeps no extrinsic): the synthetic
@@ -86,11 +91,9 @@ def _crosses(seg: NDArray[np.float64], boxes: NDArray[np.floating[Any]],
     b = np.asarray(boxes, np.float64).reshape(-1, 7)
     t = np.linspace(0.0, 1.0, 41)[:, None]
     xy = seg[0] + t * (seg[1] - seg[0])                                  # (41, 2)
-    d = xy[:, None, :] - b[None, :, :2]
-    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
-    along = np.abs(d[..., 0] * c + d[..., 1] * s) <= b[:, 3] / 2 + margin
-    across = np.abs(-d[..., 0] * s + d[..., 1] * c) <= b[:, 4] / 2 + margin
-    return bool((along & across).any())
+    along, across, _ = in_box_frames(np.c_[xy, np.zeros(len(xy))], b)
+    return bool(((np.abs(along) <= b[:, 3] / 2 + margin)
+                 & (np.abs(across) <= b[:, 4] / 2 + margin)).any())
 
 
 def draw_screens(frame: Frame, rng: np.random.Generator,
@@ -124,7 +127,7 @@ def draw_screens(frame: Frame, rng: np.random.Generator,
         placed = [(seg, g) for seg, g in placed if not _crosses(seg, frame.gt.boxes)]
     screens = []
     for seg, ground in placed:
-        w = np.concatenate([seg, np.full((2, 1), ground), np.ones((2, 1))], 1) @ frame.pose.T
+        w = transform_points(frame.pose, np.c_[seg, np.full(2, ground)])
         screens.append(Screen((float(w[0, 0]), float(w[0, 1])), (float(w[1, 0]), float(w[1, 1])),
                               float(w[:, 2].mean()), float(rng.uniform(0.8, 3.0)),
                               float(rng.uniform(0.02, 0.3))))
@@ -146,7 +149,7 @@ def occlude(frame: Frame, screens: list[Screen],
     s = np.asarray(sensor, np.float64)
     inv = se3_inverse(np.asarray(frame.pose, np.float64))
     for sc in screens:
-        ends = np.array([[*sc.a, sc.ground, 1.0], [*sc.b, sc.ground, 1.0]]) @ inv.T
+        ends = transform_points(inv, np.array([[*sc.a, sc.ground], [*sc.b, sc.ground]]))
         a, d = ends[0, :2] - s[:2], ends[1, :2] - ends[0, :2]
         ground = float(ends[:, 2].mean())
         ray = p[:, :2] - s[:2]

@@ -75,19 +75,26 @@ def pose_from_xyz_rpy(xyz: tuple[float, float, float] | NDArray[np.floating[Any]
     return T
 
 
+def in_box_frames(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]]
+                  ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
+    """Each point ``(N, 3)`` relative to each ``(M, 7)`` box's centre: ``(N, M)`` along its
+    heading, across it (to the left) and up."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 7)
+    d = np.asarray(xyz, np.float64)[:, None, :] - b[None, :, :3]
+    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
+    return d[..., 0] * c + d[..., 1] * s, -d[..., 0] * s + d[..., 1] * c, d[..., 2]
+
+
 def points_in_boxes(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]]
                     ) -> NDArray[np.bool_]:
     """``(N, M)`` membership of points in ``(M, 7)`` yaw-rotated boxes (closed intervals)."""
     if len(boxes) == 0:
         return np.zeros((len(xyz), 0), bool)
     b = np.asarray(boxes, np.float64)
-    d = np.asarray(xyz, np.float64)[:, None, :] - b[None, :, :3]
-    c, s = np.cos(b[:, 6]), np.sin(b[:, 6])
-    along = d[..., 0] * c + d[..., 1] * s
-    across = -d[..., 0] * s + d[..., 1] * c
+    along, across, up = in_box_frames(xyz, b)
     inside: NDArray[np.bool_] = ((np.abs(along) <= b[:, 3] / 2)
                                  & (np.abs(across) <= b[:, 4] / 2)
-                                 & (np.abs(d[..., 2]) <= b[:, 5] / 2))
+                                 & (np.abs(up) <= b[:, 5] / 2))
     return inside
 
 
