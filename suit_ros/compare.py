@@ -69,7 +69,8 @@ VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', '
             'tracking, box fit faces', 'real car ends', 'tracking, real car ends',
             'all car ends', 'tracking, all car ends', 'street objects',
             'tracking, street objects', 'bystanders', 'tracking, bystanders', 'dark tops',
-            'tracking, dark tops', 'occluders', 'tracking, occluders')
+            'tracking, dark tops', 'occluders', 'tracking, occluders', 'deskewed',
+            'tracking, deskewed')
 # the validation drives regenerated in another world: passenger cars shaped at their ends as
 # real cars are; and with the street objects of real sidewalks too; and pedestrians beside them
 WORLDS = {'real car ends': 'val-ends', 'all car ends': 'val-ends-all',
@@ -124,6 +125,8 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
     if base == 'occluders':
         from suit_ros.data.occluders import occluded_drives
         return run_model(model, occluded_drives(sequences), tracker=tracker, **kwargs)
+    if base == 'deskewed':          # sweeps taken over time put back at their stamps
+        return run_model(model, sequences, tracker=tracker, deskew=True, **kwargs)
     if base == 'box fit faces':
         return run_model(model, sequences, tracker=tracker, box_fit='faces', **kwargs)
     if variant == 'overhead' or variant.endswith(('overhang drop', 'overhang keep')):

@@ -394,7 +394,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               transform: Callable[[Frame], Frame] | None = None,
               precision: PrecisionChoice = 'float32',
               tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
-              overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off') -> ModelRun:
+              overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
+              deskew: bool = False) -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -411,6 +412,10 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param overhang: keep or drop the returns that hang (:mod:`suit_ros.overhang`; None: as
         the checkpoint says).
     :param box_fit: car boxes fitted to their visible faces or not (:mod:`suit_ros.box_fit`).
+    :param deskew: move the returns of a sweep taken over time (frames with ``times``) to the
+        sensor's pose at its stamp, by the motion over the sweep (:mod:`suit_ros.deskew`, as the
+        node does with a time field and odometry; here the odometry is the frames' poses: a
+        sweep's motion is from its pose to the next frame's, the last frame's the one before).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
@@ -422,6 +427,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         runner.reset('new sequence')
         if transform is not None:
             seq = [transform(f) for f in seq]
+        if deskew:
+            seq = deskewed(seq)
         for t, frame in enumerate(seq):
             if drop_memory:
                 runner.reset('drop memory', sweeps=False)
@@ -441,6 +448,24 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.drive.append(drive)
             out.ignore.append(frame.ignore_boxes)
     model.train(was_training)
+    return out
+
+
+def deskewed(seq: Sequence[Frame]) -> list[Frame]:
+    """The frames of one drive with their sweeps deskewed by the poses up to each
+    (:func:`run_model`'s ``deskew``)."""
+    from suit_ros.deskew import deskew_sweep
+    from suit_ros.msg_adapters.odometry import PoseBuffer
+    poses = PoseBuffer(max_age_ns=2 ** 62)
+    for frame in seq:              # the odometry: every frame's pose, as the node has it by
+        poses.add(*step_inputs(frame)[1:3])   # the end of a sweep (at 50 Hz; here 10 Hz)
+    out = []
+    for frame in seq:
+        points, stamp, T_odom_base, T_bl = step_inputs(frame)
+        if frame.times is not None:
+            frame = replace(frame, points=deskew_sweep(points, frame.times, stamp, poses,
+                                                       T_bl)[0], times=None)
+        out.append(frame)
     return out
 
 

@@ -128,6 +128,7 @@ def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
         'used_memory': str(last.used_memory),
         'tracks': 'off' if last.track_ids is None else str(last.tracks),
         'pose_source': last.pose_source, 'pose_age_s': f'{last.pose_age_s:.3f}',
+        'deskew': last.deskew,
         'input_warnings': ','.join(last.warnings) or 'none',
         'last_warning': last.warning or 'none'})
     levels.extend((WARN, text) for text in s.held_warnings)

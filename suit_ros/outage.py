@@ -87,7 +87,8 @@ def with_outages(seq: Sequence[Frame], outages: Sequence[Outage]) -> list[Frame]
         pts = f.points[keep]
         num = (count_points_in_boxes(pts[:, :3], f.gt.boxes) if f.gt is not None
                else f.num_points)
-        out.append(replace(f, points=pts, num_points=num))
+        out.append(replace(f, points=pts, num_points=num,
+                           times=None if f.times is None else f.times[keep]))
     return out
 
 

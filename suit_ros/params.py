@@ -115,6 +115,15 @@ class DetectorParams:
     intensity_scale: float = field(default=255.0, metadata=_spec(
         'intensity / scale -> 0..1 (255: Velodyne-style 0..255; 1: 0..1 reflectance)',
         lo=1e-6, hi=1e6))
+    deskew: bool = field(default=True, metadata=_spec(
+        "move each return to where the sensor was at the cloud's stamp: the odometry's motion "
+        'over the sweep applied by the per-point time field (a spinning LiDAR on a moving '
+        'vehicle; docs/experiments/deskew); no time field: as given; false for a cloud '
+        'deskewed upstream'))
+    time_field: str = field(default='', metadata=_spec(
+        "deskew's per-point time field: '' the first of time, t, timestamp, time_stamp, "
+        'offset_time; or a field name (integers: ns, floats: s; relative to the stamp or '
+        'absolute)'))
     extrinsic_xyz: Vector3 = field(default=(0.9, 0.0, 1.8), metadata=_spec(
         'base_link -> LiDAR translation (m); a change resets the memory', length=3))
     extrinsic_rpy: Vector3 = field(default=(0.0, 0.0, 0.0), metadata=_spec(

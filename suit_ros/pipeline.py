@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.coverage import SectorCoverage
+from suit_ros.deskew import TIME_FIELDS, deskew_sweep, relative_times, sweep_speed
 from suit_ros.model.streaming import StreamingDetector
 from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.detections import detections_to_markerarray, detections_to_pointcloud2
@@ -23,7 +24,7 @@ from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
 from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_to_ns
 from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
 from suit_ros.ops.geometry import pose_from_xyz_rpy
-from suit_ros.ops.kernels import in_range
+from suit_ros.ops.kernels import in_range, in_range_times
 from suit_ros.params import DetectorParams
 from suit_ros.structures import Detections
 from suit_ros.tracking import TrackerConfig
@@ -36,7 +37,7 @@ SingleFrameReason = Literal['no_odometry', 'outside_odometry']
 
 # input-contract reasons a frame can be flagged with (diagnostics and detect-bag count them)
 InputWarning = Literal['unusable_cloud', 'empty_cloud', 'no_intensity', 'intensity_range',
-                       'too_few_points', 'frame_changed', 'sector_gap']
+                       'too_few_points', 'frame_changed', 'sector_gap', 'point_times']
 
 
 def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[str, Any]]:
@@ -86,6 +87,7 @@ class PipelineOutput:
     memory_samples: int = 0
     memory_bytes: int = 0
     reset_reason: str = ''
+    deskew: str = 'off'                 # what deskew did (diagnostics)
     warnings: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -203,7 +205,7 @@ class DetectionPipeline:
         stamp_ns = stamp_to_ns(header.stamp)
         frame_id = str(header.frame_id)
         out = PipelineOutput(header, Detections.empty())
-        points = self._points(cloud, out)
+        points, times = self._points(cloud, stamp_ns, out)
         t1 = time.perf_counter()
         reason = self._reset_reason(stamp_ns, frame_id)
         if self.last_frame_id is not None and frame_id != self.last_frame_id:
@@ -223,6 +225,8 @@ class DetectionPipeline:
             out.reset_reason = reason
         self.last_stamp_ns, self.last_frame_id = stamp_ns, frame_id
         self.last_pose = pose
+        if times is not None and len(points):
+            points = self._deskew(points, times, stamp_ns, pose is not None, out)
         t2 = time.perf_counter()
         model_timings: dict[str, float] = {}
         if len(points):
@@ -253,15 +257,19 @@ class DetectionPipeline:
         out.timings.update({f'model.{k}': v for k, v in model_timings.items()})
         return out
 
-    def _points(self, cloud: Any, out: PipelineOutput) -> NDArray[np.float32]:
-        """``(N, 4)`` filtered, scaled points; input-contract warnings into ``out``."""
+    def _points(self, cloud: Any, stamp_ns: int, out: PipelineOutput
+                ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+        """``(N, 4)`` filtered, scaled points and, for deskew, each one's time after the stamp
+        (s; None without usable times); input-contract warnings into ``out``."""
         p = self.params
+        wanted = ((p.time_field,) if p.time_field else TIME_FIELDS) if p.deskew else ()
         try:
-            xyzi = pointcloud2_to_xyzi(cloud, p.intensity_field)
+            xyzi = pointcloud2_to_xyzi(cloud, p.intensity_field, wanted)
         except MessageError as exc:
             out.warnings['unusable_cloud'] = f'unusable cloud: {exc}'
-            return np.zeros((0, 4), np.float32)
+            return np.zeros((0, 4), np.float32), None
         points = xyzi.points
+        times = self._times(xyzi.times, xyzi.time_field, stamp_ns, out) if p.deskew else None
         out.points_in = xyzi.num_input
         out.points_nonfinite = xyzi.num_nonfinite
         out.has_intensity = xyzi.has_intensity
@@ -270,10 +278,16 @@ class DetectionPipeline:
                                             'reflectivity): intensity set to 0, detections '
                                             'degrade')
         if len(points):               # the range filter in one compiled pass
-            points = in_range(np.ascontiguousarray(points, np.float32), np.float32(p.min_range),
-                              np.float32(p.max_range))
+            points = np.ascontiguousarray(points, np.float32)
+            lo, hi = np.float32(p.min_range), np.float32(p.max_range)
+            if times is None:
+                points = in_range(points, lo, hi)
+            else:                     # the times' rows with their points
+                points, times = in_range_times(points, times, lo, hi)
             if p.ego_box_enabled and len(points):
-                points = points[~self._in_ego_box(points)]
+                keep = ~self._in_ego_box(points)
+                points = points[keep]
+                times = None if times is None else times[keep]
         if xyzi.has_intensity and len(points):
             self._check_intensity(points[:, 3], out)
             if p.intensity_scale != 1.0:
@@ -289,7 +303,39 @@ class DetectionPipeline:
         elif len(points) < p.min_points:
             out.warnings['too_few_points'] = (f'only {len(points)} points after filtering '
                                               f'(min_points {p.min_points})')
-        return points
+        return points, times
+
+    def _times(self, values: NDArray[Any] | None, name: str, stamp_ns: int,
+               out: PipelineOutput) -> NDArray[np.float32] | None:
+        """The returns' times after the stamp (s) from the cloud's time field, or None (and
+        why, in ``out.deskew``; a warning when the field is unusable or the named one
+        missing)."""
+        if values is None:
+            wanted = self.params.time_field
+            if wanted:
+                out.warnings['point_times'] = (f'cloud has no {wanted!r} field (time_field): '
+                                               'not deskewed')
+            out.deskew = f'off: no time field ({wanted or ", ".join(TIME_FIELDS)})'
+            return None
+        times, why = relative_times(values, stamp_ns)
+        if times is None:
+            out.warnings['point_times'] = f'time field {name!r}: {why}: not deskewed'
+            out.deskew = f'off: {name} unusable'
+        return times
+
+    def _deskew(self, points: NDArray[np.float32], times: NDArray[np.float32], stamp_ns: int,
+                have_pose: bool, out: PipelineOutput) -> NDArray[np.float32]:
+        """The points moved to the sensor's pose at the stamp (:mod:`suit_ros.deskew`), or as
+        they are when the odometry cannot say how the vehicle moved over the sweep."""
+        span = float(times.max() - times.min())
+        if not have_pose or span <= 0:
+            out.deskew = ('off: sweep at one instant' if span <= 0 else
+                          'off: no odometry at the stamp')
+            return points
+        moved, twist = deskew_sweep(points, times, stamp_ns, self.poses, self.T_base_lidar)
+        out.deskew = ('off: no odometry over the sweep' if twist is None else
+                      f'on: sweep {span:.3f} s at {sweep_speed(twist):.1f} m/s')
+        return moved
 
     def _in_ego_box(self, points: NDArray[np.float32]) -> NDArray[np.bool_]:
         """Points (LiDAR frame) that fall inside the ego crop box (base_link)."""

@@ -519,6 +519,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--box-fit', choices=list(BOX_FIT_MODES), default='off',
                         help="car boxes moved onto the returns of their visible faces (the "
                         "node's `box_fit` parameter; suit_ros/box_fit.py)")
+    parser.add_argument('--deskew', choices=['on', 'off'], default='on',
+                        help="sweeps taken over time put back at their stamps (the node's "
+                        '`deskew` parameter; synthetic sweeps of real sensors; the readers of '
+                        'Argoverse 2, KITTI and nuScenes give none: theirs are compensated or '
+                        'carry no times)')
     parser.add_argument('--match-dist', type=float, default=2.0, help='BEV centre distance (m)')
     parser.add_argument('--pictures', type=int, default=50,
                         help="bird's-eye PNGs for the first N frames (0: none)")
@@ -591,16 +596,20 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f'--baseline {args.baseline} detects {base_cfg.class_names}, '
                               f'the checkpoint {names}: compare checkpoints of one class list')
     filt = None if args.no_tracking else TrackerConfig()
+    deskew = args.deskew == 'on'
     result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
-                       box_fit=args.box_fit)
+                       box_fit=args.box_fit, deskew=deskew)
     base_run = None if baseline is None else run_model(
         baseline, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
-        box_fit=args.box_fit)
+        box_fit=args.box_fit, deskew=deskew)
     notes = ['as the node by default: 3 sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.ground is not None or cfg.pillars.ground != 'as_given':
         notes.append(f'input heights: ground {args.ground or cfg.pillars.ground} '
                      '(suit_ros/ground.py)')
+    if deskew and args.synthetic:
+        notes.append('sweeps of sensors that take them over time deskewed '
+                     '(suit_ros/deskew.py), as the node does with their time field')
     if args.overhang is not None:
         notes.append(f'overhang {args.overhang}: the returns that hang over a gap in their '
                      'column (suit_ros/overhang.py)')

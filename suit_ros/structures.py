@@ -70,6 +70,8 @@ class Frame:
         frame, or when the points are already in base_link).
     :param ignore_boxes: ``(M, 7)`` boxes (points' frame) of things that count as neither
         objects nor false positives in evaluation (real datasets: parked bicycles), or None.
+    :param times: ``(N,)`` float32 each return's time after the stamp (s) in a sensor frame
+        whose sweep was taken over time (:mod:`suit_ros.deskew`), or None: at one instant.
     """
 
     points: NDArray[np.float32]
@@ -82,3 +84,4 @@ class Frame:
     sequence_id: str = ''
     T_base_lidar: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
     ignore_boxes: NDArray[np.float32] | None = None
+    times: NDArray[np.float32] | None = None

@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
     model, cfg, _ = load_checkpoint(path)
     names = tuple(cfg.class_names)
     seqs = synthetic_split('tune', args.drives, TUNE_FRAMES, args.cache_dir)
-    run_ = run_model(model, seqs, tracker=TrackerConfig())
+    run_ = run_model(model, seqs, tracker=TrackerConfig(), deskew=True)   # as the node
     counts = class_counts(run_.gt, run_.det, names, run_.num_points)
     chosen: dict[str, float] = {}
     print(f'{path}: tune split, {args.drives} drives x {TUNE_FRAMES} frames, node defaults')
@@ -96,7 +96,8 @@ def carry_thresholds(model: Any, seqs: Sequence[Sequence[Any]], published: list[
     from suit_ros.tracking import TrackerConfig
     outs = [outages_for(i, len(seq), seed=1) for i, seq in enumerate(seqs)]
     played = [with_outages(seq, o) for seq, o in zip(seqs, outs)]
-    rows = carry_factor_rows(run_model(model, played, tracker=TrackerConfig()), played, outs,
+    rows = carry_factor_rows(run_model(model, played, tracker=TrackerConfig(), deskew=True),
+                             played, outs,
                              published)
     for r in rows:
         print(f'  carry factor {r["factor"]:.2f}: outage frames 3+ recall {r["recall"]:.3f}, '

@@ -36,12 +36,20 @@ def diag_values(msg: Any) -> dict[str, str]:
     return {}
 
 
-def synthetic_bag(directory: Path, frames: int, seed: int, storage: str = 'mcap') -> Path:
-    """A small synthetic bag (16 beams) for integration tests."""
+def synthetic_bag(directory: Path, frames: int, seed: int, storage: str = 'mcap',
+                  distorted: bool = False) -> Path:
+    """A small synthetic bag (16 beams) for integration tests; ``distorted``: each sweep cast
+    over its turn from the moving vehicle, with its returns' times (as a real spinning
+    sensor's driver publishes it)."""
+    from dataclasses import replace
+
     from suit_ros.data.sim import preset
     from suit_ros.data.sim.recording import write_bag
     path = directory / 'bag'
-    write_bag(path, preset('test', frames=frames), seed, storage)
+    cfg = preset('test', frames=frames)
+    if distorted:
+        cfg = replace(cfg, lidar=replace(cfg.lidar, motion_distortion=True))
+    write_bag(path, cfg, seed, storage)
     return path
 
 

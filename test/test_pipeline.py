@@ -77,7 +77,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
                        'intensity_field', 'tracking', 'track_score_mix', 'coast_frames',
-                       'ground', 'overhang', 'box_fit',
+                       'ground', 'overhang', 'box_fit', 'deskew', 'time_field',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -371,6 +371,55 @@ def test_intensity_scale_and_min_points(model, classes):
     pipe.configure(replace(pipe.params, min_points=5000))
     out = pipe.process(cloud(classes, T0 + 3 * S // 10, intensity=255.0))
     assert 'only' in out.warnings['too_few_points']
+
+
+def timed_cloud(classes, stamp, times, n=3000):
+    """A cloud whose returns carry a ``time`` field (s after the stamp), and its xyz."""
+    rng = np.random.default_rng(7)
+    a = np.zeros(n, [('x', '<f4'), ('y', '<f4'), ('z', '<f4'), ('intensity', '<f4'),
+                     ('time', '<f4')])
+    a['x'], a['y'] = rng.uniform(5, 30, n), rng.uniform(-20, 20, n)
+    a['z'], a['intensity'] = rng.uniform(-1.5, 0.5, n), 100.0
+    a['time'] = times(n)
+    return cloud(classes, stamp, a), a
+
+
+def test_deskew_moves_each_return_by_the_odometry_over_the_sweep(model, classes):
+    sweep = lambda n: np.linspace(0.0, 0.1, n, dtype=np.float32)      # noqa: E731
+    for on in (True, False):
+        pipe = make_pipeline(model, classes, deskew=on)
+        feed_odometry(pipe, T0 - S, T0 + S, speed=10.0)        # 10 m/s along x
+        msg, a = timed_cloud(classes, T0, sweep)
+        out = pipe.process(msg)
+        seen = pipe.detector.sweeps.past[-1].points
+        # a return taken t s after the stamp was seen from 10 t m further on
+        want = a['x'] + (10.0 * a['time'] if on else 0.0)
+        np.testing.assert_allclose(seen[:, 0], want, atol=1e-4)
+        np.testing.assert_allclose(seen[:, 1], a['y'], atol=1e-4)
+        assert out.deskew == ('on: sweep 0.100 s at 10.0 m/s' if on else 'off')
+        assert 'point_times' not in out.warnings
+
+
+def test_time_field_and_what_deskew_does_without_times_or_odometry(model, classes):
+    sweep = lambda n: np.linspace(0.0, 0.1, n, dtype=np.float32)      # noqa: E731
+    pipe = make_pipeline(model, classes, time_field='t')
+    feed_odometry(pipe, T0 - S, T0 + S)
+    out = pipe.process(timed_cloud(classes, T0, sweep)[0])
+    assert "no 't' field" in out.warnings['point_times'] and out.deskew.startswith('off')
+    assert len(pipe.detector.sweeps) == 1                      # detected all the same
+    pipe.configure(replace(pipe.params, time_field='time'))
+    assert pipe.process(timed_cloud(classes, T0 + S // 10, sweep)[0]).deskew.startswith('on')
+    bad = lambda n: np.where(np.arange(n) == 5, np.nan, 0.05).astype(np.float32)  # noqa: E731
+    out = pipe.process(timed_cloud(classes, T0 + 2 * S // 10, bad)[0])
+    assert 'not finite' in out.warnings['point_times'] and out.deskew == 'off: time unusable'
+    assert out.points_used == 3000                             # the points all the same
+    # a cloud without a time field (an already deskewed driver): as given, no warning
+    pipe.configure(replace(pipe.params, time_field=''))
+    out = pipe.process(cloud(classes, T0 + 3 * S // 10))
+    assert out.deskew.startswith('off: no time field') and 'point_times' not in out.warnings
+    lone = make_pipeline(model, classes)                       # no odometry: single frame
+    out = lone.process(timed_cloud(classes, T0, sweep)[0])
+    assert out.deskew == 'off: no odometry at the stamp'
 
 
 def test_extrinsic_change_resets_and_moves_the_model_input(model, classes):

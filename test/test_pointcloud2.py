@@ -414,3 +414,34 @@ def test_adapters_import_no_ros_package():
                          timeout=60, cwd='/')
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == '[]'
+
+
+@pytest.mark.parametrize('C', BOTH, ids=KIND['ids'])
+@pytest.mark.parametrize('xyz_type', ['<f4', '<f8'])
+def test_time_field_rows_follow_the_kept_points(C, xyz_type):
+    # the fast float32 path and the converted one drop the same non-finite rows from times
+    dtype = np.dtype([('x', xyz_type), ('y', xyz_type), ('z', xyz_type), ('intensity', '<f4'),
+                      ('t', '<u4')])
+    a = np.zeros(50, dtype)
+    for k in 'xyz':
+        a[k] = np.arange(50) + 1.0
+    a['t'] = np.arange(50) * 1000
+    a['x'][[3, 17]] = np.nan
+    a['z'][40] = np.inf
+    msg = array_to_pointcloud2(a, C.header(5, 'lidar'), C)
+    got = pointcloud2_to_xyzi(msg, time_fields=('time', 't'))
+    keep = np.setdiff1d(np.arange(50), [3, 17, 40])
+    assert got.time_field == 't' and got.times.dtype == np.uint32
+    np.testing.assert_array_equal(got.times, keep * 1000)
+    np.testing.assert_array_equal(got.points[:, 1], a['y'][keep].astype(np.float32))
+    assert pointcloud2_to_xyzi(msg).times is None                  # none asked for
+    none = pointcloud2_to_xyzi(msg, time_fields=('time',))         # asked, not there
+    assert none.times is None and none.time_field == ''
+
+
+def test_organized_cloud_times_in_row_order():
+    a = driver_cloud(24, seed=3)
+    a['x'][5] = np.nan
+    msg = array_to_pointcloud2(a.reshape(4, 6), RCLPY.header(5, 'lidar'), RCLPY)
+    got = pointcloud2_to_xyzi(msg, time_fields=('time',))
+    np.testing.assert_array_equal(got.times, np.delete(a['time'], 5))

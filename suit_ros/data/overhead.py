@@ -103,7 +103,11 @@ def add_slabs(frame: Frame, slabs: list[Slab], rng: np.random.Generator) -> Fram
     if frame.points.shape[1] > 4:
         lags = np.unique(frame.points[:, 4])
     extra = [slab_points(s, frame.pose, rng, lags) for s in slabs]
-    return replace(frame, points=np.concatenate([frame.points, *extra]).astype(np.float32))
+    times = frame.times              # a slab is cast from the pose at the stamp: time 0
+    if times is not None:
+        times = np.concatenate([times, np.zeros(sum(len(e) for e in extra), np.float32)])
+    return replace(frame, points=np.concatenate([frame.points, *extra]).astype(np.float32),
+                   times=times)
 
 
 def with_overhead(clip: list[Frame], rng: np.random.Generator) -> list[Frame]:

@@ -77,18 +77,24 @@ def synthetic_sequence(preset_name: str, seed: int, frames: int,
     from dataclasses import replace
 
     from suit_ros.data.sim import preset, sim_frames
+    cfg = preset(preset_name, sensor=sensor, frames=frames)
     path = None
     if cache_dir is not None:
         path = Path(cache_dir) / f'{preset_name}-{sensor}-{seed}-{frames}-' \
             f'{_cache_key(preset_name, sensor, seed, frames)}.npz'
         if path.is_file():
-            return load_sequence(path, points_dtype)
-    out = list(sim_frames(preset(preset_name, sensor=sensor, frames=frames), seed))
+            cached = load_sequence(path, points_dtype)
+            # a drive cached before the returns' times were kept is made again
+            if not cfg.lidar.motion_distortion or all(f.times is not None for f in cached):
+                return cached
+    out = list(sim_frames(cfg, seed))
     if path is not None:
         save_sequence(path, out)
         # the cache keeps float16 points: return what a later (cached) call returns, so the
         # first run of an evaluation gives the same figures as every run after it
-        out = [replace(f, points=f.points.astype(np.float16).astype(np.float32)) for f in out]
+        out = [replace(f, points=f.points.astype(np.float16).astype(np.float32),
+                       times=None if f.times is None
+                       else f.times.astype(np.float16).astype(np.float32)) for f in out]
     if points_dtype is not np.float32:
         out = [replace(f, points=f.points.astype(points_dtype)) for f in out]
     return out
@@ -129,6 +135,8 @@ def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
                        f'{i}/ids': (f.instance_ids if f.instance_ids is not None
                                     else np.zeros(len(gt), np.uint32)),
                        f'{i}/extrinsic': f.T_base_lidar})
+        if f.times is not None:
+            arrays[f'{i}/times'] = f.times.astype(np.float16)
     arrays['meta'] = np.frombuffer(json.dumps(
         {'n': len(frames), 'frame_id': frames[0].frame_id if frames else 'lidar',
          'sequence_id': frames[0].sequence_id if frames else ''}).encode(), np.uint8)
@@ -145,9 +153,12 @@ def load_sequence(path: Path, points_dtype: PointsDtype = np.float32) -> list[Fr
         for i in range(meta['n']):
             gt = Detections(z[f'{i}/boxes'], z[f'{i}/vel'], np.ones(len(z[f'{i}/boxes'])),
                             z[f'{i}/labels'])
+            times = (z[f'{i}/times'].astype(np.float32) if f'{i}/times' in z.files
+                     else None)
             out.append(Frame(z[f'{i}/points'].astype(points_dtype), z[f'{i}/pose'],
                              int(z[f'{i}/stamp']), meta['frame_id'], gt, z[f'{i}/num'],
-                             z[f'{i}/ids'], meta['sequence_id'], z[f'{i}/extrinsic']))
+                             z[f'{i}/ids'], meta['sequence_id'], z[f'{i}/extrinsic'],
+                             times=times))
     return out
 
 

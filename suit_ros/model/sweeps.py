@@ -148,7 +148,7 @@ def model_frame(sequence: Sequence[Frame], t: int, sweeps: int,
         boxes, vel = transform_boxes(T_bl, gt.boxes, gt.velocities)
         gt = Detections(boxes, gt.velocities if vel is None else vel, gt.scores, gt.labels)
     return replace(f, points=points, pose=np.asarray(f.pose, np.float64) @ se3_inverse(T_bl),
-                   gt=gt, T_base_lidar=np.eye(4))
+                   gt=gt, T_base_lidar=np.eye(4), times=None)
 
 
 def boxes_to_lidar(det: Detections, T_base_lidar: NDArray[np.float64]) -> Detections:

@@ -8,6 +8,8 @@ computed, in the same floating-point operations and order (test/test_kernels.py 
 them bit for bit), so outputs do not change:
 
 - :func:`in_range`: the node's range filter of an incoming cloud;
+- :func:`deskew_points`: a sweep's returns moved to where the sensor was at its stamp
+  (:mod:`suit_ros.deskew`);
 - :func:`transform_sweep`: a sweep moved into base_link and tagged with its time lag
   (:func:`suit_ros.model.sweeps.accumulate_sweeps`);
 - :func:`pillar_max`: dynamic pillarization and the folded pillar encoder's per-pillar max
@@ -404,19 +406,78 @@ def paired_bev_iou(boxes_a: Any, boxes_b: Any) -> Any:  # pragma: no cover
 
 @_jit
 def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
-    """The rows of ``(N, 4)`` float32 ``points`` whose horizontal range ``hypot(x, y)``
+    """The rows of ``(N, C)`` float32 ``points`` whose horizontal range ``hypot(x, y)``
     (float32) lies in ``[r_min, r_max]`` (float32), copied in order: one pass for
     ``points[(r >= r_min) & (r <= r_max)]`` (the node's range filter)."""
-    n = points.shape[0]
-    out = np.empty((n, 4), np.float32)
+    n, c = points.shape
+    out = np.empty((n, c), np.float32)
     m = 0
     for i in range(n):
         r = np.hypot(points[i, 0], points[i, 1])
         if r >= r_min and r <= r_max:
-            for j in range(4):
+            for j in range(c):
                 out[m, j] = points[i, j]
             m += 1
     return out[:m]
+
+
+@_jit
+def in_range_times(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
+    """:func:`in_range` of ``(N, 4)`` points and the same rows of their ``(N,)`` float32 times
+    (deskew's): ``(points, times)``."""
+    n, c = points.shape
+    out = np.empty((n, c), np.float32)
+    out_t = np.empty(n, np.float32)
+    m = 0
+    for i in range(n):
+        r = np.hypot(points[i, 0], points[i, 1])
+        if r >= r_min and r <= r_max:
+            for j in range(c):
+                out[m, j] = points[i, j]
+            out_t[m] = times[i]
+            m += 1
+    return out[:m], out_t[:m]
+
+
+@_jit
+def deskew_points(points: Any, times: Any, w: Any, v: Any) -> None:  # pragma: no cover
+    """Move each return of ``(N, >= 3)`` float32 ``points`` (in place), taken ``times[i]``
+    seconds after the stamp by a sensor moving with the constant twist ``w`` (rad/s), ``v``
+    (m/s) (float64, in the sensor's frame at the stamp), into the sensor's frame at the stamp:
+    ``exp(t [w, v]) p`` (SE(3): the rotation by Rodrigues' formula, the translation along the
+    arc; new computation, tested against numpy in test/test_deskew.py)."""
+    speed = np.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    kx, ky, kz = 0.0, 0.0, 1.0
+    if speed > 0.0:
+        kx, ky, kz = w[0] / speed, w[1] / speed, w[2] / speed
+    # k x v and k x (k x v): the arc's bend of the translation
+    ax, ay, az = ky * v[2] - kz * v[1], kz * v[0] - kx * v[2], kx * v[1] - ky * v[0]
+    bx, by, bz = ky * az - kz * ay, kz * ax - kx * az, kx * ay - ky * ax
+    longest = 0.0
+    for i in range(times.shape[0]):
+        longest = max(longest, abs(float(times[i])))
+    # a sweep's turn (under 0.2 rad): cos and sin by their series, within 1e-8, and the
+    # loop without a branch
+    series = speed * longest < 0.2
+    for i in range(points.shape[0]):
+        t = float(times[i])
+        x, y, z = float(points[i, 0]), float(points[i, 1]), float(points[i, 2])
+        a = speed * t
+        a2 = a * a
+        if series:
+            c = 1.0 - a2 * (0.5 - a2 * (1.0 / 24.0 - a2 / 720.0))
+            s = a * (1.0 - a2 * (1.0 / 6.0 - a2 * (1.0 / 120.0 - a2 / 5040.0)))
+            f1 = speed * t * t * (0.5 - a2 * (1.0 / 24.0 - a2 / 720.0))
+            f2 = speed * speed * t * t * t * (1.0 / 6.0 - a2 * (1.0 / 120.0 - a2 / 5040.0))
+        else:
+            c, s = np.cos(a), np.sin(a)
+            f1 = (1.0 - c) / speed
+            f2 = (a - s) / speed
+        d = (kx * x + ky * y + kz * z) * (1.0 - c)
+        cx, cy, cz = ky * z - kz * y, kz * x - kx * z, kx * y - ky * x
+        points[i, 0] = x * c + cx * s + kx * d + t * v[0] + f1 * ax + f2 * bx
+        points[i, 1] = y * c + cy * s + ky * d + t * v[1] + f1 * ay + f2 * by
+        points[i, 2] = z * c + cz * s + kz * d + t * v[2] + f1 * az + f2 * bz
 
 
 @numba.njit(inline='always', nogil=True)
@@ -688,6 +749,8 @@ def warm_up() -> None:
     model_input = np.zeros((4, 5), np.float32)
     R, t, lag = np.eye(3, dtype=np.float32), np.zeros(3, np.float32), np.float32(0.0)
     in_range(sweep, np.float32(1.0), np.float32(2.0))
+    in_range_times(sweep, np.zeros(4, np.float32), np.float32(1.0), np.float32(2.0))
+    deskew_points(sweep, np.zeros(4, np.float32), np.zeros(3), np.zeros(3))
     transform_sweep(sweep, R, t, lag, model_input)
     transform_sweep(model_input, R, t, lag, model_input.copy())
     cells, mean, top = pillar_max(model_input, (-1.0, -1.0, -1.0, 1.0, 1.0, 1.0), 0.5, 4, 4,

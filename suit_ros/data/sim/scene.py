@@ -273,7 +273,8 @@ class Simulation:
         cloud['x'], cloud['y'], cloud['z'] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
         cloud['intensity'] = np.clip(inten, 0, lc.intensity_max)
         cloud['ring'] = order_b
-        cloud['time'] = order_c / C * (1.0 / lc.rate_hz)
+        # each return's firing time after the stamp; a sweep cast at one instant has none
+        cloud['time'] = order_c / C * (1.0 / lc.rate_hz) if lc.motion_distortion else 0.0
         return cloud, xyz, surface
 
     def _reflectivity(self, surface: NDArray[np.int64]) -> NDArray[np.float64]:
@@ -372,12 +373,14 @@ def simulate(cfg: SimConfig, seed: int) -> Iterator[SimFrame]:
 
 
 def to_frame(f: SimFrame, seed: int, intensity_max: float = 255.0) -> Frame:
-    """A SimFrame as a sensor Frame (LiDAR frame, intensity scaled to 0..1, time lag 0)."""
+    """A SimFrame as a sensor Frame (LiDAR frame, intensity scaled to 0..1, time lag 0; the
+    returns' firing times when the sweep was cast over time)."""
     c = f.cloud
     pts = np.stack([c['x'], c['y'], c['z'], c['intensity'] / intensity_max,
                     np.zeros(len(c), np.float32)], 1).astype(np.float32)
+    times = None if len(c) and not c['time'].any() else np.array(c['time'], np.float32)
     return Frame(pts, f.T_odom_lidar, f.stamp_ns, 'lidar', f.gt, f.num_points, f.instance_ids,
-                 f'sim-{seed}', f.T_base_lidar.copy())
+                 f'sim-{seed}', f.T_base_lidar.copy(), times=times)
 
 
 def sim_frames(cfg: SimConfig, seed: int) -> Iterator[Frame]:

@@ -1,0 +1,168 @@
+"""Motion distortion: a spinning LiDAR's sweep, taken while the vehicle moves, put back into the
+instant of its stamp.
+
+A spinning sensor takes a sweep over one turn (0.1 s at 10 Hz) and reports every return in its
+frame at the moment it was taken. At 10 m/s the vehicle moves 1 m during a sweep, so what the
+sensor saw last sits up to 1 m behind where it was at the stamp, and an object at the seam of
+the sweep shows twice. Most drivers publish the sweep that way, with each return's time in a
+field (Velodyne ``time``, Ouster ``t``, Hesai ``timestamp``, Livox ``offset_time``). The GT of
+the synthetic world and of every dataset is at the stamp, and so is the pose the node stacks
+sweeps with.
+
+``deskew: true`` (the node's default) moves each return to where it would have been seen from
+the sensor's pose at the stamp: the vehicle's motion over the sweep is read from the odometry
+buffer (:func:`twist_from_poses`: constant velocity over the sweep, the poses around it
+interpolated; when the odometry does not reach the end of the sweep yet, the motion of the
+same span before its newest pose) and applied per return (:func:`deskew`, one compiled pass).
+What moves by itself (another car) keeps its own smear: only the ego's motion is known.
+A cloud deskewed upstream that still carries its times (Autoware's distortion corrector keeps
+``time_stamp``; Argoverse 2's sweeps are compensated and keep ``offset_ns``, which is not
+looked for) would be moved twice: set ``deskew: false`` for it.
+
+Times come from the cloud (:func:`relative_times`): an integer field counts nanoseconds, a
+float field seconds; values more than a day from zero are absolute (epoch) and are taken
+relative to the cloud's stamp. A sweep whose times span more than :data:`MAX_SPAN_S` or are
+not finite is not deskewed, and the diagnostics say why.
+
+What it is worth on the synthetic drives (3 of 4 sensors sweep with distortion, the ego at up
+to 13 m/s): docs/experiments/deskew.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from suit_ros.msg_adapters.errors import PoseLookupError
+from suit_ros.msg_adapters.odometry import PoseBuffer
+from suit_ros.ops.kernels import deskew_points
+
+# the per-point time fields drivers write, tried in this order when ``time_field`` is ''
+# (Velodyne, Ouster, Hesai and Robosense, Autoware's nebula, Livox)
+TIME_FIELDS = ('time', 't', 'timestamp', 'time_stamp', 'offset_time')
+MAX_SPAN_S = 0.5          # a sweep's times span at most this (a 2 Hz sensor), else not a sweep
+ABSOLUTE_S = 86_400.0     # values further from zero than a day are epoch times
+MIN_MOTION_SPAN_S = 0.02  # the odometry must cover at least this much of the sweep's span
+
+
+def relative_times(values: NDArray[Any], stamp_ns: int) -> tuple[NDArray[np.float32] | None,
+                                                                   str]:
+    """Each return's time relative to the cloud stamp (s), from a time field's values.
+
+    :param values: the field as read (integers: nanoseconds; floats: seconds), absolute
+        (epoch) or relative to the stamp.
+    :return: ``(times, '')``, or ``(None, why)`` when they cannot be a sweep's.
+    """
+    v = np.asarray(values)
+    if not len(v):
+        return np.zeros(0, np.float32), ''
+    if np.issubdtype(v.dtype, np.integer):
+        ns = v.astype(np.int64)
+        absolute = max(abs(int(ns.min())), abs(int(ns.max()))) * 1e-9 > ABSOLUTE_S
+        rel = ((ns - stamp_ns) if absolute else ns).astype(np.float64) * 1e-9
+    else:
+        first, last = float(v.min()), float(v.max())       # NaN comes through both
+        if not (np.isfinite(first) and np.isfinite(last)):
+            return None, 'times not finite'
+        absolute = max(abs(first), abs(last)) > ABSOLUTE_S
+        if absolute and v.dtype.itemsize < 8:
+            return None, (f'absolute times in a {v.dtype.itemsize * 8}-bit float field '
+                          '(too coarse to place a return within the sweep)')
+        rel = v.astype(np.float64) - stamp_ns * 1e-9 if absolute else v
+    lo, hi = float(rel.min()), float(rel.max())
+    if hi - lo > MAX_SPAN_S or max(abs(lo), abs(hi)) > 2 * MAX_SPAN_S:
+        return None, (f'times from {lo:+.3f} to {hi:+.3f} s of the stamp: not one sweep '
+                      f'(at most {MAX_SPAN_S} s)')
+    return np.asarray(rel, np.float32), ''
+
+
+def rotation_vector(R: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Axis times angle of a rotation matrix."""
+    w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    sin = float(np.linalg.norm(w))
+    angle = float(np.arctan2(sin, 0.5 * (np.trace(R) - 1.0)))
+    return w * (angle / sin) if sin > 1e-12 else w
+
+
+def arc_matrix(w: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The matrix that takes a constant twist's linear part to its translation after turning
+    by the rotation vector ``w`` (SE(3)'s exponential: ``I + (1 - cos a) / a K + (a - sin a) /
+    a K^2``, K the unit axis' cross product)."""
+    a = float(np.linalg.norm(w))
+    if a < 1e-12:
+        return np.eye(3)
+    k = w / a
+    K = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    out: NDArray[np.float64] = np.eye(3) + (1 - np.cos(a)) / a * K + (a - np.sin(a)) / a * K @ K
+    return out
+
+
+def body_twist(T_a: NDArray[np.float64], T_b: NDArray[np.float64], dt: float
+               ) -> NDArray[np.float64]:
+    """``(6,)`` angular (rad/s) then linear (m/s) velocity, in the body frame, that moves pose
+    ``T_a`` to ``T_b`` in ``dt`` seconds (constant velocity: SE(3)'s logarithm)."""
+    D = np.linalg.solve(T_a, T_b)
+    w = rotation_vector(D[:3, :3])
+    out: NDArray[np.float64] = np.concatenate([w, np.linalg.solve(arc_matrix(w), D[:3, 3])]) / dt
+    return out
+
+
+def twist_from_poses(poses: PoseBuffer, start_ns: int, end_ns: int) -> NDArray[np.float64] | None:
+    """The vehicle's twist over a sweep from ``start_ns`` to ``end_ns`` (base_link, see
+    :func:`body_twist`), or None when the buffer holds too little motion to tell.
+
+    The buffered poses over the sweep; where the buffer ends before the sweep does (odometry
+    arrives later than the cloud), the same span before its newest pose.
+    """
+    span = poses.span()
+    if span is None or len(poses) < 2:
+        return None
+    first, last = span
+    b = min(end_ns, last)
+    a = max(first, b - max(end_ns - start_ns, int(MIN_MOTION_SPAN_S * 1e9)))
+    if (b - a) * 1e-9 < MIN_MOTION_SPAN_S:
+        return None
+    try:
+        return body_twist(poses.lookup(a), poses.lookup(b), (b - a) * 1e-9)
+    except PoseLookupError:
+        return None
+
+
+def deskew(points: NDArray[np.float32], times: NDArray[np.float32],
+           twist: NDArray[np.float64], T_base_lidar: NDArray[np.float64]) -> NDArray[np.float32]:
+    """The returns ``(N, >= 3)`` (LiDAR frame, each taken ``times`` s after the stamp) in the
+    LiDAR frame at the stamp, for a vehicle moving with ``twist`` (:func:`body_twist`); a new
+    array, other columns as they were."""
+    if len(times) != len(points):
+        raise ValueError(f'deskew: {len(times)} times for {len(points)} points')
+    R, t = T_base_lidar[:3, :3], T_base_lidar[:3, 3]
+    w_b, v_b = twist[:3], twist[3:]
+    # the same motion seen from the sensor: the twist moved by the extrinsic
+    w = R.T @ w_b
+    v = R.T @ (v_b + np.cross(w_b, t))
+    out = np.array(points, np.float32, order='C', copy=True)
+    deskew_points(out, np.ascontiguousarray(times, np.float32), w, v)
+    return out
+
+
+def deskew_sweep(points: NDArray[np.float32], times: NDArray[np.float32], stamp_ns: int,
+                 poses: PoseBuffer, T_base_lidar: NDArray[np.float64]
+                 ) -> tuple[NDArray[np.float32], NDArray[np.float64] | None]:
+    """A sweep's returns moved to the sensor's pose at ``stamp_ns`` by the motion the odometry
+    ``poses`` (base_link) show over the sweep, and that motion (:func:`twist_from_poses`);
+    the points as they are and None when the sweep was taken at one instant or the odometry
+    cannot tell."""
+    if not len(times):
+        return points, None
+    lo, hi = float(times.min()), float(times.max())
+    twist = (twist_from_poses(poses, stamp_ns + int(round(lo * 1e9)),
+                              stamp_ns + int(round(hi * 1e9))) if hi > lo else None)
+    if twist is None:
+        return points, None
+    return deskew(points, times, twist, T_base_lidar), twist
+
+
+def sweep_speed(twist: NDArray[np.float64]) -> float:
+    """The vehicle's speed (m/s) in a twist."""
+    return float(np.linalg.norm(twist[3:]))
