@@ -34,12 +34,16 @@ class XYZI:
     :param points: ``(N, 4)`` float32 C-contiguous ``x, y, z, intensity`` (finite x/y/z only).
     :param has_intensity: False when the cloud had no intensity field (column 3 is then 0).
     :param num_input: points in the message; ``num_nonfinite``: dropped for NaN/Inf x/y/z.
+    :param times: with a ``time_field``: each kept point's time field as stored (its rows),
+        None when none was asked for or found; ``time_field``: the field read ('' none).
     """
 
     points: NDArray[np.float32]
     has_intensity: bool
     num_input: int
     num_nonfinite: int
+    times: NDArray[Any] | None = None
+    time_field: str = ''
 
 
 def dtype_from_fields(fields: Any, point_step: int, is_bigendian: bool) -> np.dtype[Any]:
@@ -191,7 +195,31 @@ def _convert_fields(msg: Any, names: list[str]) -> tuple[NDArray[np.float32], in
     return pts, len(arr) - kept
 
 
-def pointcloud2_to_xyzi(msg: Any, intensity_field: str = '') -> XYZI:
+def _time_column(msg: Any, buf: NDArray[np.uint8], spec: tuple[int, int, int], height: int,
+                 width: int, point_step: int, row_step: int, dropped: int) -> NDArray[Any]:
+    """A time field's values (``spec``: offset, datatype, count; the first element), the rows
+    of the points kept (finite x, y, z) only, as a new array."""
+    order = '>' if msg.is_bigendian else '<'
+    offset, datatype, _ = spec
+    col = _grid(buf, order + DATATYPES[datatype], offset, height, width, row_step, point_step)
+    if not dropped:
+        return np.array(col.reshape(-1))
+    kinds = {str(f.name): (int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields}
+    if all(kinds[k][1:] == (FLOAT32, 1) for k in 'xyz'):
+        x, y, z = (_grid(buf, order + 'f4', kinds[k][0], height, width, row_step, point_step)
+                   for k in 'xyz')
+        return np.array(col[_finite_rows(x, y, z)])
+    arr = pointcloud2_to_array(msg).reshape(-1)
+    xyz = []
+    for k in 'xyz':                          # as _convert_fields reads them: float32
+        c = arr[k][:, 0] if arr[k].ndim > 1 else arr[k]
+        with np.errstate(over='ignore', invalid='ignore'):
+            xyz.append(c.astype(np.float32))
+    return np.array(col.reshape(-1)[_finite_rows(*xyz)])
+
+
+def pointcloud2_to_xyzi(msg: Any, intensity_field: str = '',
+                        time_fields: tuple[str, ...] = ()) -> XYZI:
     """The detector's input: ``(N, 4)`` float32 x, y, z, intensity, non-finite points dropped.
 
     Intensity comes from a field named ``intensity``, ``i`` or ``reflectivity`` (0 and
@@ -201,6 +229,9 @@ def pointcloud2_to_xyzi(msg: Any, intensity_field: str = '') -> XYZI:
     :param msg: a sensor_msgs/PointCloud2 (rclpy or rosbags); never modified.
     :param intensity_field: ``''``: the first of the usual names; ``'none'``: ignore intensity
         (all 0); any other name: that field, which must exist.
+    :param time_fields: the per-point time fields to look for, first found read into
+        ``times`` (the points' rows, the field's own type: :func:`suit_ros.deskew.relative_times`
+        makes seconds of it).
     :return: :class:`XYZI` with ``points (N, 4)`` float32 C-contiguous.
     :raises PointCloudError: missing x/y/z, an invalid field table, or truncated data.
     """
@@ -232,7 +263,10 @@ def pointcloud2_to_xyzi(msg: Any, intensity_field: str = '') -> XYZI:
         pts, dropped = _convert_fields(msg, names)
     if intensity is not None and not np.isfinite(pts[:, 3].sum(dtype=np.float64)):
         np.nan_to_num(pts[:, 3], copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-    return XYZI(pts, intensity is not None, n, dropped)
+    time_field = next((f for f in time_fields if f in fields), '')
+    times = (_time_column(msg, buf, fields[time_field], height, width, point_step, row_step,
+                          dropped) if time_field else None)
+    return XYZI(pts, intensity is not None, n, dropped, times, time_field)
 
 
 def fields_from_dtype(dtype: np.dtype[Any], classes: MessageClasses) -> list[Any]:

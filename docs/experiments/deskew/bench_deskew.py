@@ -19,7 +19,6 @@ import torch
 from suit_ros.data.bag import open_reader
 from suit_ros.data.sim import preset
 from suit_ros.data.sim.recording import write_bag
-from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.params import DetectorParams
 from suit_ros.pipeline import DetectionPipeline, load_detector
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 import json
 import sys
 
-import numpy as np
 import torch
 
 from suit_ros.accuracy import bootstrap, plain_intervals
