@@ -40,6 +40,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='track the detections as the node does by default (velocities '
                         "filtered, scores smoothed: suit_ros/tracking.py); default: the model's "
                         'own output')
+    parser.add_argument('--deskew', choices=['on', 'off'], default='on',
+                        help="sweeps taken over time put back at their stamps, as the node's "
+                        "`deskew` does (frames with their returns' times: synthetic sweeps of "
+                        'real sensors)')
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--json-out', help='write the metrics as JSON here')
     parser.add_argument('--plot', help='write precision-recall curves (PNG) here')
@@ -139,8 +143,8 @@ def run(args: argparse.Namespace) -> int:
             seqs = synthetic_sequences(args.synthetic, args.cache_dir)
         if not seqs or not seqs[0]:
             raise DatasetError('the synthetic split is empty')
-        result = run_model(model, seqs, history=args.history,
-                           tracker=filt).evaluate(model.cfg.class_names)
+        result = run_model(model, seqs, history=args.history, tracker=filt,
+                           deskew=args.deskew == 'on').evaluate(model.cfg.class_names)
     print(result.table())
     if args.json_out:
         from suit_ros.evaluate import dump_json

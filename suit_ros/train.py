@@ -68,6 +68,10 @@ class TrainConfig:
     # its GT boxes by it, as ``ground: local`` shows the model its input at inference; the
     # checkpoint records it (pillars.ground), so the node runs it so by default
     ground: Literal['', 'as_given', 'local'] = ''
+    # sweeps taken over time (frames with their returns' times: synthetic sweeps of real
+    # sensors, bags with a time field) deskewed as the node does (suit_ros/deskew.py); the
+    # shipped checkpoints were trained on them as taken
+    deskew: bool = False
     preset: str = ''                 # synthetic world of the training drives ('': train-real)
     # the same drives again in further worlds, trained on alongside (each adds train_sequences
     # drives): a world change learned without dropping the drives the model already knows
@@ -204,9 +208,16 @@ def training_sequences(tc: TrainConfig, class_names: tuple[str, ...]) -> Any:
             data += synthetic_split('train', tc.train_sequences, tc.train_frames, tc.cache_dir,
                                     preset_name=name, points_dtype=np.float16,
                                     first=tc.train_first_sequence)
+        if tc.deskew:
+            from suit_ros.evaluate import deskewed
+            data = [[replace(f, points=f.points.astype(np.float16)) for f in deskewed(seq)]
+                    for seq in data]
     elif tc.dataset == 'bags':
         from suit_ros.data.sequences import bag_sequences
         data = bag_sequences(tc.dataset_paths)
+        if tc.deskew:
+            from suit_ros.evaluate import deskewed
+            data = [deskewed(seq) for seq in data]
     elif tc.dataset == 'nuscenes':
         from suit_ros.data.sequences import nuscenes_sequences
         if not tc.dataset_paths:

@@ -223,3 +223,40 @@ def test_the_benchmarks_drives_keep_each_return_its_time():
     assert model_frame(drive, 2, 3).times is None       # accumulated: no sweep's times
     with pytest.raises(ValueError, match='times for'):
         deskew(drive[0].points, drive[0].times[:-1], np.zeros(6), np.eye(4))
+
+
+@pytest.fixture(scope='module')
+def bags(tmp_path_factory):
+    """Two small synthetic bags: swept over time (with the returns' times) and at one
+    instant."""
+    from dataclasses import replace
+
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.recording import write_bag
+    root = tmp_path_factory.mktemp('bags')
+    cfg = preset('test', frames=3)
+    write_bag(root / 'swept', replace(cfg, lidar=replace(cfg.lidar, motion_distortion=True)), 4)
+    write_bag(root / 'instant', cfg, 4)
+    return root / 'swept', root / 'instant'
+
+
+def test_bag_frames_carry_their_returns_times(bags):
+    from suit_ros.data.bag import read_bag_frames
+    swept = list(read_bag_frames(bags[0]))
+    assert all(len(f.times) == len(f.points) and 0.09 < f.times.max() < 0.1 for f in swept)
+    assert all(f.times is None for f in read_bag_frames(bags[1]))     # all 0: one instant
+
+
+def test_training_on_bags_can_deskew_as_the_node_does(bags):
+    from suit_ros import CLASS_NAMES
+    from suit_ros.data.sequences import bag_sequences
+    from suit_ros.evaluate import deskewed
+    from suit_ros.train import TrainConfig, training_sequences
+    tc = TrainConfig(dataset='bags', dataset_paths=(str(bags[0]),), deskew=True)
+    data = training_sequences(tc, CLASS_NAMES)
+    want = deskewed(bag_sequences([bags[0]])[0])
+    for got, w in zip(data[0], want):
+        np.testing.assert_array_equal(got.points, w.points)
+    as_taken = training_sequences(TrainConfig(dataset='bags', dataset_paths=(str(bags[0]),)),
+                                  CLASS_NAMES)
+    assert not np.array_equal(as_taken[0][1].points, data[0][1].points)

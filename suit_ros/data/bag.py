@@ -106,6 +106,7 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
 
     The extrinsic comes from ``/tf_static`` (base_link -> the cloud's frame) when present.
     """
+    from suit_ros.deskew import TIME_FIELDS, relative_times
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
     from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_to_ns
     from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
@@ -134,7 +135,12 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
                 clouds.append(msg)
         for msg in clouds:
             stamp = stamp_to_ns(msg.header.stamp)
-            xyzi = pointcloud2_to_xyzi(msg).points
+            cloud = pointcloud2_to_xyzi(msg, time_fields=TIME_FIELDS)
+            xyzi = cloud.points
+            times = (None if cloud.times is None
+                     else relative_times(cloud.times, stamp)[0])   # None: unusable ones
+            if times is not None and not times.any():
+                times = None                                      # a sweep of one instant
             pts = np.concatenate([xyzi, np.zeros((len(xyzi), 1), np.float32)], 1)
             pts[:, 3] /= intensity_scale
             g = gts.get(stamp)
@@ -142,7 +148,7 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
                   if g is not None else None)
             yield Frame(pts, buf.lookup(stamp) @ extr, stamp, str(msg.header.frame_id), gt,
                         g.get('num_points') if g else None, g.get('instance_id') if g else None,
-                        str(path), extr.copy())
+                        str(path), extr.copy(), times=times)
 
 
 def transform_to_matrix(tr: Any) -> NDArray[np.float64]:
