@@ -227,15 +227,15 @@ def occlusion_run(run: ModelRun, drives: Sequence[Sequence[Frame]], max_gap: int
 
 
 def occlusion_ap(model: Any, drives: Sequence[Sequence[Frame]], plain: ModelRun,
-                 class_names: Sequence[str]) -> dict[str, list[float]]:
+                 class_names: Sequence[str], deskew: bool = True) -> dict[str, list[float]]:
     """Occlusion mAP ``[value, low, high]`` of a model's run, of the same model with its
     memory dropped, and their paired difference (per-drive bootstrap)."""
     from suit_ros.accuracy import bootstrap
     from suit_ros.evaluate import run_model
     runs = {'model': occlusion_run(plain, drives)}
     if model.cfg.temporal != 'none':
-        runs['memory dropped'] = occlusion_run(run_model(model, drives, drop_memory=True),
-                                               drives)
+        runs['memory dropped'] = occlusion_run(
+            run_model(model, drives, drop_memory=True, deskew=deskew), drives)
     out, diffs = bootstrap(runs, class_names,
                            [('model', 'memory dropped')] if len(runs) > 1 else [])
     def listed(i: Any) -> list[float]:
@@ -301,6 +301,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--frames', type=int, default=40)
     parser.add_argument('--width', type=float, default=120.0, help='sector (degrees)')
     parser.add_argument('--length', type=int, default=6, help='outage frames')
+    parser.add_argument('--deskew', choices=['on', 'off'], default='on',
+                        help="the sweeps of sensors that take them over time put back at "
+                        "their stamps, as the node's `deskew` does")
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--no-occlusion', dest='occlusion', action='store_false',
                         help='skip the natural-occlusion runs (drives as the sensor saw them)')
@@ -323,7 +326,7 @@ def run(args: argparse.Namespace) -> int:
     seqs = [with_outages(seq, o) for seq, o in zip(plain, outs)]
     result: dict[str, Any] = {'drives': args.drives, 'frames': args.frames,
                               'width_deg': args.width, 'length': args.length, 'runs': {},
-                              'occlusion': {}, 'occlusion_ap': {}}
+                              'occlusion': {}, 'occlusion_ap': {}, 'deskew': args.deskew}
     tracker = TrackerConfig()
     if args.coast_frames is not None:
         try:
@@ -337,7 +340,7 @@ def run(args: argparse.Namespace) -> int:
         zero = [0.0] * len(thr)     # (for detections already cut at the published thresholds)
         for tracked in (False, True):
             key = f'{name}, tracker' if tracked else name
-            runs = _run(model, seqs, tracker if tracked else None)
+            runs = _run(model, seqs, tracker if tracked else None, args.deskew == 'on')
             counts = count_outage(seqs, published_by_drive(runs, thr, carry), outs, zero,
                                   args.length)
             result['runs'][key] = r = intervals(counts)
@@ -346,15 +349,15 @@ def run(args: argparse.Namespace) -> int:
                   + f' | frames 3+: {_band(r["recall_from_frame_3"])} | sector precision '
                   + ' '.join(f'{v[0]:.2f}' for v in r['sector_precision']), flush=True)
             if args.occlusion:
-                run_ = _run(model, plain, tracker if tracked else None)
+                run_ = _run(model, plain, tracker if tracked else None, args.deskew == 'on')
                 occ = count_occlusion(plain, published_by_drive(run_, thr, carry), zero)
                 result['occlusion'][key] = o = intervals(occ)
                 print(f'{key:<24} occluded objects, recall by frames since last seen '
                       + ' '.join(f'{v[0]:.2f}' for v in o['recall'])
                       + f' | 3-10 frames: {_band(o["recall_from_frame_3"])}', flush=True)
                 if not tracked:
-                    result['occlusion_ap'][name] = a = occlusion_ap(model, plain, run_,
-                                                                    cfg.class_names)
+                    result['occlusion_ap'][name] = a = occlusion_ap(
+                        model, plain, run_, cfg.class_names, args.deskew == 'on')
                     print(f'{name:<24} occlusion mAP {_band(a["model"])}'
                           + (f' | memory dropped {_band(a["memory dropped"])} | difference '
                              f'{_band(a["difference"])}' if 'difference' in a else ''),
@@ -416,11 +419,12 @@ def _band(v: Any) -> str:
     return f'{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]'
 
 
-def _run(model: Any, seqs: Sequence[Sequence[Frame]], tracker: TrackerConfig | None
-         ) -> ModelRun:
-    """The drives as the node decodes them (with its tracker, or without: None)."""
+def _run(model: Any, seqs: Sequence[Sequence[Frame]], tracker: TrackerConfig | None,
+         deskew: bool = True) -> ModelRun:
+    """The drives as the node decodes them (with its tracker, or without: None; deskewed as
+    the node does, or as taken)."""
     from suit_ros.evaluate import run_model
-    return run_model(model, seqs, tracker=tracker)
+    return run_model(model, seqs, tracker=tracker, deskew=deskew)
 
 
 def published_by_drive(run: ModelRun, thresholds: Sequence[float],
