@@ -145,8 +145,9 @@ def _finite_rows(x: NDArray[Any], y: NDArray[Any], z: NDArray[Any]) -> NDArray[n
 
 def _xyzi_float32(buf: NDArray[np.uint8], offsets: list[int], height: int, width: int,
                   point_step: int, row_step: int, bigendian: bool
-                  ) -> tuple[NDArray[np.float32], int]:
-    """FLOAT32 fields at ``offsets`` (x, y, z[, intensity]) -> ``((N', 4) float32, dropped)``.
+                  ) -> tuple[NDArray[np.float32], int, NDArray[np.bool_]]:
+    """FLOAT32 fields at ``offsets`` (x, y, z[, intensity]) -> ``((N', 4) float32, dropped,
+    the kept rows as a (height, width) mask)``.
 
     The finite mask is computed on strided views of the message, then the kept points are
     copied once into a new array: when the fields are adjacent (as every driver writes them)
@@ -174,10 +175,11 @@ def _xyzi_float32(buf: NDArray[np.uint8], offsets: list[int], height: int, width
             column = x if i == 0 else y if i == 1 else z if i == 2 else _grid(
                 buf, order + 'f4', offset, height, width, row_step, point_step)
             out[:, i] = column[finite]
-    return out, height * width - kept
+    return out, height * width - kept, finite
 
 
-def _convert_fields(msg: Any, names: list[str]) -> tuple[NDArray[np.float32], int]:
+def _convert_fields(msg: Any, names: list[str]
+                    ) -> tuple[NDArray[np.float32], int, NDArray[np.bool_]]:
     """Fields of any numeric datatype (``count > 1``: the first element) -> like
     :func:`_xyzi_float32`."""
     arr = pointcloud2_to_array(msg).reshape(-1)
@@ -192,30 +194,17 @@ def _convert_fields(msg: Any, names: list[str]) -> tuple[NDArray[np.float32], in
     kept = int(np.count_nonzero(finite))
     if kept < len(pts):
         pts = pts.view('V16').reshape(-1)[finite].view(np.float32).reshape(kept, 4)
-    return pts, len(arr) - kept
+    return pts, len(arr) - kept, finite
 
 
 def _time_column(msg: Any, buf: NDArray[np.uint8], spec: tuple[int, int, int], height: int,
-                 width: int, point_step: int, row_step: int, dropped: int) -> NDArray[Any]:
-    """A time field's values (``spec``: offset, datatype, count; the first element), the rows
-    of the points kept (finite x, y, z) only, as a new array."""
+                 width: int, point_step: int, row_step: int, kept: NDArray[np.bool_]
+                 ) -> NDArray[Any]:
+    """A time field's values (``spec``: offset, datatype, count; the first element) at the
+    rows the points kept (``kept``: the converter's finite mask), as a new array."""
     order = '>' if msg.is_bigendian else '<'
-    offset, datatype, _ = spec
-    col = _grid(buf, order + DATATYPES[datatype], offset, height, width, row_step, point_step)
-    if not dropped:
-        return np.array(col.reshape(-1))
-    kinds = {str(f.name): (int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields}
-    if all(kinds[k][1:] == (FLOAT32, 1) for k in 'xyz'):
-        x, y, z = (_grid(buf, order + 'f4', kinds[k][0], height, width, row_step, point_step)
-                   for k in 'xyz')
-        return np.array(col[_finite_rows(x, y, z)])
-    arr = pointcloud2_to_array(msg).reshape(-1)
-    xyz = []
-    for k in 'xyz':                          # as _convert_fields reads them: float32
-        c = arr[k][:, 0] if arr[k].ndim > 1 else arr[k]
-        with np.errstate(over='ignore', invalid='ignore'):
-            xyz.append(c.astype(np.float32))
-    return np.array(col.reshape(-1)[_finite_rows(*xyz)])
+    col = _grid(buf, order + DATATYPES[spec[1]], spec[0], height, width, row_step, point_step)
+    return np.array(col.reshape(-1)[kept.reshape(-1)])
 
 
 def pointcloud2_to_xyzi(msg: Any, intensity_field: str = '',
@@ -254,18 +243,21 @@ def pointcloud2_to_xyzi(msg: Any, intensity_field: str = '',
     height, width, point_step, row_step = _check_layout(msg, buf)
     dtype_from_fields(msg.fields, point_step, bool(msg.is_bigendian))     # validates the table
     n = height * width
+    time_field = next((f for f in time_fields if f in fields), '')
     if n == 0:
-        return XYZI(np.zeros((0, 4), np.float32), intensity is not None, 0, 0)
+        empty = (np.zeros(0, DATATYPES[fields[time_field][1]]) if time_field else None)
+        return XYZI(np.zeros((0, 4), np.float32), intensity is not None, 0, 0, empty,
+                    time_field)
     if all(fields[k][1] == FLOAT32 and fields[k][2] == 1 for k in names):
-        pts, dropped = _xyzi_float32(buf, [fields[k][0] for k in names], height, width,
-                                     point_step, row_step, bool(msg.is_bigendian))
+        pts, dropped, finite = _xyzi_float32(buf, [fields[k][0] for k in names], height,
+                                             width, point_step, row_step,
+                                             bool(msg.is_bigendian))
     else:
-        pts, dropped = _convert_fields(msg, names)
+        pts, dropped, finite = _convert_fields(msg, names)
     if intensity is not None and not np.isfinite(pts[:, 3].sum(dtype=np.float64)):
         np.nan_to_num(pts[:, 3], copy=False, nan=0.0, posinf=0.0, neginf=0.0)
-    time_field = next((f for f in time_fields if f in fields), '')
     times = (_time_column(msg, buf, fields[time_field], height, width, point_step, row_step,
-                          dropped) if time_field else None)
+                          finite) if time_field else None)
     return XYZI(pts, intensity is not None, n, dropped, times, time_field)
 
 

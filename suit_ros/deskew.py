@@ -44,6 +44,9 @@ TIME_FIELDS = ('time', 't', 'timestamp', 'time_stamp', 'offset_time')
 MAX_SPAN_S = 0.5          # a sweep's times span at most this (a 2 Hz sensor), else not a sweep
 ABSOLUTE_S = 86_400.0     # values further from zero than a day are epoch times
 MIN_MOTION_SPAN_S = 0.02  # the odometry must cover at least this much of the sweep's span
+ABSOLUTE_NS = 1e15        # float values beyond this are epoch nanoseconds (Livox writes them)
+MAX_SPEED = 70.0          # m/s: odometry moving faster over a sweep jumped (a relocalisation)
+MAX_TURN = 3.0            # rad/s: the same for turning
 
 
 def relative_times(values: NDArray[Any], stamp_ns: int) -> tuple[NDArray[np.float32] | None,
@@ -65,11 +68,15 @@ def relative_times(values: NDArray[Any], stamp_ns: int) -> tuple[NDArray[np.floa
         first, last = float(v.min()), float(v.max())       # NaN comes through both
         if not (np.isfinite(first) and np.isfinite(last)):
             return None, 'times not finite'
-        absolute = max(abs(first), abs(last)) > ABSOLUTE_S
+        top = max(abs(first), abs(last))
+        absolute = top > ABSOLUTE_S
         if absolute and v.dtype.itemsize < 8:
             return None, (f'absolute times in a {v.dtype.itemsize * 8}-bit float field '
                           '(too coarse to place a return within the sweep)')
-        rel = v.astype(np.float64) - stamp_ns * 1e-9 if absolute else v
+        if top > ABSOLUTE_NS:                              # epoch nanoseconds in a float
+            rel = (v.astype(np.float64) - float(stamp_ns)) * 1e-9
+        else:
+            rel = v.astype(np.float64) - stamp_ns * 1e-9 if absolute else v
     lo, hi = float(rel.min()), float(rel.max())
     if hi - lo > MAX_SPAN_S or max(abs(lo), abs(hi)) > 2 * MAX_SPAN_S:
         return None, (f'times from {lo:+.3f} to {hi:+.3f} s of the stamp: not one sweep '
@@ -78,7 +85,8 @@ def relative_times(values: NDArray[Any], stamp_ns: int) -> tuple[NDArray[np.floa
 
 
 def rotation_vector(R: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Axis times angle of a rotation matrix."""
+    """Axis times angle of a rotation matrix (ill-conditioned near half a turn, which a
+    vehicle does not turn in a sweep)."""
     w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     sin = float(np.linalg.norm(w))
     angle = float(np.arctan2(sin, 0.5 * (np.trace(R) - 1.0)))
@@ -106,6 +114,16 @@ def body_twist(T_a: NDArray[np.float64], T_b: NDArray[np.float64], dt: float
     w = rotation_vector(D[:3, :3])
     out: NDArray[np.float64] = np.concatenate([w, np.linalg.solve(arc_matrix(w), D[:3, 3])]) / dt
     return out
+
+
+def implausible(twist: NDArray[np.float64]) -> str:
+    """Why a twist cannot be a vehicle's over a sweep ('' when it can): an odometry jump
+    (relocalisation) inside the window would otherwise warp the whole cloud."""
+    speed, turn = sweep_speed(twist), float(np.linalg.norm(twist[:3]))
+    if speed > MAX_SPEED or turn > MAX_TURN or not np.isfinite(twist).all():
+        return (f'odometry moved at {speed:.0f} m/s, turned at {turn:.1f} rad/s over the '
+                f'sweep (a jump: at most {MAX_SPEED:g} m/s, {MAX_TURN:g} rad/s)')
+    return ''
 
 
 def twist_from_poses(poses: PoseBuffer, start_ns: int, end_ns: int) -> NDArray[np.float64] | None:
@@ -146,21 +164,24 @@ def deskew(points: NDArray[np.float32], times: NDArray[np.float32],
     return out
 
 
-def deskew_sweep(points: NDArray[np.float32], times: NDArray[np.float32], stamp_ns: int,
+def deskew_sweep(points: NDArray[Any], times: NDArray[np.float32], stamp_ns: int,
                  poses: PoseBuffer, T_base_lidar: NDArray[np.float64]
-                 ) -> tuple[NDArray[np.float32], NDArray[np.float64] | None]:
+                 ) -> tuple[NDArray[Any], NDArray[np.float64] | None, str]:
     """A sweep's returns moved to the sensor's pose at ``stamp_ns`` by the motion the odometry
-    ``poses`` (base_link) show over the sweep, and that motion (:func:`twist_from_poses`);
-    the points as they are and None when the sweep was taken at one instant or the odometry
-    cannot tell."""
-    if not len(times):
-        return points, None
+    ``poses`` (base_link) show over the sweep (:func:`twist_from_poses`), that motion and ''; or
+    the points as they are (any dtype), None and why: a sweep at the stamp's instant, odometry
+    that cannot tell, or a motion no vehicle makes (:func:`implausible`)."""
+    if not len(times) or not times.any():
+        return points, None, 'sweep at one instant'
     lo, hi = float(times.min()), float(times.max())
-    twist = (twist_from_poses(poses, stamp_ns + int(round(lo * 1e9)),
-                              stamp_ns + int(round(hi * 1e9))) if hi > lo else None)
+    twist = twist_from_poses(poses, stamp_ns + int(round(min(lo, 0.0) * 1e9)),
+                             stamp_ns + int(round(max(hi, 0.0) * 1e9)))
     if twist is None:
-        return points, None
-    return deskew(points, times, twist, T_base_lidar), twist
+        return points, None, 'no odometry over the sweep'
+    why = implausible(twist)
+    if why:
+        return points, None, why
+    return deskew(points, times, twist, T_base_lidar), twist, ''
 
 
 def sweep_speed(twist: NDArray[np.float64]) -> float:

@@ -227,6 +227,8 @@ class DetectionPipeline:
         self.last_pose = pose
         if times is not None and len(points):
             points = self._deskew(points, times, stamp_ns, pose is not None, out)
+        elif times is not None:
+            out.deskew = 'off: no points'
         t2 = time.perf_counter()
         model_timings: dict[str, float] = {}
         if len(points):
@@ -326,15 +328,19 @@ class DetectionPipeline:
     def _deskew(self, points: NDArray[np.float32], times: NDArray[np.float32], stamp_ns: int,
                 have_pose: bool, out: PipelineOutput) -> NDArray[np.float32]:
         """The points moved to the sensor's pose at the stamp (:mod:`suit_ros.deskew`), or as
-        they are when the odometry cannot say how the vehicle moved over the sweep."""
-        span = float(times.max() - times.min())
-        if not have_pose or span <= 0:
-            out.deskew = ('off: sweep at one instant' if span <= 0 else
-                          'off: no odometry at the stamp')
+        they are (and why, in ``out.deskew``) when the odometry cannot say how the vehicle
+        moved over the sweep; a motion no vehicle makes is an input warning too."""
+        if not have_pose:
+            out.deskew = 'off: no odometry at the stamp'
             return points
-        moved, twist = deskew_sweep(points, times, stamp_ns, self.poses, self.T_base_lidar)
-        out.deskew = ('off: no odometry over the sweep' if twist is None else
-                      f'on: sweep {span:.3f} s at {sweep_speed(twist):.1f} m/s')
+        moved, twist, why = deskew_sweep(points, times, stamp_ns, self.poses, self.T_base_lidar)
+        if twist is None:
+            out.deskew = f'off: {why}'
+            if why.startswith('odometry moved'):
+                out.warnings['point_times'] = f'not deskewed: {why}'
+            return moved
+        span = float(times.max()) - min(float(times.min()), 0.0)
+        out.deskew = f'on: sweep {span:.3f} s at {sweep_speed(twist):.1f} m/s'
         return moved
 
     def _in_ego_box(self, points: NDArray[np.float32]) -> NDArray[np.bool_]:

@@ -51,6 +51,12 @@ def test_kernel_matches_numpy():
     still = pts.copy()
     deskew_points(still, times, np.zeros(3), np.zeros(3))
     np.testing.assert_array_equal(still, pts)
+    fast = pts.copy()                  # 4 rad/s over 0.1 s: past the series, cos and sin
+    w = np.array([0.3, 0.1, 4.0])
+    deskew_points(fast, times, w, v)
+    want = np.stack([rodrigues(w, t) @ p + arc_matrix(w * t) @ (t * v) for p, t in
+                     zip(pts[:, :3].astype(np.float64), times.astype(np.float64))])
+    np.testing.assert_allclose(fast[:, :3], want, atol=2e-5)
 
 
 @pytest.mark.parametrize('rpy', [(0.0, 0.0, 0.0), (0.02, -0.03, 1.2)])
@@ -114,14 +120,26 @@ def test_twist_from_poses_over_the_sweep_or_the_latest_motion():
 def test_deskew_sweep_leaves_a_sweep_of_one_instant_or_without_odometry():
     pts = np.ones((10, 4), np.float32)
     odom = buffer_of(range(0, S + 1, S // 50))
-    same, tw = deskew_sweep(pts, np.zeros(10, np.float32), S // 2, odom, np.eye(4))
-    assert same is pts and tw is None
-    same, tw = deskew_sweep(pts, np.linspace(0, 0.1, 10, dtype=np.float32), 5 * S, PoseBuffer(),
-                            np.eye(4))
-    assert same is pts and tw is None
-    moved, tw = deskew_sweep(pts, np.linspace(0, 0.1, 10, dtype=np.float32), S // 2, odom,
-                             np.eye(4))
+    same, tw, why = deskew_sweep(pts, np.zeros(10, np.float32), S // 2, odom, np.eye(4))
+    assert same is pts and tw is None and why == 'sweep at one instant'
+    same, tw, why = deskew_sweep(pts, np.linspace(0, 0.1, 10, dtype=np.float32), 5 * S,
+                                 PoseBuffer(), np.eye(4))
+    assert same is pts and tw is None and why == 'no odometry over the sweep'
+    moved, tw, why = deskew_sweep(pts, np.linspace(0, 0.1, 10, dtype=np.float32), S // 2,
+                                  odom, np.eye(4))
     np.testing.assert_allclose(moved[:, 0], 1.0 + 10.0 * np.linspace(0, 0.1, 10), atol=1e-4)
+    # a cloud whose returns were all taken 50 ms after its stamp: moved by 0.5 m all the same
+    late, tw, _ = deskew_sweep(pts, np.full(10, 0.05, np.float32), S // 2, odom, np.eye(4))
+    np.testing.assert_allclose(late[:, 0], 1.5, atol=1e-4)
+
+
+def test_an_odometry_jump_is_not_a_sweeps_motion():
+    odom = buffer_of(range(0, S + 1, S // 50))
+    odom.add(S + S // 50, pose_from_xyz_rpy((40.0, 0.0, 0.0), (0.0, 0.0, 0.0)))   # relocalised
+    pts = np.ones((10, 4), np.float32)
+    same, tw, why = deskew_sweep(pts, np.linspace(0, 0.1, 10, dtype=np.float32), S, odom,
+                                 np.eye(4))
+    assert same is pts and tw is None and 'a jump' in why
 
 
 STAMP = 1_700_000_000 * S + 123_456_789
@@ -134,6 +152,8 @@ STAMP = 1_700_000_000 * S + 123_456_789
     (STAMP * 1e-9 + np.array([0.0, 0.05, 0.0999]), [0.0, 0.05, 0.0999]),      # Hesai, epoch s
     (np.array([STAMP, STAMP + 50_000_000, STAMP + 99_900_000], np.int64),
      [0.0, 0.05, 0.0999]),                                                    # epoch ns
+    (np.array([STAMP, STAMP + 50_000_000, STAMP + 99_900_000], np.float64),
+     [0.0, 0.05, 0.0999]),                                         # Livox: epoch ns, float
 ])
 def test_time_fields_as_drivers_write_them(values, want):
     times, why = relative_times(values, STAMP)
@@ -217,9 +237,17 @@ def test_the_benchmarks_drives_keep_each_return_its_time():
     drive = synthetic_sequence('test', 5, 3, None, sensor='hdl32e')
     lost = with_outages(drive, [Outage(0.0, 120.0, 0, 3)])
     assert all(len(f.points) < len(g.points) for f, g in zip(lost, drive))
-    for derived in (lost, overhead_drives([drive])[0], occluded_drives([drive])[0]):
+    screened = occluded_drives([drive])[0]
+    for derived in (lost, overhead_drives([drive])[0], screened):
         assert all(f.times is not None and len(f.times) == len(f.points) for f in derived)
         assert all(f.times is None for f in deskewed(derived))
+    # a screen's returns are placed in the frame at the stamp: their time is 0
+    moved = [np.any(f.points != g.points, axis=1) for f, g in zip(screened, drive)]
+    assert sum(m.sum() for m in moved) > 0
+    assert all((f.times[m] == 0).all() for f, m in zip(screened, moved))
+    from suit_ros.data.augment import Augmentation, apply
+    dropped = apply(drive[1], Augmentation(False, 0.0, 1.0, point_dropout=0.3))
+    assert len(dropped.times) == len(dropped.points) < len(drive[1].points)
     assert model_frame(drive, 2, 3).times is None       # accumulated: no sweep's times
     with pytest.raises(ValueError, match='times for'):
         deskew(drive[0].points, drive[0].times[:-1], np.zeros(6), np.eye(4))

@@ -603,3 +603,15 @@ def test_input_contract_cases(model, classes):
     out = pipe.process(bad)
     assert set(out.warnings) == {'unusable_cloud'} and out.detections_msg.width == 0
     assert out.warning == out.warnings['unusable_cloud']
+
+
+def test_deskew_says_why_not_for_an_odometry_jump_and_an_empty_cloud(model, classes):
+    sweep = lambda n: np.linspace(0.0, 0.1, n, dtype=np.float32)      # noqa: E731
+    pipe = make_pipeline(model, classes, time_field='time', max_pose_jump_m=50.0)
+    feed_odometry(pipe, T0 - S, T0)
+    assert pipe.add_odometry(odom(T0 + S // 50, 40.0))             # relocalised: 40 m on
+    out = pipe.process(timed_cloud(classes, T0, sweep)[0])
+    assert out.deskew.startswith('off: odometry moved') and 'a jump' in out.warnings['point_times']
+    assert out.points_used == 3000
+    empty = pipe.process(timed_cloud(classes, T0 + S // 10, sweep, n=0)[0])
+    assert 'point_times' not in empty.warnings and empty.deskew == 'off: no points'

@@ -78,9 +78,11 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
     R = aug.matrix
     s = aug.scale
     pts = frame.points.copy()
+    times = frame.times
     if aug.point_dropout > 0:
         keep = _hash_unit(pts) >= aug.point_dropout
         pts = pts[keep]
+        times = None if times is None else times[keep]
     pts[:, :3] = (pts[:, :3].astype(np.float64) @ R.T * s).astype(np.float32)
     pts[:, 2] += np.float32(aug.lift)
     if aug.drop_intensity:
@@ -98,7 +100,7 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
         boxes[:, 6] = np.arctan2(np.sin(yaw + aug.angle), np.cos(yaw + aug.angle))
         vel = gt.velocities.astype(np.float64) @ R[:2, :2].T * s
         gt = Detections(boxes, vel, gt.scores, gt.labels)
-    return replace(frame, points=pts, pose=pose, gt=gt)
+    return replace(frame, points=pts, pose=pose, gt=gt, times=times)
 
 
 def _hash_unit(points: NDArray[np.float32]) -> NDArray[np.float64]:

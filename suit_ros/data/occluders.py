@@ -167,6 +167,9 @@ def occlude(frame: Frame, screens: list[Screen],
         pts[hit, 3] = sc.intensity
         moved |= hit
     pts[:, :3] = p.astype(pts.dtype)
+    times = frame.times
+    if times is not None and moved.any():       # a screen stands in the frame at the stamp
+        times = np.where(moved, np.float32(0.0), times).astype(np.float32)
     num = frame.num_points
     if frame.gt is not None and num is not None and len(num):
         # the current returns each box lost (where they were) off the source's count; a
@@ -174,7 +177,7 @@ def occlude(frame: Frame, screens: list[Screen],
         current = pts[:, 4] == 0 if pts.shape[1] > 4 else np.ones(len(pts), bool)
         lost = count_points_in_boxes(frame.points[current & moved, :3], frame.gt.boxes)
         num = np.maximum(num.astype(np.int64) - lost.astype(np.int64), 0).astype(num.dtype)
-    return replace(frame, points=pts, num_points=num)
+    return replace(frame, points=pts, num_points=num, times=times)
 
 
 def with_screens(clip: list[Frame], rng: np.random.Generator,

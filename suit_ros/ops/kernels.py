@@ -423,7 +423,7 @@ def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
 
 @_jit
 def in_range_times(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
-    """:func:`in_range` of ``(N, 4)`` points and the same rows of their ``(N,)`` float32 times
+    """:func:`in_range` of ``(N, C)`` points and the same rows of their ``(N,)`` float32 times
     (deskew's): ``(points, times)``."""
     n, c = points.shape
     out = np.empty((n, c), np.float32)
@@ -456,8 +456,8 @@ def deskew_points(points: Any, times: Any, w: Any, v: Any) -> None:  # pragma: n
     longest = 0.0
     for i in range(times.shape[0]):
         longest = max(longest, abs(float(times[i])))
-    # a sweep's turn (under 0.2 rad): cos and sin by their series, within 1e-8, and the
-    # loop without a branch
+    # a sweep's turn (under 0.2 rad): cos and sin by their series, within 1e-8 (the branch
+    # is the same for every return)
     series = speed * longest < 0.2
     for i in range(points.shape[0]):
         t = float(times[i])
