@@ -4,7 +4,8 @@
 # RUN_DIR holds model.safetensors (suit-ros train --out). Writes into RUN_DIR:
 #   candidate.safetensors  the model as it would ship (ship_suit in scripts/train_default.sh:
 #                          input leveled to the local ground, memory sampling alpha 0.2,
-#                          published thresholds chosen on the tune split) and thresholds.txt;
+#                          published thresholds chosen on the tune split, or with
+#                          KEEP_THRESHOLDS=1 the shipped suit_default's) and thresholds.txt;
 #   real_dev/              suit-ros report on ../shared/data/real-dev/av2 at node defaults, with
 #                          --baseline suit_default (paired AP differences over places);
 #   kitti/                 the same on ../shared/data/real-sample/kitti;
@@ -26,7 +27,18 @@ py="$root/.venv/bin/python"
 cand="$run/candidate.safetensors"
 cp "$run/model.safetensors" "$cand"
 "$py" scripts/ship_metadata.py "$cand" "candidate from $run"
-"$suit" choose-thresholds --checkpoint "$cand" --write > "$run/thresholds.txt"
+if [ -n "${KEEP_THRESHOLDS:-}" ]; then       # the shipped suit_default's, not chosen again
+  "$py" - "$cand" > "$run/thresholds.txt" <<'PY'
+import sys
+from suit_ros.checkpoint import default_checkpoint_path, read_metadata, update_metadata
+meta = read_metadata(default_checkpoint_path())
+update_metadata(sys.argv[1], publish_thresholds=meta['publish_thresholds'],
+                publish_thresholds_source='kept from the shipped suit_default')
+print('kept', meta['publish_thresholds'])
+PY
+else
+  "$suit" choose-thresholds --checkpoint "$cand" --write > "$run/thresholds.txt"
+fi
 tail -6 "$run/thresholds.txt"
 dev="$root/../shared/data"
 if [ -d "$dev/real-dev/av2" ]; then
