@@ -404,39 +404,38 @@ def paired_bev_iou(boxes_a: Any, boxes_b: Any) -> Any:  # pragma: no cover
     return out
 
 
-@_jit
-def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
-    """The rows of ``(N, C)`` float32 ``points`` whose horizontal range ``hypot(x, y)``
-    (float32) lies in ``[r_min, r_max]`` (float32), copied in order: one pass for
-    ``points[(r >= r_min) & (r <= r_max)]`` (the node's range filter)."""
+@numba.njit(inline='always', nogil=True)
+def _in_range(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
+    """The rows of ``points`` (and of ``times`` when it has one per point) in range."""
     n, c = points.shape
+    timed = times.shape[0] == n
     out = np.empty((n, c), np.float32)
+    out_t = np.empty(n if timed else 0, np.float32)
     m = 0
     for i in range(n):
         r = np.hypot(points[i, 0], points[i, 1])
         if r >= r_min and r <= r_max:
             for j in range(c):
                 out[m, j] = points[i, j]
+            if timed:
+                out_t[m] = times[i]
             m += 1
-    return out[:m]
+    return out[:m], out_t[:m]
+
+
+@_jit
+def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
+    """The rows of ``(N, 4)`` float32 ``points`` whose horizontal range ``hypot(x, y)``
+    (float32) lies in ``[r_min, r_max]`` (float32), copied in order: one pass for
+    ``points[(r >= r_min) & (r <= r_max)]`` (the node's range filter)."""
+    return _in_range(points, np.empty(0, np.float32), r_min, r_max)[0]
 
 
 @_jit
 def in_range_times(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
     """:func:`in_range` of ``(N, C)`` points and the same rows of their ``(N,)`` float32 times
     (deskew's): ``(points, times)``."""
-    n, c = points.shape
-    out = np.empty((n, c), np.float32)
-    out_t = np.empty(n, np.float32)
-    m = 0
-    for i in range(n):
-        r = np.hypot(points[i, 0], points[i, 1])
-        if r >= r_min and r <= r_max:
-            for j in range(c):
-                out[m, j] = points[i, j]
-            out_t[m] = times[i]
-            m += 1
-    return out[:m], out_t[:m]
+    return _in_range(points, times, r_min, r_max)
 
 
 @_jit
