@@ -21,8 +21,10 @@ looked for) would be moved twice: set ``deskew: false`` for it.
 
 Times come from the cloud (:func:`relative_times`): an integer field counts nanoseconds, a
 float field seconds; values more than a day from zero are absolute (epoch) and are taken
-relative to the cloud's stamp. A sweep whose times span more than :data:`MAX_SPAN_S` or are
-not finite is not deskewed, and the diagnostics say why.
+relative to the cloud's stamp, as are smaller ones that only against the stamp make one sweep
+(a clock that started near zero: simulation time). A sweep whose times span more than
+:data:`MAX_SPAN_S` or are not finite is not deskewed, and the diagnostics say why; so is one
+whose odometry jumps (:func:`implausible`, :func:`uneven`).
 
 What it is worth on the synthetic drives (3 of 4 sensors sweep with distortion, the ego at up
 to 13 m/s): docs/experiments/deskew.
@@ -47,6 +49,11 @@ MIN_MOTION_SPAN_S = 0.02  # the odometry must cover at least this much of the sw
 ABSOLUTE_NS = 1e15        # float values beyond this are epoch nanoseconds (Livox writes them)
 MAX_SPEED = 70.0          # m/s: odometry moving faster over a sweep jumped (a relocalisation)
 MAX_TURN = 3.0            # rad/s: the same for turning
+# the two halves of the sweep's window may differ by at most this much (a car braking at 1 g
+# changes speed 0.5 m/s in 50 ms): a smaller odometry step (a 0.3 m relocalisation in a 0.1 s
+# sweep reads as 6 m/s, well under MAX_SPEED) would otherwise warp the cloud by its size
+MAX_SPEED_CHANGE = 3.0    # m/s
+MAX_TURN_CHANGE = 1.0     # rad/s
 
 
 def relative_times(values: NDArray[Any], stamp_ns: int) -> tuple[NDArray[np.float32] | None,
@@ -77,11 +84,28 @@ def relative_times(values: NDArray[Any], stamp_ns: int) -> tuple[NDArray[np.floa
             rel = (v.astype(np.float64) - float(stamp_ns)) * 1e-9
         else:
             rel = v.astype(np.float64) - stamp_ns * 1e-9 if absolute else v
+    why = _not_a_sweep(rel)
+    if why and not absolute:
+        # absolute times of a clock that started near zero (simulation time, a bag replayed
+        # from 0) read as relative ones: taken against the stamp they may be one sweep
+        if np.issubdtype(v.dtype, np.integer):
+            rel_abs = (v.astype(np.int64) - stamp_ns).astype(np.float64) * 1e-9
+        else:
+            rel_abs = v.astype(np.float64) - stamp_ns * 1e-9
+        if not _not_a_sweep(rel_abs):
+            rel, why = rel_abs, ''
+    if why:
+        return None, why
+    return np.asarray(rel, np.float32), ''
+
+
+def _not_a_sweep(rel: NDArray[Any]) -> str:
+    """Why times relative to the stamp (s) are not one sweep's ('' when they are)."""
     lo, hi = float(rel.min()), float(rel.max())
     if hi - lo > MAX_SPAN_S or max(abs(lo), abs(hi)) > 2 * MAX_SPAN_S:
-        return None, (f'times from {lo:+.3f} to {hi:+.3f} s of the stamp: not one sweep '
-                      f'(at most {MAX_SPAN_S} s)')
-    return np.asarray(rel, np.float32), ''
+        return (f'times from {lo:+.3f} to {hi:+.3f} s of the stamp: not one sweep '
+                f'(at most {MAX_SPAN_S} s)')
+    return ''
 
 
 def rotation_vector(R: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -126,25 +150,53 @@ def implausible(twist: NDArray[np.float64]) -> str:
     return ''
 
 
-def twist_from_poses(poses: PoseBuffer, start_ns: int, end_ns: int) -> NDArray[np.float64] | None:
-    """The vehicle's twist over a sweep from ``start_ns`` to ``end_ns`` (base_link, see
-    :func:`body_twist`), or None when the buffer holds too little motion to tell.
-
-    The buffered poses over the sweep; where the buffer ends before the sweep does (odometry
-    arrives later than the cloud), the same span before its newest pose.
-    """
+def motion_window(poses: PoseBuffer, start_ns: int, end_ns: int) -> tuple[int, int] | None:
+    """The span ``(a, b)`` (ns) of the buffered odometry that tells the vehicle's motion over a
+    sweep from ``start_ns`` to ``end_ns``: the sweep's own; where the buffer ends before the
+    sweep does (odometry arrives later than the cloud), the same span before its newest pose;
+    None when the buffer holds less than :data:`MIN_MOTION_SPAN_S` of it."""
     span = poses.span()
     if span is None or len(poses) < 2:
         return None
     first, last = span
     b = min(end_ns, last)
     a = max(first, b - max(end_ns - start_ns, int(MIN_MOTION_SPAN_S * 1e9)))
-    if (b - a) * 1e-9 < MIN_MOTION_SPAN_S:
-        return None
+    return (a, b) if (b - a) * 1e-9 >= MIN_MOTION_SPAN_S else None
+
+
+def _twist(poses: PoseBuffer, a: int, b: int) -> NDArray[np.float64] | None:
     try:
         return body_twist(poses.lookup(a), poses.lookup(b), (b - a) * 1e-9)
     except PoseLookupError:
         return None
+
+
+def twist_from_poses(poses: PoseBuffer, start_ns: int, end_ns: int) -> NDArray[np.float64] | None:
+    """The vehicle's twist over a sweep from ``start_ns`` to ``end_ns`` (base_link, see
+    :func:`body_twist`) over its :func:`motion_window`, or None when the buffer holds too
+    little motion to tell."""
+    window = motion_window(poses, start_ns, end_ns)
+    return None if window is None else _twist(poses, *window)
+
+
+def uneven(poses: PoseBuffer, start_ns: int, end_ns: int) -> str:
+    """Why the odometry over a sweep's :func:`motion_window` is not one steady motion ('' when
+    it is): its two halves differ by more than :data:`MAX_SPEED_CHANGE` or
+    :data:`MAX_TURN_CHANGE`, a step (relocalisation) too small for :func:`implausible`."""
+    window = motion_window(poses, start_ns, end_ns)
+    if window is None:
+        return ''
+    a, b = window
+    mid = (a + b) // 2
+    first, second = _twist(poses, a, mid), _twist(poses, mid, b)
+    if first is None or second is None:
+        return ''
+    speed = float(np.linalg.norm(first[3:] - second[3:]))
+    turn = float(np.linalg.norm(first[:3] - second[:3]))
+    if speed > MAX_SPEED_CHANGE or turn > MAX_TURN_CHANGE:
+        return (f'odometry changed by {speed:.1f} m/s, {turn:.2f} rad/s within the sweep (a '
+                f'jump: at most {MAX_SPEED_CHANGE:g} m/s, {MAX_TURN_CHANGE:g} rad/s)')
+    return ''
 
 
 def deskew(points: NDArray[np.float32], times: NDArray[np.float32],
@@ -170,15 +222,16 @@ def deskew_sweep(points: NDArray[Any], times: NDArray[np.float32], stamp_ns: int
     """A sweep's returns moved to the sensor's pose at ``stamp_ns`` by the motion the odometry
     ``poses`` (base_link) show over the sweep (:func:`twist_from_poses`), that motion and ''; or
     the points as they are (any dtype), None and why: a sweep at the stamp's instant, odometry
-    that cannot tell, or a motion no vehicle makes (:func:`implausible`)."""
+    that cannot tell, or a motion no vehicle makes (:func:`implausible`, :func:`uneven`)."""
     if not len(times) or not times.any():
         return points, None, 'sweep at one instant'
     lo, hi = float(times.min()), float(times.max())
-    twist = twist_from_poses(poses, stamp_ns + int(round(min(lo, 0.0) * 1e9)),
-                             stamp_ns + int(round(max(hi, 0.0) * 1e9)))
+    start = stamp_ns + int(round(min(lo, 0.0) * 1e9))
+    end = stamp_ns + int(round(max(hi, 0.0) * 1e9))
+    twist = twist_from_poses(poses, start, end)
     if twist is None:
         return points, None, 'no odometry over the sweep'
-    why = implausible(twist)
+    why = implausible(twist) or uneven(poses, start, end)
     if why:
         return points, None, why
     return deskew(points, times, twist, T_base_lidar), twist, ''

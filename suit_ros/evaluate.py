@@ -453,8 +453,9 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
 
 def deskewed(seq: Sequence[Frame]) -> list[Frame]:
     """The frames of one drive with their sweeps deskewed (:func:`run_model`'s ``deskew``):
-    each by the motion from its pose to the next frame's (the last frame's: from the one
-    before), as the node's odometry covers a sweep by the time it runs; ``times`` None after."""
+    each by the motion the frames' poses show over its sweep's own times (interpolated
+    between frames; a sweep stamped at its end: from the frame before), as the node's odometry
+    covers a sweep by the time it runs; ``times`` None after."""
     from suit_ros.deskew import deskew_sweep
     from suit_ros.msg_adapters.odometry import PoseBuffer
     poses = PoseBuffer(max_age_ns=2 ** 62)

@@ -336,7 +336,7 @@ class DetectionPipeline:
         moved, twist, why = deskew_sweep(points, times, stamp_ns, self.poses, self.T_base_lidar)
         if twist is None:
             out.deskew = f'off: {why}'
-            if why.startswith('odometry moved'):
+            if why.startswith('odometry '):     # a jump: implausible or uneven
                 out.warnings['point_times'] = f'not deskewed: {why}'
             return moved
         span = float(times.max()) - min(float(times.min()), 0.0)

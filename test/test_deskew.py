@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from suit_ros.deskew import (
+    MAX_SPEED,
     arc_matrix,
     body_twist,
     deskew,
@@ -142,6 +143,26 @@ def test_an_odometry_jump_is_not_a_sweeps_motion():
     assert same is pts and tw is None and 'a jump' in why
 
 
+def test_a_small_odometry_step_inside_the_sweep_is_a_jump_too():
+    # standing still, relocalised by 0.3 m early in the sweep: 3 m/s over the window,
+    # well under MAX_SPEED, but its halves read 0 and 6 m/s
+    odom = buffer_of(range(0, S // 2 + 1, S // 50), speed=0.0)
+    odom.add(S // 2 + S // 50, pose_from_xyz_rpy((0.3, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    odom.add(S // 2 + S // 10, pose_from_xyz_rpy((0.3, 0.0, 0.0), (0.0, 0.0, 0.0)))
+    pts = np.ones((10, 4), np.float32)
+    times = np.linspace(0, 0.1, 10, dtype=np.float32)
+    assert 0 < twist_from_poses(odom, S // 2, S // 2 + S // 10)[3] < MAX_SPEED
+    same, tw, why = deskew_sweep(pts, times, S // 2, odom, np.eye(4))
+    assert same is pts and tw is None and 'within the sweep' in why and 'a jump' in why
+    # braking hard (8 m/s^2 from 15 m/s) while turning: one motion, deskewed
+    brake = PoseBuffer()
+    for s in range(0, S + 1, S // 100):
+        t = s * 1e-9
+        brake.add(s, pose_from_xyz_rpy((15 * t - 4 * t * t, 0.0, 0.0), (0.0, 0.0, 0.3 * t)))
+    moved, tw, why = deskew_sweep(pts, times, S // 2, brake, np.eye(4))
+    assert why == '' and tw is not None and moved is not pts
+
+
 STAMP = 1_700_000_000 * S + 123_456_789
 
 
@@ -159,6 +180,27 @@ def test_time_fields_as_drivers_write_them(values, want):
     times, why = relative_times(values, STAMP)
     assert why == '' and times.dtype == np.float32
     np.testing.assert_allclose(times, want, atol=2e-6)
+
+
+def test_absolute_times_of_a_clock_that_started_near_zero():
+    # simulation time (Gazebo, CARLA) or a bag replayed from 0: under a day, but one sweep only
+    # against the stamp
+    stamp = 1234 * S + 500_000_000
+    for values in (stamp + np.array([0, 50_000_000, 99_900_000], np.int64),
+                   stamp * 1e-9 + np.array([0.0, 0.05, 0.0999])):
+        times, why = relative_times(values, stamp)
+        assert why == ''
+        np.testing.assert_allclose(times, [0.0, 0.05, 0.0999], atol=2e-6)
+    times, why = relative_times(np.array([0.0, 0.05], np.float32), stamp)   # relative: as is
+    np.testing.assert_allclose(times, [0.0, 0.05])
+    times, why = relative_times(np.array([1200.0, 1200.05]), stamp)         # neither reading
+    assert times is None and 'not one sweep' in why
+
+
+def test_range_filter_needs_one_time_per_point():
+    from suit_ros.ops.kernels import in_range_times
+    with pytest.raises(ValueError, match='one time per point'):
+        in_range_times(np.ones((5, 4), np.float32), np.zeros(4, np.float32), 0.0, 10.0)
 
 
 @pytest.mark.parametrize('values, says', [

@@ -615,3 +615,12 @@ def test_deskew_says_why_not_for_an_odometry_jump_and_an_empty_cloud(model, clas
     assert out.points_used == 3000
     empty = pipe.process(timed_cloud(classes, T0 + S // 10, sweep, n=0)[0])
     assert 'point_times' not in empty.warnings and empty.deskew == 'off: no points'
+    # standing still, then a 0.4 m relocalisation inside the sweep: slow over the whole
+    # window (4 m/s), but not one motion
+    step = make_pipeline(model, classes, time_field='time')
+    feed_odometry(step, T0 - S, T0, speed=0.0)
+    for t in range(T0 + S // 50, T0 + S // 5, S // 50):
+        assert step.add_odometry(odom(t, 0.4))
+    out = step.process(timed_cloud(classes, T0, sweep)[0])
+    assert out.deskew.startswith('off: odometry changed')
+    assert 'a jump' in out.warnings['point_times'] and out.points_used == 3000

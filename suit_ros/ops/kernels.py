@@ -435,6 +435,8 @@ def in_range(points: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
 def in_range_times(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
     """:func:`in_range` of ``(N, C)`` points and the same rows of their ``(N,)`` float32 times
     (deskew's): ``(points, times)``."""
+    if times.shape[0] != points.shape[0]:
+        raise ValueError('in_range_times needs one time per point')
     return _in_range(points, times, r_min, r_max)
 
 
