@@ -179,13 +179,10 @@ def twist_from_poses(poses: PoseBuffer, start_ns: int, end_ns: int) -> NDArray[n
     return None if window is None else _twist(poses, *window)
 
 
-def uneven(poses: PoseBuffer, start_ns: int, end_ns: int) -> str:
+def uneven(poses: PoseBuffer, window: tuple[int, int]) -> str:
     """Why the odometry over a sweep's :func:`motion_window` is not one steady motion ('' when
     it is): its two halves differ by more than :data:`MAX_SPEED_CHANGE` or
     :data:`MAX_TURN_CHANGE`, a step (relocalisation) too small for :func:`implausible`."""
-    window = motion_window(poses, start_ns, end_ns)
-    if window is None:
-        return ''
     a, b = window
     mid = (a + b) // 2
     first, second = _twist(poses, a, mid), _twist(poses, mid, b)
@@ -228,10 +225,11 @@ def deskew_sweep(points: NDArray[Any], times: NDArray[np.float32], stamp_ns: int
     lo, hi = float(times.min()), float(times.max())
     start = stamp_ns + int(round(min(lo, 0.0) * 1e9))
     end = stamp_ns + int(round(max(hi, 0.0) * 1e9))
-    twist = twist_from_poses(poses, start, end)
-    if twist is None:
+    window = motion_window(poses, start, end)
+    twist = None if window is None else _twist(poses, *window)
+    if window is None or twist is None:
         return points, None, 'no odometry over the sweep'
-    why = implausible(twist) or uneven(poses, start, end)
+    why = implausible(twist) or uneven(poses, window)
     if why:
         return points, None, why
     return deskew(points, times, twist, T_base_lidar), twist, ''

@@ -414,8 +414,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param box_fit: car boxes fitted to their visible faces or not (:mod:`suit_ros.box_fit`).
     :param deskew: move the returns of a sweep taken over time (frames with ``times``) to the
         sensor's pose at its stamp, by the motion over the sweep (:mod:`suit_ros.deskew`, as the
-        node does with a time field and odometry; here the odometry is the frames' poses: a
-        sweep's motion is from its pose to the next frame's, the last frame's the one before).
+        node does with a time field and odometry; here the odometry is the frames' poses:
+        :func:`deskewed`).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
