@@ -83,6 +83,7 @@ class HeadConfig:
     head_channels: int = 32
     min_overlap: float = 0.1
     min_radius: int = 2
+    # CenterPoint's nuScenes weights; the shipped recipe (params/model_cpu.yaml) sets velocity 1.0
     code_weights: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 0.2, 0.2)
     loc_weight: float = 0.25
     max_objects: int = 500
