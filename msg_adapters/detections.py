@@ -5,7 +5,8 @@ vy score`` and ``label`` (UINT8, index into the class names); GT adds ``num_poin
 ``instance_id`` (UINT32); the node's detections add ``num_points`` (UINT32: the current
 cloud's returns inside the box; 0 for a box the memory carries through missing returns) and,
 from the tracker, ``track_id`` (UINT32, the same object keeps its id across frames; 0:
-not tracked).
+not tracked) and ``vel_std`` (FLOAT32, m/s: the standard deviation of ``vx`` and of ``vy``,
+the tracker's for a tracked box, the measurement's for one no track took).
 """
 from __future__ import annotations
 
@@ -22,6 +23,7 @@ from .pointcloud2 import array_to_pointcloud2, pointcloud2_to_array
 FLOAT_FIELDS = ('x', 'y', 'z', 'length', 'width', 'height', 'yaw', 'vx', 'vy', 'score')
 GT_FIELDS = ('num_points', 'instance_id')
 TRACK_FIELD = 'track_id'
+VEL_STD_FIELD = 'vel_std'
 # class colours (RGBA) by label index; cycles for more classes
 PALETTE = ((0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16),
            (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5))
@@ -30,10 +32,10 @@ ARROW, CUBE, LINE_LIST, TEXT_VIEW_FACING = 0, 1, 5, 9
 ADD, DELETEALL = 0, 3
 
 
-def detection_dtype(with_gt: bool, with_track: bool = False, with_points: bool = False
-                    ) -> np.dtype[Any]:
+def detection_dtype(with_gt: bool, with_track: bool = False, with_points: bool = False,
+                    with_vel_std: bool = False) -> np.dtype[Any]:
     """Structured dtype of the detections cloud (4-byte aligned): GT fields (or
-    ``num_points`` alone), then ``track_id``, after the common ones."""
+    ``num_points`` alone), then ``track_id``, then ``vel_std``, after the common ones."""
     names = list(FLOAT_FIELDS) + ['label']
     formats: list[str] = ['<f4'] * len(FLOAT_FIELDS) + ['u1']
     offsets = [4 * i for i in range(len(FLOAT_FIELDS))] + [40]
@@ -51,6 +53,11 @@ def detection_dtype(with_gt: bool, with_track: bool = False, with_points: bool =
     if with_track:
         names.append(TRACK_FIELD)
         formats.append('<u4')
+        offsets.append(size)
+        size += 4
+    if with_vel_std:
+        names.append(VEL_STD_FIELD)
+        formats.append('<f4')
         offsets.append(size)
         size += 4
     return np.dtype({'names': names, 'formats': formats, 'offsets': offsets, 'itemsize': size})
@@ -74,12 +81,20 @@ def _box_inputs(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[A
 def detections_to_array(boxes: NDArray[Any], velocities: NDArray[Any], scores: NDArray[Any],
                         labels: NDArray[Any], extra_fields: dict[str, NDArray[Any]] | None = None,
                         track_ids: NDArray[Any] | None = None,
-                        num_points: NDArray[Any] | None = None) -> NDArray[Any]:
+                        num_points: NDArray[Any] | None = None,
+                        vel_std: NDArray[Any] | None = None) -> NDArray[Any]:
     """The structured array behind the detections cloud (see :func:`detection_dtype`)."""
     b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
     n = len(b)
     arr = np.zeros(n, detection_dtype(bool(extra_fields), track_ids is not None,
-                                      num_points is not None))
+                                      num_points is not None, vel_std is not None))
+    if vel_std is not None:
+        std = np.asarray(vel_std, np.float64).reshape(-1)
+        if len(std) != n:
+            raise MessageError(f'{len(std)} velocity standard deviations for {n} boxes')
+        if n and not (np.isfinite(std).all() and std.min() >= 0):
+            raise PointCloudError('velocity standard deviations must be finite and >= 0')
+        arr[VEL_STD_FIELD] = std
     for name, what, values in ((TRACK_FIELD, 'track ids', track_ids),
                                (GT_FIELDS[0], 'point counts', num_points)):
         if values is None or (extra_fields and name != TRACK_FIELD):
@@ -113,17 +128,20 @@ def detections_to_pointcloud2(boxes: NDArray[Any], velocities: NDArray[Any],
                               classes: MessageClasses,
                               extra_fields: dict[str, NDArray[Any]] | None = None,
                               track_ids: NDArray[Any] | None = None,
-                              num_points: NDArray[Any] | None = None) -> Any:
+                              num_points: NDArray[Any] | None = None,
+                              vel_std: NDArray[Any] | None = None) -> Any:
     """Build the detections (or GT, with ``extra_fields``) PointCloud2; ``track_ids`` adds the
-    ``track_id`` field, ``num_points`` the ``num_points`` field."""
+    ``track_id`` field, ``num_points`` the ``num_points`` field, ``vel_std`` the ``vel_std``
+    field."""
     arr = detections_to_array(boxes, velocities, scores, labels, extra_fields, track_ids,
-                              num_points)
+                              num_points, vel_std)
     return array_to_pointcloud2(arr, header, classes, is_dense=True)
 
 
 def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
     """Read a detections/GT cloud: ``boxes (N, 7)``, ``velocities (N, 2)``, ``scores``,
-    ``labels`` (int64), and ``num_points``/``instance_id``/``track_id`` when present."""
+    ``labels`` (int64), ``num_points``/``instance_id``/``track_id`` (uint32) and ``vel_std``
+    (float32) when present."""
     arr = pointcloud2_to_array(msg).reshape(-1)
     names = set(arr.dtype.names or ())
     missing = [n for n in FLOAT_FIELDS + ('label',) if n not in names]
@@ -137,6 +155,8 @@ def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
     for n in GT_FIELDS + (TRACK_FIELD,):
         if n in names:
             out[n] = arr[n].astype(np.uint32)
+    if VEL_STD_FIELD in names:
+        out[VEL_STD_FIELD] = arr[VEL_STD_FIELD].astype(np.float32)
     return out
 
 

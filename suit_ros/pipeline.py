@@ -83,6 +83,7 @@ class PipelineOutput:
     num_points: NDArray[np.uint32] = field(                # current returns in each box
         default_factory=lambda: np.zeros(0, np.uint32))
     tracks: int = 0                                      # the tracker's live tracks
+    velocity_std: NDArray[np.float32] | None = None     # None: the tracker is off
     used_memory: bool = False
     memory_samples: int = 0
     memory_bytes: int = 0
@@ -243,13 +244,16 @@ class DetectionPipeline:
             out.memory_bytes = self.detector.memory_bytes
         if self.detector.tracks is not None:
             out.track_ids = result.track_ids if len(points) else np.zeros(0, np.int64)
+            out.velocity_std = (result.velocity_std if len(points)
+                                else np.zeros(0, np.float32))
             out.tracks = len(self.detector.tracks)
         t3 = time.perf_counter()
         if self.classes is not None:
             d = out.detections
             out.detections_msg = detections_to_pointcloud2(
                 d.boxes, d.velocities, d.scores, d.labels, header, self.classes,
-                track_ids=out.track_ids, num_points=out.num_points)
+                track_ids=out.track_ids, num_points=out.num_points,
+                vel_std=out.velocity_std)
             if markers:
                 out.markers_msg = detections_to_markerarray(
                     d.boxes, d.velocities, d.scores, d.labels, header, self.class_names,

@@ -79,6 +79,12 @@ class TrackerConfig:
         an object that drove off leaves road returns, or a wall seen past it, where the track
         expects it and is not held (0: off; 5, 0.5 s at 10 Hz: docs/experiments/coast).
     :param coast_margin: see ``coast_frames`` (m the box is grown by).
+    :param speed_std_fraction: what :attr:`Tracker.velocity_std` adds to the filter's
+        standard deviation for a box moving at speed v: ``sqrt(P_vv + (fraction * v)^2)``. The
+        head under-reads speed along the direction of travel (by 15-30% on unseen drives, the
+        filter's error with it: docs/experiments/velocity_head), an error that is not the white
+        noise the filter models; 0.15 makes the published standard deviation's rms equal the
+        velocity error's over the cars of the tune split (docs/experiments/velocity_std).
     """
 
     pos_sigma: float = 0.3
@@ -95,6 +101,7 @@ class TrackerConfig:
     max_gap_s: float = 0.5
     coast_frames: int = 5
     coast_margin: float = 0.5
+    speed_std_fraction: float = 0.15
 
     def __post_init__(self) -> None:
         for name in ('pos_sigma', 'vel_sigma', 'accel_sigma', 'gate', 'max_gap_s'):
@@ -113,9 +120,10 @@ class TrackerConfig:
             raise ValueError(f'TrackerConfig.max_misses must be >= 0, got {self.max_misses}')
         if self.coast_frames < 0:
             raise ValueError(f'TrackerConfig.coast_frames must be >= 0, got {self.coast_frames}')
-        if not (np.isfinite(self.coast_margin) and self.coast_margin >= 0):
-            raise ValueError(f'TrackerConfig.coast_margin must be finite and >= 0, got '
-                             f'{self.coast_margin}')
+        for name in ('coast_margin', 'speed_std_fraction'):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0):
+                raise ValueError(f'TrackerConfig.{name} must be finite and >= 0, got {value}')
 
     def sweep_targets(self, det: Detections, class_names: Sequence[str]) -> NDArray[np.bool_]:
         """The detections whose velocity is read from the sweeps: ``sweep_classes`` scoring at
@@ -156,6 +164,10 @@ class Tracker:
         self.shape = np.zeros((0, 5))           # z, length, width, height, yaw (odometry)
         self.stamp_ns = None
         self.coasted = 0                        # the last update's coasted detections
+        # the last update's detections: each velocity's standard deviation per axis (m/s),
+        # the filter's for a tracked one, the measurement's for one no track took, widened by
+        # ``speed_std_fraction`` of its speed
+        self.velocity_std = np.zeros(0, np.float32)
 
     def __len__(self) -> int:
         return len(self.x)
@@ -274,6 +286,8 @@ class Tracker:
         self.score = np.concatenate([self.score, det.scores[new]])
         out_vel = measured_vel                                  # untracked: as measured
         out_vel[tracked] = self.x[rows[tracked], 2:] @ R
+        vel_std = np.sqrt(var_v)                                # untracked: the measurement's
+        vel_std[tracked] = np.sqrt(self.P[rows[tracked], 1, 1])
         boxes = det.boxes
         if cfg.heading_min_speed is not None and tracked.any():
             boxes = self._settle_headings(det, rows, out_vel)
@@ -283,11 +297,15 @@ class Tracker:
         out = Detections(boxes, out_vel, scores, det.labels)
         self.coasted = 0
         if cfg.coast_frames and current is not None:
-            coast, coast_ids = self._coast(T, current, sensor)
+            coast, coast_ids, coast_std = self._coast(T, current, sensor)
             if len(coast):
                 out = out.concat(coast)
                 ids = np.concatenate([ids, coast_ids])
+                vel_std = np.concatenate([vel_std, coast_std])
                 self.coasted = len(coast)
+        speed = np.hypot(out.velocities[:, 0], out.velocities[:, 1])
+        self.velocity_std = np.sqrt(vel_std ** 2
+                                    + (cfg.speed_std_fraction * speed) ** 2).astype(np.float32)
         keep = self.misses <= cfg.max_misses
         self.x, self.P = self.x[keep], self.P[keep]
         self.labels, self.ids, self.misses = self.labels[keep], self.ids[keep], self.misses[keep]
@@ -295,16 +313,17 @@ class Tracker:
         return out, ids
 
     def _coast(self, T: NDArray[np.float64], current: NDArray[np.floating[Any]],
-               sensor: NDArray[np.floating[Any]] | None) -> tuple[Detections, NDArray[np.int64]]:
+               sensor: NDArray[np.floating[Any]] | None
+               ) -> tuple[Detections, NDArray[np.int64], NDArray[np.float64]]:
         """The boxes of the confident tracks missed this frame (for at most ``coast_frames``,
         while they live) where the current sweep shows nothing of them, in the frame of ``T``
-        (see ``coast_frames`` and :func:`unseen`)."""
+        (see ``coast_frames`` and :func:`unseen`), their ids and velocity standard deviations."""
         cfg = self.config
         t = np.nonzero((self.misses >= 1)
                        & (self.misses <= min(cfg.coast_frames, cfg.max_misses))
                        & (self.score >= cfg.birth_score))[0]
         if len(t) == 0:
-            return Detections.empty(), np.zeros(0, np.int64)
+            return Detections.empty(), np.zeros(0, np.int64), np.zeros(0)
         R = T[:2, :2]
         boxes = np.zeros((len(t), 7))
         boxes[:, :2] = (self.x[t, :2] - T[:2, 3]) @ R               # odometry -> frame
@@ -313,7 +332,7 @@ class Tracker:
         blind = unseen(boxes, current, cfg.coast_margin, sensor)
         t, boxes = t[blind], boxes[blind]
         return (Detections(boxes, self.x[t, 2:] @ R, self.score[t], self.labels[t]),
-                self.ids[t])
+                self.ids[t], np.sqrt(self.P[t, 1, 1]))
 
     def _correct(self, t: NDArray[np.int64], centres: NDArray[np.float64],
                  vel: NDArray[np.float64], Rm: NDArray[np.float64]) -> None:

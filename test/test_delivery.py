@@ -54,7 +54,14 @@ def test_default_node_gets_the_clouds_of_a_played_bag(big_bag, checkpoint, relia
         probe.spin_until(lambda: player.poll() is not None, 120.0)
         player_out = stop(player)
         n = len(diags)
-        probe.spin_until(lambda: len(diags) > n + 2, 10.0)
+
+        def settled() -> bool:      # the node has published every cloud it took
+            if len(diags) < n + 2:
+                return False
+            a, b = diags[-2], diags[-1]
+            return (a['frames_in'] == b['frames_in'] and len(dets) == int(b['frames_out'])
+                    and int(b['frames_out']) + int(b['dropped_frames']) == int(b['frames_in']))
+        probe.spin_until(settled, 60.0)
     finally:
         probe.close()
         node_out = stop(node)

@@ -111,6 +111,35 @@ def test_num_points_field_between_label_and_track_id(C):
                                   num_points=-counts - 1)
 
 
+@pytest.mark.parametrize('C', BOTH, **KIND)
+def test_vel_std_field_comes_last_and_is_checked(C):
+    """The tracker's velocity standard deviation: FLOAT32 after track_id, read back as it
+    was written; absent unless given; a wrong length, a NaN or a negative value refused."""
+    boxes, vel, scores, labels = random_boxes(4)
+    ids, counts = np.array([3, 0, 7, 1]), np.array([120, 0, 5, 9])
+    std = np.array([4.5, 0.31, 1.25, 0.0], np.float32)
+    msg = detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                    track_ids=ids, num_points=counts, vel_std=std)
+    layout = [(f.name, f.offset, f.datatype) for f in msg.fields]
+    assert layout[-3:] == [('num_points', 44, UINT32), ('track_id', 48, UINT32),
+                           ('vel_std', 52, FLOAT32)]
+    assert msg.point_step == 56
+    back = pointcloud2_to_detections(msg)
+    np.testing.assert_array_equal(back['vel_std'], std)
+    np.testing.assert_array_equal(back['track_id'], ids)
+    np.testing.assert_allclose(back['velocities'], vel, rtol=1e-6)
+    plain = detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                      track_ids=ids)
+    assert 'vel_std' not in pointcloud2_to_detections(plain)
+    with pytest.raises(MessageError, match='velocity standard deviations for 4 boxes'):
+        detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                  vel_std=std[:3])
+    for bad in (np.nan, -0.1, np.inf):
+        with pytest.raises(PointCloudError, match='finite and >= 0'):
+            detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                      vel_std=np.where(np.arange(4) == 2, bad, std))
+
+
 def test_cloud_through_cdr_both_ways():
     boxes, vel, scores, labels = random_boxes(12, 5)
     m = detections_to_pointcloud2(boxes, vel, scores, labels, RCLPY.header(1, 'lidar'), RCLPY)

@@ -75,7 +75,13 @@ def test_plays_bag_and_publishes_stamped_detections(node_and_recorder, bag):
                                '--wait-subscribers', '20'], env=ros_env(),
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     rec.p.spin_until(lambda: player.poll() is not None, 90.0)
-    rec.p.spin_until(lambda: len(rec.dets) >= 12, 10.0)
+
+    def settled() -> bool:          # every cloud taken is published, with its markers
+        d = rec.diags[-1] if rec.diags else {}
+        return (int(d.get('frames_out', -1)) + int(d.get('dropped_frames', 0))
+                == int(d.get('frames_in', 0)) and len(rec.dets) == int(d['frames_out'])
+                == len(rec.markers) and len(rec.dets) >= 12)
+    rec.p.spin_until(settled, 30.0)
     stop(player)
     from suit_ros.data.bag import open_reader
     with open_reader(bag) as r:
@@ -94,8 +100,18 @@ def test_plays_bag_and_publishes_stamped_detections(node_and_recorder, bag):
     assert int(last['memory_bytes']) > 0 and float(last['model_ms_p50']) > 0
     # the tracker (on by default): track ids over the wire, kept across frames
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
+    from suit_ros.tracking import TrackerConfig
     ids = [set(pointcloud2_to_detections(m)['track_id'].tolist()) - {0} for m in rec.dets]
     assert sum(bool(a & b) for a, b in zip(ids, ids[1:])) >= len(ids) // 2
+    # and each box's velocity standard deviation, the filter's: tracks that have run a few
+    # frames are surer than the head alone
+    read = [pointcloud2_to_detections(m) for m in rec.dets]
+    std = np.concatenate([r['vel_std'] for r in read])
+    speed = np.concatenate([np.hypot(*r['velocities'].T) for r in read])
+    assert len(std) and np.isfinite(std).all() and (std > 0).all()
+    cfg = TrackerConfig()                # coasting adds a little; the speed widens it
+    assert (std <= np.hypot(1.05 * cfg.vel_sigma, cfg.speed_std_fraction * speed) + 1e-4).all()
+    assert (std < 0.5 * cfg.vel_sigma).any()
     assert int(last['tracks']) > 0
     # boxes published with no return of their cloud in them (coasted or carried), counted
     most = max(len(pointcloud2_to_detections(m)['num_points']) for m in rec.dets)

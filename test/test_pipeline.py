@@ -210,16 +210,33 @@ def test_tracks_and_can_be_turned_off(model, classes, scene):
     assert len(first.detections) >= 3 and first.track_ids is not None
     msg = pointcloud2_to_detections(last.detections_msg)
     assert np.array_equal(msg['track_id'], last.track_ids)
+    # each velocity's standard deviation: the measurement's where nothing tracks it (the
+    # head's noise, less where the sweeps read a vehicle's motion too), the filter's (smaller
+    # after three frames of a static scene) where a track does
+    # (each widened by a fraction of its speed: TrackerConfig.speed_std_fraction)
+    cfg = pipe.detector.tracks.config
+    vel_sigma = cfg.vel_sigma
+    assert last.velocity_std is not None and len(last.velocity_std) == len(last.detections)
+    np.testing.assert_array_equal(msg['vel_std'], last.velocity_std)
+    for out in (first, last):
+        new = out.track_ids == 0 if out is last else slice(None)
+        born = out.velocity_std[new]
+        speed = np.hypot(*out.detections.velocities[new].T)
+        head = np.hypot(vel_sigma, cfg.speed_std_fraction * speed)
+        assert len(born) and np.all((born > 0) & (born <= head + 1e-4))
+        assert np.any(np.isclose(born, head, rtol=1e-5))
     # the same static scene: the confident objects are tracked and keep their ids
     birth = pipe.detector.tracks.config.birth_score
     sure = last.track_ids[last.detections.scores >= birth]
     began = first.track_ids[first.detections.scores >= birth]
     assert len(began) >= 2 and 0 not in set(sure) and set(began) <= set(sure)
+    older = np.isin(last.track_ids, began)
+    assert older.any() and np.all(last.velocity_std[older] < 0.5 * vel_sigma)
     assert last.tracks == len(pipe.detector.tracks) >= len(sure)
     pipe.configure(replace(pipe.params, tracking=False))
     off = pipe.process(cloud(classes, T0 + 3 * S // 10, scene))
-    assert pipe.detector.tracks is None and off.track_ids is None
-    assert 'track_id' not in pointcloud2_to_detections(off.detections_msg)
+    assert pipe.detector.tracks is None and off.track_ids is None and off.velocity_std is None
+    assert not {'track_id', 'vel_std'} & set(pointcloud2_to_detections(off.detections_msg))
     # the filter's gap is the pipeline's one staleness threshold
     pipe.configure(replace(pipe.params, tracking=True, max_gap_s=2.0))
     assert pipe.detector.tracks is not None and pipe.detector.tracks.config.max_gap_s == 2.0

@@ -125,7 +125,9 @@ def test_only_confident_detections_start_tracks_and_they_are_matched_first():
                                          ('accel_sigma', float('nan')), ('gate', 0.0),
                                          ('max_gap_s', float('inf')), ('max_misses', -1),
                                          ('birth_score', 1.5), ('score_mix', -0.1),
-                                         ('sweep_sigma', 0.0)])
+                                         ('sweep_sigma', 0.0), ('coast_margin', -0.1),
+                                         ('speed_std_fraction', -0.1),
+                                         ('speed_std_fraction', float('nan'))])
 def test_config_is_validated(field, value):
     with pytest.raises(ValueError, match=field):
         TrackerConfig(**{field: value})
@@ -291,6 +293,55 @@ def test_coasting_holds_a_confident_track_only_where_the_sweep_shows_nothing():
             else:
                 assert len(out) == 0, (blind, k)
     assert held == [8, 9, 10]
+
+
+def test_velocity_std_is_the_filters_and_says_how_far_to_trust_a_young_track():
+    """Each returned detection carries its velocity's standard deviation: the head's noise
+    (``vel_sigma``) at birth and for a faint detection no track took, falling as the track
+    gathers centres, growing again while it coasts; widened by ``speed_std_fraction`` of the
+    box's speed (the head's speed error is no white noise); and the errors of the filtered
+    velocity of a car the head reads as standing still lie within about two of them."""
+    runs = {}
+    for fraction in (0.0, 0.15):
+        rng = np.random.default_rng(1)
+        cfg = TrackerConfig(coast_frames=3, speed_std_fraction=fraction)
+        vf = Tracker(cfg)
+        assert vf.velocity_std.shape == (0,)
+        v_true = np.array([9.0, -3.0])
+        stds, speeds, z = [], [], []
+        for k in range(25):
+            t = k * 0.1
+            T = ego_pose(t)
+            xy_odom = np.array([20.0, 5.0]) + v_true * t
+            xy, v = to_frame(T, xy_odom, v_true)
+            seen = k < 20
+            det = (frame(np.stack([xy + rng.normal(0, 0.2, 2), xy + 12.0]), [[0.0, 0.0]] * 2,
+                         scores=[0.8, 0.2]) if seen else Detections.empty())
+            det.boxes[:, 2] = -1.0
+            current = road(T, xy_odom) if seen else np.zeros((0, 3))
+            out, ids = vf.update(det, k * DT_NS, T, current=current)
+            assert vf.velocity_std.shape == (len(out),) and vf.velocity_std.dtype == np.float32
+            if not seen and k >= 23:
+                assert len(out) == 0                    # coasted for 3 frames, then not
+                continue
+            i = 0 if seen else int(np.nonzero(ids == 1)[0][0])
+            stds.append(float(vf.velocity_std[i]))
+            speeds.append(float(np.hypot(*out.velocities[i])))
+            if seen:                                    # the faint one: the head's own noise
+                assert ids[1] == 0 and vf.velocity_std[1] == pytest.approx(cfg.vel_sigma)
+                if k >= 3:
+                    z.append(np.abs(out.velocities[0] - v) / vf.velocity_std[0])
+        runs[fraction] = np.array(stds), np.array(speeds), np.concatenate(z)
+    stds, speeds, z = runs[0.0]
+    assert stds[0] == pytest.approx(TrackerConfig().vel_sigma)   # born: the head's reading
+    assert all(b < a for a, b in zip(stds[:10], stds[1:10]))      # settles as centres come
+    assert stds[19] < 1.0
+    assert stds[20] > stds[19] and stds[21] > stds[20]            # coasting: less sure
+    assert np.mean(z < 2.0) > 0.9
+    wide, wide_speeds, _ = runs[0.15]                # the same filter, widened by its speed
+    np.testing.assert_allclose(wide_speeds, speeds)
+    np.testing.assert_allclose(wide, np.hypot(stds, 0.15 * speeds), rtol=1e-5)
+    assert wide[19] > stds[19] + 1.0                  # 9.5 m/s: 0.15 of it, 1.4 m/s
 
 
 def test_coasting_needs_a_confident_track_and_can_be_turned_off():

@@ -39,6 +39,8 @@ class StepResult:
         held by the memory or the tracker where the sweep shows nothing).
     :param carried: per detection, decoded by a carry branch where the input has no returns
         (published at the carry thresholds).
+    :param velocity_std: per detection, the standard deviation of each velocity component
+        (m/s; :attr:`suit_ros.tracking.Tracker.velocity_std`); empty without a tracker.
     """
 
     detections: Detections
@@ -50,6 +52,7 @@ class StepResult:
     track_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     num_points: NDArray[np.uint32] = field(default_factory=lambda: np.zeros(0, np.uint32))
     carried: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
+    velocity_std: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
 
 
 class StreamingDetector:
@@ -286,6 +289,7 @@ class StreamingDetector:
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
         carried = out['carried'].cpu().numpy()
         ids = np.zeros(len(det), np.int64)
+        vel_std = np.zeros(0, np.float32)
         # this cloud's own returns, the same rows of the input as it came and of the model
         # input: the first ones, or those without a time lag when it came accumulated
         now = pts[:, 4] == 0 if already_accumulated(pts) else slice(None, len(pts))
@@ -300,12 +304,17 @@ class StreamingDetector:
                                   sensor=T_bl[:3, 3])
             # the tracks held where the sweep shows nothing count as carried
             carried = np.concatenate([carried, np.ones(self.tracks.coasted, bool)])
+            vel_std = self.tracks.velocity_std
+        elif self.tracks is not None:   # no pose: nothing tracked, each as the head measured it
+            vel_std = np.full(len(det), self.tracks.config.vel_sigma, np.float32)
         if self._ground is not None and len(det):
             det.boxes[:, 2] += self._ground.under(det.boxes[:, :2])   # back on the road
         published = det.scores >= np.where(carried, self.carry_thresholds[det.labels],
                                            self.score_thresholds[det.labels])
         if not published.all():
             det, ids, carried = det.select(published), ids[published], carried[published]
+            if len(vel_std):
+                vel_std = vel_std[published]
         det = boxes_to_lidar(det, T_bl)
         # the returns of this cloud in each box, counted on the input as it came (LiDAR
         # frame), not on the accumulated sweeps
@@ -316,4 +325,4 @@ class StreamingDetector:
                    'total': t6 - t0}
         samples = self._memory.num_samples if self._memory is not None else 0
         return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings,
-                          ids, num_points, carried)
+                          ids, num_points, carried, vel_std)
