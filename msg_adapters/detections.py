@@ -6,7 +6,8 @@ vy score`` and ``label`` (UINT8, index into the class names); GT adds ``num_poin
 cloud's returns inside the box; 0 for a box the memory carries through missing returns) and,
 from the tracker, ``track_id`` (UINT32, the same object keeps its id across frames; 0:
 not tracked) and ``vel_std`` (FLOAT32, m/s: the standard deviation of ``vx`` and of ``vy``,
-the tracker's for a tracked box, the measurement's for one no track took).
+the tracker's for a tracked box, the measurement's for one no track took; NaN where the
+velocity is NaN).
 """
 from __future__ import annotations
 
@@ -92,8 +93,9 @@ def detections_to_array(boxes: NDArray[Any], velocities: NDArray[Any], scores: N
         std = np.asarray(vel_std, np.float64).reshape(-1)
         if len(std) != n:
             raise MessageError(f'{len(std)} velocity standard deviations for {n} boxes')
-        if n and not (np.isfinite(std).all() and std.min() >= 0):
-            raise PointCloudError('velocity standard deviations must be finite and >= 0')
+        if np.isinf(std).any() or (std < 0).any():        # NaN: unknown (a NaN velocity)
+            raise PointCloudError('velocity standard deviations must be >= 0 and finite (NaN: '
+                                  'unknown)')
         arr[VEL_STD_FIELD] = std
     for name, what, values in ((TRACK_FIELD, 'track ids', track_ids),
                                (GT_FIELDS[0], 'point counts', num_points)):

@@ -31,7 +31,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='seconds to wait for subscribers before the first message')
     parser.add_argument('--max-messages', type=int, default=0, help='stop after N (0: all)')
     parser.add_argument('--wait-subscribers', type=float, default=0.0, metavar='SECONDS',
-                        help='first wait up to this long until every topic has a subscriber')
+                        help='first wait up to this long until every topic (and /clock with '
+                        '--clock) has a subscriber')
     parser.add_argument('--reliability', choices=['reliable', 'best_effort'],
                         default='reliable',
                         help='QoS reliability of the PointCloud2 publishers (LiDAR drivers often '
@@ -115,8 +116,8 @@ def run(args: argparse.Namespace) -> int:
     late_max = 0.0
     try:
         end = time.monotonic() + args.wait_subscribers
-        while time.monotonic() < end and any(p.get_subscription_count() == 0
-                                             for p in pubs.values()):
+        waited = list(pubs.values()) + ([clock_pub] if clock_pub is not None else [])
+        while time.monotonic() < end and any(p.get_subscription_count() == 0 for p in waited):
             time.sleep(0.05)
         time.sleep(args.start_delay)
         while True:
@@ -142,7 +143,8 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        unacked = flush(pubs, ACK_TIMEOUT_S)
+        unacked = flush(pubs if clock_pub is None else {**pubs, '/clock': clock_pub},
+                        ACK_TIMEOUT_S)
         print(f'play: published {sent} messages; at most {late_max * 1e3:.0f} ms behind the '
               'recorded pace' + (f'; not acknowledged by every reliable subscriber within '
                                  f'{ACK_TIMEOUT_S:g} s: {", ".join(unacked)}' if unacked else ''))

@@ -114,7 +114,8 @@ def test_num_points_field_between_label_and_track_id(C):
 @pytest.mark.parametrize('C', BOTH, **KIND)
 def test_vel_std_field_comes_last_and_is_checked(C):
     """The tracker's velocity standard deviation: FLOAT32 after track_id, read back as it
-    was written; absent unless given; a wrong length, a NaN or a negative value refused."""
+    was written; absent unless given; a wrong length, a negative or infinite value refused;
+    NaN (a NaN velocity's: unknown) kept."""
     boxes, vel, scores, labels = random_boxes(4)
     ids, counts = np.array([3, 0, 7, 1]), np.array([120, 0, 5, 9])
     std = np.array([4.5, 0.31, 1.25, 0.0], np.float32)
@@ -134,10 +135,14 @@ def test_vel_std_field_comes_last_and_is_checked(C):
     with pytest.raises(MessageError, match='velocity standard deviations for 4 boxes'):
         detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
                                   vel_std=std[:3])
-    for bad in (np.nan, -0.1, np.inf):
-        with pytest.raises(PointCloudError, match='finite and >= 0'):
+    for bad in (-0.1, np.inf):
+        with pytest.raises(PointCloudError, match='>= 0 and finite'):
             detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
                                       vel_std=np.where(np.arange(4) == 2, bad, std))
+    unknown = np.where(np.arange(4) == 2, np.nan, std)   # the velocity's NaN: unknown
+    back = pointcloud2_to_detections(detections_to_pointcloud2(
+        boxes, vel, scores, labels, C.header(5, 'lidar'), C, vel_std=unknown))
+    np.testing.assert_array_equal(back['vel_std'], unknown.astype(np.float32))
 
 
 def test_cloud_through_cdr_both_ways():

@@ -110,7 +110,8 @@ def test_plays_bag_and_publishes_stamped_detections(node_and_recorder, bag):
     speed = np.concatenate([np.hypot(*r['velocities'].T) for r in read])
     assert len(std) and np.isfinite(std).all() and (std > 0).all()
     cfg = TrackerConfig()                # coasting adds a little; the speed widens it
-    assert (std <= np.hypot(1.05 * cfg.vel_sigma, cfg.speed_std_fraction * speed) + 1e-4).all()
+    most = np.sqrt(cfg.vel_sigma ** 2 + cfg.coast_frames * (cfg.max_gap_s * cfg.accel_sigma) ** 2)
+    assert (std <= np.hypot(most, cfg.speed_std_fraction * speed) + 1e-4).all()
     assert (std < 0.5 * cfg.vel_sigma).any()
     assert int(last['tracks']) > 0
     # boxes published with no return of their cloud in them (coasted or carried), counted

@@ -138,6 +138,7 @@ def test_odom_wait_s_waits_for_covering_odometry(make_node):
     assert node.worker.last.pose_source.startswith('none')
     set_param(node, 'odom_wait_s', 2.0)
     node._on_cloud(cloud(t + S // 10), None)
+    assert _until(lambda: node.worker.odometry.waits == 1)      # the worker took it: waiting
     time.sleep(0.3)
     assert node.worker.frames_out == 1                          # still waiting for odometry
     node._on_odom(odom(t + S // 10 + S // 50))

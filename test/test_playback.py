@@ -78,6 +78,9 @@ def test_detect_bag_matches_live_node(bag, checkpoint, tmp_path):
     for s, (_, d) in offline.items():
         np.testing.assert_allclose(live[s]['boxes'], d['boxes'], atol=1e-3)
         np.testing.assert_array_equal(live[s]['labels'], d['labels'])
+        # the tracker's fields too: the same tracks, equally sure of their velocities
+        np.testing.assert_array_equal(live[s]['track_id'], d['track_id'])
+        np.testing.assert_allclose(live[s]['vel_std'], d['vel_std'], rtol=1e-3, atol=1e-3)
 
 
 def read_clouds(path):

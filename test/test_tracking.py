@@ -341,7 +341,7 @@ def test_velocity_std_is_the_filters_and_says_how_far_to_trust_a_young_track():
     wide, wide_speeds, _ = runs[0.15]                # the same filter, widened by its speed
     np.testing.assert_allclose(wide_speeds, speeds)
     np.testing.assert_allclose(wide, np.hypot(stds, 0.15 * speeds), rtol=1e-5)
-    assert wide[19] > stds[19] + 1.0                  # 9.5 m/s: 0.15 of it, 1.4 m/s
+    assert wide[19] > stds[19] + 0.8                  # ~9.2 m/s filtered: 0.15 of it, 1.4
 
 
 def test_coasting_needs_a_confident_track_and_can_be_turned_off():

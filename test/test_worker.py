@@ -66,10 +66,10 @@ def test_the_worker_waits_for_odometry_then_publishes_and_counts(worker):
     assert w.last.pose_source == 'odometry' and w.odometry.waits == 0
     # a cloud ahead of the odometry waits for it (up to odom_wait_s), then runs with it
     put_cloud(w, mc, T0 + S // 10)
-    time.sleep(0.1)
+    assert until(lambda: w.odometry.waits == 1)                  # the worker took it: waiting
     w.odometry.put(odom(T0 + S // 10), T0 + S // 10, clock['ns'], 1.0)
     assert until(lambda: w.frames_out == 2)
-    assert w.odometry.waits == 1 and w.last.pose_source == 'odometry'
+    assert w.last.pose_source == 'odometry'
     level, _, values = health_report(w.snapshot({'points_reliability': 'reliable'}))
     assert values['frames_out'] == '2' and values['points_reliability'] == 'reliable'
     assert not [line for kind, line in log.lines if kind == 'error']

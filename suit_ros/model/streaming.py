@@ -306,14 +306,16 @@ class StreamingDetector:
             carried = np.concatenate([carried, np.ones(self.tracks.coasted, bool)])
             vel_std = self.tracks.velocity_std
         elif self.tracks is not None:   # no pose: nothing tracked, each as the head measured it
-            vel_std = np.full(len(det), self.tracks.config.vel_sigma, np.float32)
+            fc = self.tracks.config
+            speed = np.hypot(det.velocities[:, 0], det.velocities[:, 1])
+            vel_std = np.hypot(fc.vel_sigma, fc.speed_std_fraction * speed).astype(np.float32)
         if self._ground is not None and len(det):
             det.boxes[:, 2] += self._ground.under(det.boxes[:, :2])   # back on the road
         published = det.scores >= np.where(carried, self.carry_thresholds[det.labels],
                                            self.score_thresholds[det.labels])
         if not published.all():
             det, ids, carried = det.select(published), ids[published], carried[published]
-            if len(vel_std):
+            if self.tracks is not None:
                 vel_std = vel_std[published]
         det = boxes_to_lidar(det, T_bl)
         # the returns of this cloud in each box, counted on the input as it came (LiDAR
