@@ -82,7 +82,10 @@ def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C:
             t2 = time.perf_counter()
             d = r.detections
             detections_to_pointcloud2(d.boxes, d.velocities, d.scores, d.labels,
-                                      msg.header, C, track_ids=r.track_ids)
+                                      msg.header, C, track_ids=r.track_ids,
+                                      num_points=r.num_points,
+                                      vel_std=(r.velocity_std if runner.tracks is not None
+                                               else None))
             detections_to_markerarray(d.boxes, d.velocities, d.scores, d.labels, msg.header,
                                       names, C, track_ids=r.track_ids)
             t3 = time.perf_counter()
