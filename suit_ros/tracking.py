@@ -125,6 +125,13 @@ class TrackerConfig:
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f'TrackerConfig.{name} must be finite and >= 0, got {value}')
 
+    def published_std(self, std: NDArray[np.floating[Any]] | float,
+                      velocities: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
+        """Velocity standard deviations as published: ``std`` (the filter's or the
+        measurement's) widened by ``speed_std_fraction`` of each velocity's speed."""
+        speed = np.hypot(velocities[:, 0], velocities[:, 1])
+        return np.hypot(std, self.speed_std_fraction * speed).astype(np.float32)
+
     def sweep_targets(self, det: Detections, class_names: Sequence[str]) -> NDArray[np.bool_]:
         """The detections whose velocity is read from the sweeps: ``sweep_classes`` scoring at
         least ``sweep_min_score``."""
@@ -303,9 +310,7 @@ class Tracker:
                 ids = np.concatenate([ids, coast_ids])
                 vel_std = np.concatenate([vel_std, coast_std])
                 self.coasted = len(coast)
-        speed = np.hypot(out.velocities[:, 0], out.velocities[:, 1])
-        self.velocity_std = np.sqrt(vel_std ** 2
-                                    + (cfg.speed_std_fraction * speed) ** 2).astype(np.float32)
+        self.velocity_std = cfg.published_std(vel_std, out.velocities)
         keep = self.misses <= cfg.max_misses
         self.x, self.P = self.x[keep], self.P[keep]
         self.labels, self.ids, self.misses = self.labels[keep], self.ids[keep], self.misses[keep]

@@ -307,8 +307,7 @@ class StreamingDetector:
             vel_std = self.tracks.velocity_std
         elif self.tracks is not None:   # no pose: nothing tracked, each as the head measured it
             fc = self.tracks.config
-            speed = np.hypot(det.velocities[:, 0], det.velocities[:, 1])
-            vel_std = np.hypot(fc.vel_sigma, fc.speed_std_fraction * speed).astype(np.float32)
+            vel_std = fc.published_std(fc.vel_sigma, det.velocities)
         if self._ground is not None and len(det):
             det.boxes[:, 2] += self._ground.under(det.boxes[:, :2])   # back on the road
         published = det.scores >= np.where(carried, self.carry_thresholds[det.labels],
