@@ -395,7 +395,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               precision: PrecisionChoice = 'float32',
               tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
               overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
-              deskew: bool = False) -> ModelRun:
+              deskew: bool = False, run_every: int = 1, buffer_skipped: bool = True
+              ) -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -416,6 +417,10 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         sensor's pose at its stamp, by the motion over the sweep (:mod:`suit_ros.deskew`, as the
         node does with a time field and odometry; here the odometry is the frames' poses:
         :func:`deskewed`).
+    :param run_every: the model runs on every this-many-th frame of a drive (the first, then
+        each ``run_every``-th), as a node too slow for its sensor does; only those frames are
+        in the run. The others are taken into the sweep buffer (``buffer_skipped``, as the
+        node does) or dropped (a node that feeds the model only the clouds it runs on).
     """
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
@@ -430,6 +435,10 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         if deskew:
             seq = deskewed(seq)
         for t, frame in enumerate(seq):
+            if t % run_every:
+                if buffer_skipped:
+                    runner.add_sweep(*step_inputs(frame))
+                continue
             if drop_memory:
                 runner.reset('drop memory', sweeps=False)
             if history is not None:

@@ -129,6 +129,10 @@ def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
         'tracks': 'off' if last.track_ids is None else str(last.tracks),
         'pose_source': last.pose_source, 'pose_age_s': f'{last.pose_age_s:.3f}',
         'deskew': last.deskew,
+        # the last model input's sweeps and the oldest one's lag: an overloaded node still
+        # gives the model the sweeps just before the cloud (skipped clouds buffered)
+        'input_sweeps': (f'{len(last.input_lags_s)} over {max(last.input_lags_s):.2f} s'
+                         if last.input_lags_s else 'none'),
         'input_warnings': ','.join(last.warnings) or 'none',
         'last_warning': last.warning or 'none'})
     levels.extend((WARN, text) for text in s.held_warnings)

@@ -2,8 +2,9 @@
 
 - :class:`CloudMailbox`: one slot. A cloud that arrives while the worker is busy replaces the
   waiting one (counted as dropped: the model always takes the newest, a stale cloud is never
-  queued); the same cloud arriving twice (through a retiring subscription) is taken once; the
-  publisher's sequence numbers tell the clouds lost before the callback.
+  queued), and the last few replaced ones go to the worker with it, so that they still feed the
+  model's sweeps; the same cloud arriving twice (through a retiring subscription) is taken
+  once; the publisher's sequence numbers tell the clouds lost before the callback.
 - :class:`OdometryGate`: odometry queued by its callback and drained by the worker, and the
   worker's wait (up to a timeout) for odometry that reaches a cloud's stamp, as a tf2 message
   filter would. A stamp further ahead of the clock than the skew tolerance does not end a
@@ -23,11 +24,16 @@ T = TypeVar('T')
 
 
 class CloudMailbox(Generic[T]):
-    """The newest cloud for the worker, with the counts the diagnostics report."""
+    """The newest cloud for the worker, with the counts the diagnostics report.
 
-    def __init__(self, dedupe: int = 8) -> None:
+    :param keep_replaced: how many of the clouds replaced in the slot since the last take are
+        handed to the worker with the newest (:meth:`take_all`; the older ones are let go).
+    """
+
+    def __init__(self, dedupe: int = 8, keep_replaced: int = 0) -> None:
         self._cv = threading.Condition()
         self._slot: T | None = None
+        self._replaced: collections.deque[T] = collections.deque(maxlen=max(keep_replaced, 0))
         self._recent: collections.deque[Hashable] = collections.deque(maxlen=dedupe)
         self._last_seq: int | None = None
         self.closed = False
@@ -60,6 +66,8 @@ class CloudMailbox(Generic[T]):
             self.arrivals.append(now)
             if self._slot is not None:
                 self.dropped += 1
+                if self._replaced.maxlen:
+                    self._replaced.append(self._slot)
             self._slot = item
             self._cv.notify_all()
         return True
@@ -82,11 +90,20 @@ class CloudMailbox(Generic[T]):
 
     def take(self, timeout: float = 0.5) -> T | None:
         """The waiting cloud (emptying the slot), or None after ``timeout`` s or on close."""
+        return self.take_all(timeout)[0]
+
+    def take_all(self, timeout: float = 0.5) -> tuple[T | None, list[T]]:
+        """The waiting cloud (None after ``timeout`` s or on close) and the last
+        ``keep_replaced`` clouds it replaced, oldest first (both emptied)."""
         with self._cv:
             if self._slot is None and not self.closed:
                 self._cv.wait(timeout)
             item, self._slot = self._slot, None
-            return None if self.closed else item
+            replaced = list(self._replaced)
+            self._replaced.clear()
+            if self.closed or item is None:
+                return None, []
+            return item, replaced
 
     def close(self) -> None:
         """Wake the worker for shutdown; later takes return None."""

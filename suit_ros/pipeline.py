@@ -89,6 +89,7 @@ class PipelineOutput:
     memory_bytes: int = 0
     reset_reason: str = ''
     deskew: str = 'off'                 # what deskew did (diagnostics)
+    input_lags_s: tuple[float, ...] = ()   # the model input's sweeps, lags newest first
     warnings: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -115,6 +116,7 @@ class DetectionPipeline:
         self.last_frame_id: str | None = None
         self.last_pose: NDArray[np.float64] | None = None
         self.last_reset_reason = 'start'
+        self.last_model_stamp_ns: int | None = None   # the last cloud the model ran on
         self.resets = 0
         self.odom_rejected = 0
         self.last_odom_error = ''
@@ -202,12 +204,85 @@ class DetectionPipeline:
         :param markers: build the MarkerArray too (the node skips it when nobody listens).
         """
         t0 = time.perf_counter()
+        out = PipelineOutput(cloud.header, Detections.empty())
+        points, stamp_ns, pose = self._prepare(cloud, out)
+        stale = self._stale_memory(stamp_ns)
+        if stale is not None:
+            self.detector.reset(stale, sweeps=False)   # the sweeps just before it stand
+            self.last_reset_reason = out.reset_reason = stale
+            self.resets += 1
+        t1 = time.perf_counter()
+        model_timings: dict[str, float] = {}
+        if len(points):
+            result = self.detector.step(points, stamp_ns, pose, self.T_base_lidar)
+            self.last_model_stamp_ns = stamp_ns
+            out.input_lags_s = self.detector.sweeps.last_lags_s
+            out.detections = result.detections
+            out.used_memory = result.used_memory
+            out.memory_samples = result.memory_samples
+            out.memory_bytes = result.memory_bytes
+            out.num_points = result.num_points
+            model_timings = result.timings
+        else:   # nothing to detect in: publish an empty result, keep the memory as it is
+            out.memory_bytes = self.detector.memory_bytes
+        if self.detector.tracks is not None:
+            out.track_ids = result.track_ids if len(points) else np.zeros(0, np.int64)
+            out.velocity_std = (result.velocity_std if len(points)
+                                else np.zeros(0, np.float32))
+            out.tracks = len(self.detector.tracks)
+        t2 = time.perf_counter()
+        if self.classes is not None:
+            d = out.detections
+            out.detections_msg = detections_to_pointcloud2(
+                d.boxes, d.velocities, d.scores, d.labels, out.header, self.classes,
+                track_ids=out.track_ids, num_points=out.num_points,
+                vel_std=out.velocity_std)
+            if markers:
+                out.markers_msg = detections_to_markerarray(
+                    d.boxes, d.velocities, d.scores, d.labels, out.header, self.class_names,
+                    self.classes, track_ids=out.track_ids)
+        t3 = time.perf_counter()
+        out.timings = {'convert': t1 - t0, 'model': t2 - t1, 'publish': t3 - t2}
+        out.timings.update({f'model.{k}': v for k, v in model_timings.items()})
+        return out
+
+    def buffer(self, cloud: Any) -> PipelineOutput:
+        """Take a cloud the model will not run on (the node skipped it while the model was
+        busy with an earlier one) into the sweep buffer only; never raises for bad input.
+
+        It is converted, checked and deskewed as :meth:`process` does, so the next input
+        holds the sweeps just before it, 0.1 s apart at 10 Hz, as the model was trained (fed
+        only the clouds it ran on, an overloaded node would give it sweeps 0.2-0.3 s apart:
+        docs/experiments/overload). No detections; its input warnings and resets count.
+        """
+        t0 = time.perf_counter()
+        out = PipelineOutput(cloud.header, Detections.empty())
+        points, stamp_ns, pose = self._prepare(cloud, out)
+        if len(points):
+            self.detector.add_sweep(points, stamp_ns, pose, self.T_base_lidar)
+        out.timings = {'convert': time.perf_counter() - t0}
+        return out
+
+    def _stale_memory(self, stamp_ns: int) -> str | None:
+        """Why the memory is too old to fuse (the clouds in between were only buffered as
+        sweeps, so the stream had no gap), or None."""
+        last = self.last_model_stamp_ns
+        if last is None or self.detector.memory is None:
+            return None
+        gap = (stamp_ns - last) * 1e-9
+        if gap <= self.params.max_gap_s:
+            return None
+        return f'memory {gap:.2f} s old (the model ran on no cloud since) exceeds max_gap_s'
+
+    def _prepare(self, cloud: Any, out: PipelineOutput
+                 ) -> tuple[NDArray[np.float32], int, NDArray[np.float64] | None]:
+        """A cloud's points (converted, filtered, deskewed), stamp and pose, after the
+        stream's checks (time jumps, gaps, frame and pose changes reset the memory); input
+        warnings, the pose's source and the reset reason go into ``out``."""
         header = cloud.header
         stamp_ns = stamp_to_ns(header.stamp)
         frame_id = str(header.frame_id)
-        out = PipelineOutput(header, Detections.empty())
         points, times = self._points(cloud, stamp_ns, out)
-        t1 = time.perf_counter()
         reason = self._reset_reason(stamp_ns, frame_id)
         if self.last_frame_id is not None and frame_id != self.last_frame_id:
             self.coverage.reset()                    # another sensor: another norm
@@ -230,38 +305,7 @@ class DetectionPipeline:
             points = self._deskew(points, times, stamp_ns, pose is not None, out)
         elif times is not None:
             out.deskew = 'off: no points'
-        t2 = time.perf_counter()
-        model_timings: dict[str, float] = {}
-        if len(points):
-            result = self.detector.step(points, stamp_ns, pose, self.T_base_lidar)
-            out.detections = result.detections
-            out.used_memory = result.used_memory
-            out.memory_samples = result.memory_samples
-            out.memory_bytes = result.memory_bytes
-            out.num_points = result.num_points
-            model_timings = result.timings
-        else:   # nothing to detect in: publish an empty result, keep the memory as it is
-            out.memory_bytes = self.detector.memory_bytes
-        if self.detector.tracks is not None:
-            out.track_ids = result.track_ids if len(points) else np.zeros(0, np.int64)
-            out.velocity_std = (result.velocity_std if len(points)
-                                else np.zeros(0, np.float32))
-            out.tracks = len(self.detector.tracks)
-        t3 = time.perf_counter()
-        if self.classes is not None:
-            d = out.detections
-            out.detections_msg = detections_to_pointcloud2(
-                d.boxes, d.velocities, d.scores, d.labels, header, self.classes,
-                track_ids=out.track_ids, num_points=out.num_points,
-                vel_std=out.velocity_std)
-            if markers:
-                out.markers_msg = detections_to_markerarray(
-                    d.boxes, d.velocities, d.scores, d.labels, header, self.class_names,
-                    self.classes, track_ids=out.track_ids)
-        t4 = time.perf_counter()
-        out.timings = {'convert': (t1 - t0) + (t2 - t1), 'model': t3 - t2, 'publish': t4 - t3}
-        out.timings.update({f'model.{k}': v for k, v in model_timings.items()})
-        return out
+        return points, stamp_ns, pose
 
     def _points(self, cloud: Any, stamp_ns: int, out: PipelineOutput
                 ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:

@@ -57,6 +57,8 @@ class Pipeline(Protocol):
 
     def process(self, msg: Any, markers: bool = True) -> Any: ...
 
+    def buffer(self, msg: Any) -> Any: ...
+
 
 class FrameWorker:
     """The loop of the node's worker thread (:meth:`run`) and its counters.
@@ -65,17 +67,21 @@ class FrameWorker:
     :param publish: ``publish(out)`` sends a frame's messages; :param want_markers: whether
         anybody subscribes to the markers (they cost more than the rest of the output).
     :param odometry_published: whether anybody publishes odometry (no wait otherwise).
+    :param keep_skipped: the model's previous sweeps (``sweeps - 1``): of the clouds skipped
+        while the model was busy, this many (the newest) are taken into the sweep buffer
+        before the next cloud runs.
     """
 
     def __init__(self, pipeline: Pipeline, params: Callable[[], DetectorParams],
                  clock_ns: Callable[[], int], publish: Callable[[Any], None],
                  want_markers: Callable[[], bool], odometry_published: Callable[[], bool],
-                 reasons: Reasons, log: Any) -> None:
+                 reasons: Reasons, log: Any, keep_skipped: int = 0) -> None:
         self.pipeline, self.params, self.clock_ns = pipeline, params, clock_ns
         self.publish, self.want_markers = publish, want_markers
         self.odometry_published, self.reasons, self.log = odometry_published, reasons, log
         self.lock = threading.Condition()      # requests, counters and the last frame
-        self.mailbox: CloudMailbox[Received[Any]] = CloudMailbox()
+        self.mailbox: CloudMailbox[Received[Any]] = CloudMailbox(keep_replaced=keep_skipped)
+        self.frames_sweeps_only = 0     # skipped clouds taken into the sweeps (no detection)
         self.odometry: OdometryGate[Any] = OdometryGate()
         self.reset_request: str | None = None
         self.pending: DetectorParams | None = None
@@ -107,7 +113,7 @@ class FrameWorker:
         except (AttributeError, OSError):    # not Linux: threads share the process priority
             pass
         while not self.stopping:
-            received = self.mailbox.take(0.5)
+            received, skipped = self.mailbox.take_all(0.5)
             if received is None:
                 continue
             with self.lock:
@@ -120,6 +126,8 @@ class FrameWorker:
                     self.pipeline.reset(reset)
                 self._wait_for_odometry(stamp_ns(received.msg))
                 self._drain_odometry()
+                for old in skipped:
+                    self.buffer(old)
                 self.process(received)
             except Exception as exc:  # keep the node alive; say what happened
                 if self.stopping:
@@ -142,6 +150,22 @@ class FrameWorker:
                 self.reasons.report({'odometry_rejected': 'odometry rejected: '
                                      f'{self.pipeline.last_odom_error}'}, time.monotonic(),
                                     hold=False)
+
+    def buffer(self, received: Received[Any]) -> None:
+        """Take a skipped cloud into the model's sweeps (no detection); its input warnings
+        and resets count as a processed cloud's do. A failure is logged and the newest
+        cloud still runs."""
+        try:
+            out = self.pipeline.buffer(received.msg)
+        except Exception as exc:  # the cloud the model runs on next is not lost with it
+            if not self.stopping:
+                self.log.error(f'skipped cloud not buffered: {type(exc).__name__}: {exc}')
+            return
+        with self.lock:
+            self.frames_sweeps_only += 1
+            self.reasons.report(out.warnings, received.monotonic)
+        if out.reset_reason:
+            self.log.info(f'memory reset: {out.reset_reason}')
 
     def process(self, received: Received[Any]) -> None:
         """Run one cloud through the pipeline, publish, count."""
@@ -178,6 +202,7 @@ class FrameWorker:
                 counters={'frames_in': box.frames_in, 'frames_out': self.frames_out,
                           'dropped_frames': box.dropped, 'lost_before_callback': box.lost,
                           'frames_single_frame': self.frames_single,
+                          'frames_sweeps_only': self.frames_sweeps_only,
                           'odometry_waits': self.odometry.waits},
                 facts=facts, last_reset_reason=pipeline.last_reset_reason,
                 memory_resets=pipeline.resets, odometry_rejected=pipeline.odom_rejected,

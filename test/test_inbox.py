@@ -19,6 +19,25 @@ def test_the_newest_cloud_wins_and_replaced_ones_are_dropped():
     assert not box.put('again', 4) and box.duplicates == 1  # the same cloud twice
 
 
+def test_the_last_replaced_clouds_go_to_the_worker_with_the_newest():
+    box: CloudMailbox[str] = CloudMailbox(keep_replaced=2)
+    for k in range(5):
+        box.put(f'c{k}', k)
+    assert box.take_all(0.01) == ('c4', ['c2', 'c3'])     # oldest first; c0, c1 let go
+    assert box.dropped == 4                               # still dropped: no detection
+    box.put('c5', 5)
+    assert box.take_all(0.01) == ('c5', [])               # nothing replaced since
+    assert box.take_all(0.01) == (None, [])
+    box.put('c6', 6)
+    box.put('c7', 7)
+    box.close()
+    assert box.take_all(0.01) == (None, [])               # closed: nothing handed out
+    plain: CloudMailbox[str] = CloudMailbox()
+    plain.put('a', 'a')
+    plain.put('b', 'b')
+    assert plain.take_all(0.01) == ('b', [])              # keeps none by default
+
+
 def test_sequence_gaps_count_as_lost_only_when_asked():
     box: CloudMailbox[int] = CloudMailbox()
     box.put(1, 'a', {'publication_sequence_number': 1})

@@ -143,9 +143,12 @@ def test_ctrl_c_while_clouds_flow_stops_cleanly(checkpoint, sig):
 def test_a_burst_is_counted_as_replaced_not_lost(node_and_watcher):
     """Clouds faster than the model: the newest is taken, the others are replaced in the
     node's mailbox and counted as dropped; none is reported as lost before the callback (the
-    reader keeps a few, so the executor takes every one)."""
+    reader keeps a few, so the executor takes every one). The replaced clouds still feed the
+    model's sweeps: the last input holds the last three clouds."""
     proc, w = node_and_watcher
     base = w.now_ns()
+    for k in range(-10, 11):                              # odometry over the burst
+        w.odometry(base + k * S // 50)
     w.frame(cloud(base, n=20000))
     for k in range(1, 9):                                 # a burst, back to back
         w.pub.publish(cloud(base + k * S // 100, n=20000))
@@ -161,4 +164,6 @@ def test_a_burst_is_counted_as_replaced_not_lost(node_and_watcher):
     assert values['lost_before_callback'] == '0', values
     assert int(values['dropped_frames']) > 0, values
     assert int(values['dropped_frames']) + int(values['frames_out']) == 9, values
+    assert 0 < int(values['frames_sweeps_only']) <= int(values['dropped_frames']), values
+    assert values['input_sweeps'] == '3 over 0.02 s', values
     assert 'never received' not in w.diags[-1][1]

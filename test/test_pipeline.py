@@ -594,6 +594,44 @@ def test_max_gap_s_is_the_one_staleness_threshold(model, classes):
     assert len(pipe.detector.sweeps) == 2
 
 
+def test_skipped_clouds_buffered_keep_the_inputs_sweeps_as_in_training(model, classes):
+    """The node skips clouds while the model is busy; buffered, they keep the next input's
+    sweeps 0.1 s apart (docs/experiments/overload); not buffered, the sweeps spread."""
+    pipe, plain = make_pipeline(model, classes), make_pipeline(model, classes)
+    for p in (pipe, plain):
+        feed_odometry(p, T0, T0 + 2 * S)
+        p.process(cloud(classes, T0))
+    out = pipe.buffer(cloud(classes, T0 + S // 10))
+    assert out.warnings == {} and out.detections_msg is None and out.reset_reason == ''
+    assert len(pipe.detector.sweeps) == 2
+    out = pipe.process(cloud(classes, T0 + 2 * S // 10))
+    assert out.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
+    assert plain.process(cloud(classes, T0 + 2 * S // 10)).input_lags_s == pytest.approx(
+        (0.0, 0.2))
+    # bad skipped clouds: said, nothing buffered, nothing raised
+    assert set(pipe.buffer(cloud(classes, T0 + 3 * S // 10, n=0)).warnings) == {'empty_cloud'}
+    bad = cloud(classes, T0 + 4 * S // 10)
+    bad.fields = [f for f in bad.fields if f.name != 'x']
+    assert set(pipe.buffer(bad).warnings) == {'unusable_cloud'}
+    out = pipe.process(cloud(classes, T0 + 5 * S // 10))
+    assert out.input_lags_s == pytest.approx((0.0, 0.3, 0.4))   # only the good sweeps
+    # the stream's checks run on a skipped cloud too: time going backwards resets
+    assert 'backwards' in pipe.buffer(cloud(classes, T0 + 4 * S // 10)).reset_reason
+    # clouds only buffered for longer than max_gap_s: the memory is too old to fuse, the
+    # sweeps just before the cloud stand
+    pipe.process(cloud(classes, T0 + 6 * S // 10))
+    for k in range(7, 13):
+        assert pipe.buffer(cloud(classes, T0 + k * S // 10)).reset_reason == ''
+    out = pipe.process(cloud(classes, T0 + 13 * S // 10))
+    assert 'memory 0.70 s old' in out.reset_reason and not out.used_memory
+    assert out.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
+    # without a pose a skipped cloud is not buffered (it cannot be placed)
+    late = T0 + 30 * S
+    before = len(pipe.detector.sweeps)
+    out = pipe.buffer(cloud(classes, late))
+    assert out.single_frame == 'outside_odometry' and len(pipe.detector.sweeps) <= before
+
+
 def test_max_pose_jump_m(model, classes):
     pipe = make_pipeline(model, classes)
     feed_odometry(pipe, T0, T0 + 2 * S, speed=30.0)   # 3 m per 0.1 s

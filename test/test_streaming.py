@@ -37,6 +37,41 @@ def test_tracker_in_the_stream_follows_the_reset_rules():
     assert runner.tracks is None and not r4.track_ids.any()
 
 
+def test_a_sweep_added_without_a_step_feeds_the_next_input_only():
+    """add_sweep (a cloud the node skipped) changes the next input's sweeps and nothing else:
+    the memory, the tracks and the detections of the stream are the model's alone."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from suit_ros.evaluate import run_model
+    from suit_ros.tracking import TrackerConfig
+    torch.manual_seed(0)
+    model = SUITDetector(replace(small_config('suit'), sweeps=3))
+    runner = StreamingDetector(model, tracker=TrackerConfig(birth_score=0.0))
+    frames = [frame(t) for t in range(5)]
+    runner.step(frames[0].points, frames[0].stamp_ns, frames[0].pose)
+    memory, tracks = runner.memory, runner.tracks
+    assert tracks is not None
+    n_tracks = len(tracks)
+    runner.add_sweep(frames[1].points, frames[1].stamp_ns, frames[1].pose)
+    assert runner.memory is memory and runner.tracks is tracks and len(tracks) == n_tracks
+    runner.add_sweep(frames[2].points, frames[2].stamp_ns, None)     # no pose: not buffered
+    assert len(runner.sweeps) == 2
+    r = runner.step(frames[3].points, frames[3].stamp_ns, frames[3].pose)
+    assert runner.sweeps.last_lags_s == pytest.approx((0.0, 0.2, 0.3))
+    assert r.used_memory and r.model_points == 3 * len(frames[3].points)
+    with pytest.raises(ValueError, match='points must be'):
+        runner.add_sweep(np.zeros((3, 2), np.float32), frames[4].stamp_ns, frames[4].pose)
+    # evaluation runs a node too slow for its sensor the same way
+    seqs = [frames]
+    every = run_model(model, seqs, run_every=2)
+    assert [g.boxes[0, 0] for g in every.gt] == [frames[t].gt.boxes[0, 0] for t in (0, 2, 4)]
+    dropped = run_model(model, seqs, run_every=2, buffer_skipped=False)
+    assert len(dropped.det) == 3
+    assert not np.array_equal(every.det[1].scores, dropped.det[1].scores)
+
+
 def test_streaming_candidates_and_literal_modes():
     from suit_ros.config import model_config_from_dict
     from suit_ros.errors import ConfigError

@@ -115,6 +115,37 @@ def test_model_frame_equals_the_streaming_buffer():
     assert np.hypot(*gt.velocities[0]) == pytest.approx(3.0, abs=1e-3)   # pitch 0.02
 
 
+def test_skipped_sweeps_added_make_the_input_training_makes():
+    """A node that ran the model on every other cloud but buffered the skipped ones gives it
+    the input model_frame gives training: the same sweeps, 0.1 s apart; fed only the clouds
+    it ran on, the input's sweeps would be 0.2 s apart."""
+    frames = []
+    for k in range(7):
+        s = sweep_at(0.1 * k, intensity=0.1 * k)
+        frames.append(Frame(np.c_[s.points, np.zeros(3, np.float32)], s.T_odom_lidar,
+                            s.stamp_ns, 'lidar', None, T_base_lidar=T_BL))
+    buf, only_run = SweepBuffer(3), SweepBuffer(3)
+    for t, f in enumerate(frames):
+        if t % 2:
+            buf.add(f.points[:, :4], f.pose, f.stamp_ns)
+            continue
+        live = buf.push(f.points[:, :4], f.pose, f.stamp_ns, f.T_base_lidar)
+        np.testing.assert_array_equal(model_frame(frames, t, 3).points, live)
+        assert buf.last_lags_s == pytest.approx([0.0, 0.1, 0.2][:t + 1])
+        only_run.push(f.points[:, :4], f.pose, f.stamp_ns, f.T_base_lidar)
+        assert only_run.last_lags_s == pytest.approx([0.0, 0.2, 0.4][:t // 2 + 1])
+    # a sweep without a pose is not buffered, and the buffered ones stand
+    before = len(buf)
+    buf.add(sweep_at(0.7).points, None, sweep_at(0.7).stamp_ns)
+    assert len(buf) == before
+    # added sweeps follow push's rules: time going backwards starts over, age drops old ones
+    buf.add(sweep_at(0.1).points, sweep_at(0.1).T_odom_lidar, sweep_at(0.1).stamp_ns)
+    assert len(buf) == 1
+    s = sweep_at(1.0)
+    buf.push(s.points, s.T_odom_lidar, s.stamp_ns, T_BL)
+    assert buf.last_lags_s == (0.0,)
+
+
 def test_an_accumulation_already_is_used_as_it_is():
     """nuScenes keyframes come with their sweeps stacked (time lags > 0): nothing is added."""
     buf = SweepBuffer(3)

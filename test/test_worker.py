@@ -84,3 +84,33 @@ def test_a_reset_and_new_settings_apply_before_the_next_frame(worker):
     assert len(published[0].detections_msg.data) <= published[0].detections_msg.point_step
     assert w.pipeline.last_reset_reason == 'test'
     assert stamp_ns(published[0].detections_msg) == T0
+
+
+def test_clouds_skipped_while_busy_feed_the_next_inputs_sweeps(request):
+    """Three clouds wait when the worker starts: it buffers the two it skips (no detection,
+    counted) and runs the newest on all three sweeps, as the model was trained."""
+    from test_pipeline import make_pipeline
+    mc = request.getfixturevalue('classes')
+    pipe = make_pipeline(request.getfixturevalue('model'), mc)
+    for t in range(T0 - S // 2, T0 + S, S // 50):
+        assert pipe.add_odometry(odom(t))
+    published, log = [], Log()
+    w = FrameWorker(pipe, lambda: DetectorParams(), lambda: T0, published.append,
+                    lambda: False, lambda: True, Reasons(lambda _: None, 5.0, 30.0), log,
+                    keep_skipped=2)
+    for k in range(4):
+        put_cloud(w, mc, T0 + k * S // 10)
+    thread = threading.Thread(target=w.run, daemon=True)
+    thread.start()
+    try:
+        assert until(lambda: w.frames_out == 1)
+        assert w.frames_sweeps_only == 2 and w.mailbox.dropped == 3
+        assert stamp_ns(published[0].detections_msg) == T0 + 3 * S // 10
+        assert w.last.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
+        _, _, values = health_report(w.snapshot({}))
+        assert values['frames_sweeps_only'] == '2' and values['input_sweeps'] == '3 over 0.20 s'
+        assert not [line for kind, line in log.lines if kind == 'error']
+    finally:
+        w.stop()
+        thread.join(5.0)
+

@@ -96,6 +96,8 @@ class SweepBuffer:
         self.sweeps = sweeps
         self.max_age_s = max_age_s
         self.past: deque[Sweep] = deque(maxlen=max(sweeps - 1, 0))
+        # the time lags (s) of the sweeps in the last input :meth:`push` made, newest first
+        self.last_lags_s: tuple[float, ...] = ()
 
     def clear(self) -> None:
         """Forget the previous sweeps (the next input has the current sweep only)."""
@@ -119,17 +121,43 @@ class SweepBuffer:
         """
         if T_odom_lidar is None or already_accumulated(points):
             self.clear()
+            self.last_lags_s = (0.0,)
             return accumulate_sweeps([Sweep(points, np.eye(4), stamp_ns)], T_base_lidar)
-        if self.past and stamp_ns <= self.past[-1].stamp_ns:
-            self.clear()              # time went backwards or repeated: the stream restarted
-        while self.past and stamp_ns - self.past[0].stamp_ns > self.max_age_s * 1e9:
-            self.past.popleft()
-        current = Sweep(np.asarray(points, np.float32), np.asarray(T_odom_lidar, np.float64),
-                        stamp_ns)
-        out = accumulate_sweeps([current, *reversed(self.past)], T_base_lidar)
+        current = self._current(points, T_odom_lidar, stamp_ns)
+        used = [current, *reversed(self.past)]
+        self.last_lags_s = tuple((stamp_ns - s.stamp_ns) * 1e-9 for s in used)
+        out = accumulate_sweeps(used, T_base_lidar)
         if self.past.maxlen:
             self.past.append(current)
         return out
+
+    def add(self, points: NDArray[np.float32], T_odom_lidar: NDArray[np.float64] | None,
+            stamp_ns: int) -> None:
+        """Buffer a sweep that the model does not run on (a cloud the node skipped while it
+        was busy), so the next input still holds the sweeps just before it, as in training.
+
+        :param T_odom_lidar: the LiDAR pose, or None: the sweep cannot be placed and is not
+            buffered (the buffered ones still can be).
+        """
+        if T_odom_lidar is None:
+            return
+        if already_accumulated(points):
+            self.clear()
+            return
+        current = self._current(points, T_odom_lidar, stamp_ns)
+        if self.past.maxlen:
+            self.past.append(current)
+
+    def _current(self, points: NDArray[np.float32], T_odom_lidar: NDArray[np.float64],
+                 stamp_ns: int) -> Sweep:
+        """The sweep at ``stamp_ns``, after dropping the buffered ones it outdates (all of
+        them when time went backwards or repeated: the stream restarted)."""
+        if self.past and stamp_ns <= self.past[-1].stamp_ns:
+            self.clear()
+        while self.past and stamp_ns - self.past[0].stamp_ns > self.max_age_s * 1e9:
+            self.past.popleft()
+        return Sweep(np.asarray(points, np.float32), np.asarray(T_odom_lidar, np.float64),
+                     stamp_ns)
 
 
 def model_frame(sequence: Sequence[Frame], t: int, sweeps: int,
