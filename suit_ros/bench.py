@@ -296,7 +296,9 @@ def table(r: dict[str, Any]) -> str:
                          f'{v.get("node_latency_ms_p95", float("nan")):.1f}), output '
                          f'{v["rate_hz"]:.1f} Hz, '
                          f'{v["frames_out"]}/{v["frames_in"]} frames out, dropped '
-                         f'{v["dropped"]}, node overhead {v["overhead_pct"]:.1f}% of the model '
-                         'step')
+                         f'{v["dropped"]} (of them buffered as sweeps '
+                         f'{v.get("sweeps_only", "n/a")}), last input '
+                         f'{v.get("input_sweeps", "n/a")}, node overhead '
+                         f'{v["overhead_pct"]:.1f}% of the model step')
     lines.append(f'peak RSS: {r["peak_rss_mb"]:.0f} MB')
     return '\n'.join(lines)

@@ -156,6 +156,9 @@ def _summary(clouds: dict[int, float], dets: dict[int, float], last: dict[str, s
     overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50'))
     return {'frames_in': len(clouds), 'frames_out': len(dets),
             'dropped': int(last.get('dropped_frames', -1)),
+            # skipped clouds the node still took into the model's sweeps; the last input's
+            'sweeps_only': int(last.get('frames_sweeps_only', -1)),
+            'input_sweeps': last.get('input_sweeps', 'n/a'),
             'rate_hz': len(dets) / span if span > 0 else 0.0,
             'latency_ms_p50': float(np.median(lat)) * 1e3 if lat else float('nan'),
             'latency_ms_p95': float(np.percentile(lat, 95)) * 1e3 if lat else float('nan'),

@@ -11,8 +11,10 @@ def test_rate_and_latency_are_counted_over_the_playback():
     clouds = {k: 10.0 + 0.1 * k for k in range(10)}
     dets = {k: t + 0.05 + 0.01 * (k == 9) for k, t in clouds.items() if k != 4}
     out = _summary(clouds, dets, {'model_ms_p50': '40.0', 'convert_ms_p50': '2.0',
-                                  'publish_ms_p50': '2.0', 'dropped_frames': '1'})
+                                  'publish_ms_p50': '2.0', 'dropped_frames': '1',
+                                  'frames_sweeps_only': '1', 'input_sweeps': '3 over 0.20 s'})
     assert out['frames_in'] == 10 and out['frames_out'] == 9 and out['dropped'] == 1
+    assert out['sweeps_only'] == 1 and out['input_sweeps'] == '3 over 0.20 s'
     assert out['rate_hz'] == pytest.approx(9 / (0.9 + 0.06))
     assert out['latency_ms_p50'] == pytest.approx(50.0)
     assert out['overhead_pct'] == pytest.approx(10.0)
