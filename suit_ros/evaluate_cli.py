@@ -44,6 +44,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="sweeps taken over time put back at their stamps, as the node's "
                         "`deskew` does (frames with their returns' times: synthetic sweeps of "
                         'real sensors)')
+    parser.add_argument('--run-every', type=int, default=1, metavar='K',
+                        help='run the model on every K-th frame only, as a node too slow for '
+                        'its sensor does (the skipped frames feed its sweeps, as the node '
+                        'buffers them); only those frames are scored (default 1: every frame)')
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--json-out', help='write the metrics as JSON here')
     parser.add_argument('--plot', help='write precision-recall curves (PNG) here')
@@ -123,6 +127,11 @@ def synthetic_sequences(which: str, cache_dir: str) -> list[Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate and report."""
+    if args.run_every < 1:
+        raise ConfigError(f'--run-every must be at least 1, got {args.run_every}')
+    if args.run_every != 1 and (args.bag or args.kitti or args.history is not None):
+        raise ConfigError('--run-every applies to a model run over drives (--synthetic, '
+                          '--nuscenes, --av2), without --history')
     if args.bag:
         result = _from_bag(args)
     elif args.kitti:
@@ -144,7 +153,8 @@ def run(args: argparse.Namespace) -> int:
         if not seqs or not seqs[0]:
             raise DatasetError('the synthetic split is empty')
         result = run_model(model, seqs, history=args.history, tracker=filt,
-                           deskew=args.deskew == 'on').evaluate(model.cfg.class_names)
+                           deskew=args.deskew == 'on', run_every=args.run_every
+                           ).evaluate(model.cfg.class_names)
     print(result.table())
     if args.json_out:
         from suit_ros.evaluate import dump_json

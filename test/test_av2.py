@@ -198,6 +198,25 @@ def test_model_runs_over_an_av2_log(tmp_path: Path) -> None:
 
 
 @pytest.mark.slow
+def test_eval_runs_the_model_as_an_overloaded_node_does(tmp_path: Path, capsys) -> None:
+    """``eval --run-every 2``: the model runs on sweeps 0, 2, 4 (the others feed its sweeps),
+    only those are scored; a value it cannot honour is refused with a message."""
+    import json
+
+    from suit_ros.cli import main
+    write_log(tmp_path / 'data', sweeps=5)
+    out = tmp_path / 'every2.json'
+    assert main(['eval', '--av2', str(tmp_path / 'data'), '--run-every', '2', '--tracker',
+                 '--json-out', str(out)]) == 0
+    assert json.loads(out.read_text())['summary']['frames'] == 3
+    assert main(['eval', '--av2', str(tmp_path / 'data'), '--run-every', '0']) == 1
+    assert '--run-every must be at least 1' in capsys.readouterr().err
+    assert main(['eval', '--av2', str(tmp_path / 'data'), '--run-every', '2',
+                 '--history', '2']) == 1
+    assert 'without --history' in capsys.readouterr().err
+
+
+@pytest.mark.slow
 def test_a_training_config_can_train_on_av2_logs(tmp_path: Path) -> None:
     from suit_ros.checkpoint import load_checkpoint
     from suit_ros.train import TrainConfig, train
