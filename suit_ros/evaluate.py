@@ -420,8 +420,12 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param run_every: the model runs on every this-many-th frame of a drive (the first, then
         each ``run_every``-th), as a node too slow for its sensor does; only those frames are
         in the run. The others are taken into the sweep buffer (``buffer_skipped``, as the
-        node does) or dropped (a node that feeds the model only the clouds it runs on).
+        node does) or dropped (a node that feeds the model only the clouds it runs on). The
+        memory is fused whatever the gap (the node drops one older than ``max_gap_s``, 0.5 s
+        by default: from ``run_every`` 6 at 10 Hz).
     """
+    if run_every < 1:
+        raise ValueError(f'run_every must be at least 1, got {run_every}')
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
     runner = StreamingDetector(model, device, precision=precision,

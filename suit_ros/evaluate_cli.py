@@ -129,9 +129,11 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate and report."""
     if args.run_every < 1:
         raise ConfigError(f'--run-every must be at least 1, got {args.run_every}')
-    if args.run_every != 1 and (args.bag or args.kitti or args.history is not None):
-        raise ConfigError('--run-every applies to a model run over drives (--synthetic, '
-                          '--nuscenes, --av2), without --history')
+    if args.run_every != 1 and (args.bag or args.kitti or args.nuscenes
+                                or args.history is not None):
+        # nuScenes keyframes come with their sweeps accumulated: nothing to buffer
+        raise ConfigError('--run-every applies to a model run over drives of single sweeps '
+                          '(--synthetic, --av2), without --history')
     if args.bag:
         result = _from_bag(args)
     elif args.kitti:

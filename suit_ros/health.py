@@ -60,6 +60,8 @@ def frame_stats(timings: dict[str, float], publish_s: float, received_ns: int, s
     by_receive = abs(skew) > max_skew_s
     return {'convert': timings['convert'], 'model': timings['model'],
             'publish': timings['publish'] + publish_s,
+            # the skipped clouds taken into the sweeps before it (an overloaded node)
+            'buffer': timings.get('buffer', 0.0),
             'latency': (now_ns - (received_ns if by_receive else stamp_ns)) * 1e-9,
             'by_receive': by_receive, 'skew': skew}
 
@@ -95,8 +97,8 @@ def _input(s: HealthSnapshot, levels: list[tuple[int, str]], values: dict[str, s
 def _timing(s: HealthSnapshot, period: float | None, levels: list[tuple[int, str]],
             values: dict[str, str]) -> None:
     """Per-stage times, processing against the period, latency and what it is measured from."""
-    for key in ('convert', 'model', 'publish'):
-        values[f'{key}_ms_p50'] = _ms([st[key] for st in s.stats], 'p50')
+    for key in ('convert', 'model', 'publish', 'buffer'):
+        values[f'{key}_ms_p50'] = _ms([st.get(key, 0.0) for st in s.stats], 'p50')
     processing = [st['convert'] + st['model'] + st['publish'] for st in s.stats]
     if processing and period and float(np.median(processing)) > period:
         levels.append((WARN, f'processing {np.median(processing) * 1e3:.0f} ms exceeds the '

@@ -90,6 +90,7 @@ class PipelineOutput:
     reset_reason: str = ''
     deskew: str = 'off'                 # what deskew did (diagnostics)
     input_lags_s: tuple[float, ...] = ()   # the model input's sweeps, lags newest first
+    buffered: bool = False              # a skipped cloud taken into the sweep buffer
     warnings: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -257,9 +258,14 @@ class DetectionPipeline:
         """
         t0 = time.perf_counter()
         out = PipelineOutput(cloud.header, Detections.empty())
+        last_pose = self.last_pose
         points, stamp_ns, pose = self._prepare(cloud, out)
+        if pose is None and not out.reset_reason:
+            # not buffered, nothing reset: the next cloud's pose-jump check still compares
+            # with the last pose the memory and the sweeps were placed with
+            self.last_pose = last_pose
         if len(points):
-            self.detector.add_sweep(points, stamp_ns, pose, self.T_base_lidar)
+            out.buffered = self.detector.add_sweep(points, stamp_ns, pose, self.T_base_lidar)
         out.timings = {'convert': time.perf_counter() - t0}
         return out
 

@@ -46,6 +46,7 @@ class Pipeline(Protocol):
 
     last_odom_error: str
     last_reset_reason: str
+    last_stamp_ns: int | None
     resets: int
     odom_rejected: int
 
@@ -126,9 +127,10 @@ class FrameWorker:
                     self.pipeline.reset(reset)
                 self._wait_for_odometry(stamp_ns(received.msg))
                 self._drain_odometry()
-                for old in skipped:
+                t0 = time.perf_counter()
+                for old in ([] if reset else self._in_order(skipped, received)):
                     self.buffer(old)
-                self.process(received)
+                self.process(received, time.perf_counter() - t0)
             except Exception as exc:  # keep the node alive; say what happened
                 if self.stopping:
                     return
@@ -151,6 +153,15 @@ class FrameWorker:
                                      f'{self.pipeline.last_odom_error}'}, time.monotonic(),
                                     hold=False)
 
+    def _in_order(self, skipped: list[Received[Any]], newest: Received[Any]
+                  ) -> list[Received[Any]]:
+        """The skipped clouds that fall between the last cloud taken and the newest, in stamp
+        order (one that arrived out of order must not read as time going backwards)."""
+        last = self.pipeline.last_stamp_ns
+        top = stamp_ns(newest.msg)
+        return sorted((r for r in skipped if (last is None or stamp_ns(r.msg) > last)
+                       and stamp_ns(r.msg) < top), key=lambda r: stamp_ns(r.msg))
+
     def buffer(self, received: Received[Any]) -> None:
         """Take a skipped cloud into the model's sweeps (no detection); its input warnings
         and resets count as a processed cloud's do. A failure is logged and the newest
@@ -162,14 +173,18 @@ class FrameWorker:
                 self.log.error(f'skipped cloud not buffered: {type(exc).__name__}: {exc}')
             return
         with self.lock:
-            self.frames_sweeps_only += 1
+            self.frames_sweeps_only += int(out.buffered)
             self.reasons.report(out.warnings, received.monotonic)
         if out.reset_reason:
             self.log.info(f'memory reset: {out.reset_reason}')
 
-    def process(self, received: Received[Any]) -> None:
-        """Run one cloud through the pipeline, publish, count."""
+    def process(self, received: Received[Any], buffer_s: float = 0.0) -> None:
+        """Run one cloud through the pipeline, publish, count.
+
+        :param buffer_s: the time spent before it on the skipped clouds (in its latency).
+        """
         out = self.pipeline.process(received.msg, markers=self.want_markers())
+        out.timings['buffer'] = buffer_s
         t0 = time.perf_counter()
         self.publish(out)
         stats = frame_stats(out.timings, time.perf_counter() - t0, received.clock_ns,

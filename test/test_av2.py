@@ -214,6 +214,8 @@ def test_eval_runs_the_model_as_an_overloaded_node_does(tmp_path: Path, capsys) 
     assert main(['eval', '--av2', str(tmp_path / 'data'), '--run-every', '2',
                  '--history', '2']) == 1
     assert 'without --history' in capsys.readouterr().err
+    with pytest.raises(ValueError, match='run_every'):
+        run_model(None, [], run_every=0)
 
 
 @pytest.mark.slow

@@ -603,6 +603,7 @@ def test_skipped_clouds_buffered_keep_the_inputs_sweeps_as_in_training(model, cl
         p.process(cloud(classes, T0))
     out = pipe.buffer(cloud(classes, T0 + S // 10))
     assert out.warnings == {} and out.detections_msg is None and out.reset_reason == ''
+    assert out.buffered
     assert len(pipe.detector.sweeps) == 2
     out = pipe.process(cloud(classes, T0 + 2 * S // 10))
     assert out.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
@@ -625,11 +626,16 @@ def test_skipped_clouds_buffered_keep_the_inputs_sweeps_as_in_training(model, cl
     out = pipe.process(cloud(classes, T0 + 13 * S // 10))
     assert 'memory 0.70 s old' in out.reset_reason and not out.used_memory
     assert out.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
-    # without a pose a skipped cloud is not buffered (it cannot be placed)
-    late = T0 + 30 * S
-    before = len(pipe.detector.sweeps)
-    out = pipe.buffer(cloud(classes, late))
-    assert out.single_frame == 'outside_odometry' and len(pipe.detector.sweeps) <= before
+    # without a pose a skipped cloud is not buffered (it cannot be placed), nothing is reset,
+    # and the next cloud's pose-jump check still sees the last pose
+    short = make_pipeline(model, classes)
+    feed_odometry(short, T0, T0 + 3 * S // 10)
+    short.process(cloud(classes, T0 + 2 * S // 10))
+    assert len(short.detector.sweeps) == 1 and short.last_pose is not None
+    out = short.buffer(cloud(classes, T0 + 5 * S // 10))       # past the odometry + 0.15 s
+    assert out.single_frame == 'outside_odometry' and not out.buffered
+    assert out.reset_reason == '' and len(short.detector.sweeps) == 1
+    assert short.last_pose is not None
 
 
 def test_max_pose_jump_m(model, classes):

@@ -86,31 +86,53 @@ def test_a_reset_and_new_settings_apply_before_the_next_frame(worker):
     assert stamp_ns(published[0].detections_msg) == T0
 
 
-def test_clouds_skipped_while_busy_feed_the_next_inputs_sweeps(request):
-    """Three clouds wait when the worker starts: it buffers the two it skips (no detection,
-    counted) and runs the newest on all three sweeps, as the model was trained."""
-    from test_pipeline import make_pipeline
-    mc = request.getfixturevalue('classes')
-    pipe = make_pipeline(request.getfixturevalue('model'), mc)
-    for t in range(T0 - S // 2, T0 + S, S // 50):
-        assert pipe.add_odometry(odom(t))
+def one_round(pipe, mc, stamps, reset=None):
+    """A fresh worker (keep_skipped 2) on ``pipe`` finds clouds of ``stamps`` waiting in
+    arrival order, runs until it published once, stops; returns it and what it published."""
     published, log = [], Log()
     w = FrameWorker(pipe, lambda: DetectorParams(), lambda: T0, published.append,
                     lambda: False, lambda: True, Reasons(lambda _: None, 5.0, 30.0), log,
                     keep_skipped=2)
-    for k in range(4):
-        put_cloud(w, mc, T0 + k * S // 10)
+    if reset:
+        w.request(reset=reset)
+    for stamp in stamps:
+        put_cloud(w, mc, stamp)
     thread = threading.Thread(target=w.run, daemon=True)
     thread.start()
     try:
         assert until(lambda: w.frames_out == 1)
-        assert w.frames_sweeps_only == 2 and w.mailbox.dropped == 3
-        assert stamp_ns(published[0].detections_msg) == T0 + 3 * S // 10
-        assert w.last.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
-        _, _, values = health_report(w.snapshot({}))
-        assert values['frames_sweeps_only'] == '2' and values['input_sweeps'] == '3 over 0.20 s'
-        assert not [line for kind, line in log.lines if kind == 'error']
     finally:
         w.stop()
         thread.join(5.0)
+    assert not [line for kind, line in log.lines if kind == 'error']
+    return w, published
 
+
+def test_clouds_skipped_while_busy_feed_the_next_inputs_sweeps(request):
+    """Clouds wait when the worker starts: it buffers the last two it skips (no detection,
+    counted) and runs the newest on all three sweeps, as the model was trained; a cloud that
+    arrived out of order is not taken for time going backwards; after a reset request the
+    skipped clouds (from before it) are let go."""
+    from test_pipeline import make_pipeline
+    mc = request.getfixturevalue('classes')
+    pipe = make_pipeline(request.getfixturevalue('model'), mc)
+    for t in range(T0 - S // 2, T0 + 2 * S, S // 50):
+        assert pipe.add_odometry(odom(t))
+    w, published = one_round(pipe, mc, [T0 + k * S // 10 for k in range(4)])
+    assert w.frames_sweeps_only == 2 and w.mailbox.dropped == 3
+    assert stamp_ns(published[0].detections_msg) == T0 + 3 * S // 10
+    assert w.last.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
+    _, _, values = health_report(w.snapshot({}))
+    assert values['frames_sweeps_only'] == '2' and values['input_sweeps'] == '3 over 0.20 s'
+    assert float(values['buffer_ms_p50']) > 0.0
+    # arrivals 0.5, 0.7, 0.6 s: the newest to arrive runs; 0.7 is past it and let go, 0.5 goes
+    # into the sweeps before it; no reset
+    resets = pipe.resets
+    w, published = one_round(pipe, mc, [T0 + 5 * S // 10, T0 + 7 * S // 10, T0 + 6 * S // 10])
+    assert stamp_ns(published[0].detections_msg) == T0 + 6 * S // 10
+    assert w.frames_sweeps_only == 1 and pipe.resets == resets
+    assert w.last.input_lags_s == pytest.approx((0.0, 0.1, 0.3))
+    # a reset requested: the clouds skipped before it are not buffered, the input is one sweep
+    w, published = one_round(pipe, mc, [T0 + 8 * S // 10, T0 + 9 * S // 10, T0 + S], 'test')
+    assert w.frames_sweeps_only == 0 and pipe.last_reset_reason == 'test'
+    assert w.last.input_lags_s == (0.0,)

@@ -236,21 +236,23 @@ class StreamingDetector:
 
     def add_sweep(self, points: NDArray[np.float32], stamp_ns: int,
                   T_odom_base: NDArray[np.float64] | None,
-                  T_base_lidar: NDArray[np.float64] | None = None) -> None:
+                  T_base_lidar: NDArray[np.float64] | None = None) -> bool:
         """Buffer a sweep without detecting in it: a cloud the node skipped while the model
         was busy. The next :meth:`step`'s input then holds the sweeps just before it (0.1 s
         apart at 10 Hz, as in training) instead of the last ones the model ran on; the memory
         and the tracks are untouched. A sweep without a pose is not buffered.
 
         :param points: as :meth:`step`'s.
+        :return: whether it was buffered (no pose, an accumulation already, or a model of one
+            sweep: not).
         """
         pts = np.asarray(points, np.float32)
         if pts.ndim != 2 or pts.shape[1] not in (4, 5):
             raise ValueError(f'points must be (N, 4) or (N, 5), got {pts.shape}')
         if T_odom_base is None:
-            return
+            return False
         T_bl = np.eye(4) if T_base_lidar is None else np.asarray(T_base_lidar, np.float64)
-        self.sweeps.add(pts, np.asarray(T_odom_base, np.float64) @ T_bl, stamp_ns)
+        return self.sweeps.add(pts, np.asarray(T_odom_base, np.float64) @ T_bl, stamp_ns)
 
     @torch.inference_mode()
     def step(self, points: NDArray[np.float32], stamp_ns: int,

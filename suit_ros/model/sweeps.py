@@ -132,21 +132,24 @@ class SweepBuffer:
         return out
 
     def add(self, points: NDArray[np.float32], T_odom_lidar: NDArray[np.float64] | None,
-            stamp_ns: int) -> None:
+            stamp_ns: int) -> bool:
         """Buffer a sweep that the model does not run on (a cloud the node skipped while it
         was busy), so the next input still holds the sweeps just before it, as in training.
 
         :param T_odom_lidar: the LiDAR pose, or None: the sweep cannot be placed and is not
             buffered (the buffered ones still can be).
+        :return: whether it was buffered.
         """
         if T_odom_lidar is None:
-            return
+            return False
         if already_accumulated(points):
             self.clear()
-            return
+            return False
         current = self._current(points, T_odom_lidar, stamp_ns)
-        if self.past.maxlen:
-            self.past.append(current)
+        if not self.past.maxlen:
+            return False
+        self.past.append(current)
+        return True
 
     def _current(self, points: NDArray[np.float32], T_odom_lidar: NDArray[np.float64],
                  stamp_ns: int) -> Sweep:
