@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from suit_ros.ops.kernels import azimuth_counts
+
 
 class SectorCoverage:
     """Running azimuth coverage; :meth:`update` per cloud returns the missing sector or None.
@@ -47,9 +49,10 @@ class SectorCoverage:
         p = np.asarray(xyz)
         if len(p) == 0:
             return np.zeros(self.bins, bool)
-        az = np.arctan2(p[:, 1], p[:, 0]) % (2 * np.pi)
-        k = np.minimum((az * (self.bins / (2 * np.pi))).astype(np.int64), self.bins - 1)
-        return np.asarray(np.bincount(k, minlength=self.bins) >= self.min_points)
+        if p.dtype not in (np.float32, np.float64):
+            p = p.astype(np.float64)
+        # one compiled pass (a 260k-point cloud: 12 ms in numpy on the slow 2-core machine)
+        return np.asarray(azimuth_counts(p, self.bins) >= self.min_points)
 
     def update(self, xyz: NDArray[np.floating[Any]]) -> tuple[float, float] | None:
         """Add a cloud; return its missing sector ``(start_deg, end_deg)`` or None."""

@@ -95,6 +95,30 @@ def test_the_range_filter_keeps_what_the_array_mask_keeps():
     assert kernels.in_range(cloud[:0], np.float32(0.0), np.float32(1.0)).shape == (0, 4)
 
 
+def test_azimuth_counts_bin_as_numpy_does_in_float64():
+    """The sector-gap check's returns per azimuth bin: numpy's arctan2 binning in float64,
+    on a cloud, strided xyz slices of float32 and float64 clouds, the axes and both zeros,
+    points on the bin edges; a NaN counts nowhere."""
+    cloud = lidar_like(20000, 3)[:, :4].copy()
+    cloud[:8, :2] = [[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0], [-1.0, -0.0],
+                     [0.0, 0.0], [-0.0, -0.0], [1.0, -1e-30]]
+    for pts, bins in ((cloud[:, :3], 72), (cloud.astype(np.float64)[:, :3], 72),
+                      (cloud[:, :3], 360), (cloud[:, :2], 4)):
+        p = pts.astype(np.float64)
+        az = np.arctan2(p[:, 1], p[:, 0]) % (2 * np.pi)
+        k = np.minimum((az * (bins / (2 * np.pi))).astype(np.int64), bins - 1)
+        want = np.bincount(k, minlength=bins)
+        np.testing.assert_array_equal(kernels.azimuth_counts(pts, bins), want)
+    edges = np.linspace(0, 2 * np.pi, 73)[:-1]
+    ring = np.c_[np.cos(edges), np.sin(edges)]
+    p = ring.astype(np.float64)
+    az = np.arctan2(p[:, 1], p[:, 0]) % (2 * np.pi)
+    want = np.bincount(np.minimum((az * (72 / (2 * np.pi))).astype(np.int64), 71), minlength=72)
+    np.testing.assert_array_equal(kernels.azimuth_counts(ring, 72), want)
+    nan = np.array([[np.nan, 1.0, 0.0], [1.0, 0.0, 0.0]], np.float32)
+    assert kernels.azimuth_counts(nan, 4).tolist() == [1, 0, 0, 0]
+
+
 def test_pillar_max_refuses_other_feature_counts():
     with pytest.raises(ValueError, match=r'\(N, 5\)'):
         kernels.pillar_max(np.zeros((3, 4), np.float32), (-1, -1, -1, 1, 1, 1), 0.5, 4, 4,

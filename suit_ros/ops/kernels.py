@@ -21,6 +21,8 @@ them bit for bit), so outputs do not change:
   over the points, every point tested against the boxes of its grid cell
   (:meth:`suit_ros.ops.geometry.CellIndex.box_lists`);
 - :func:`distinct_values`: the distinct time lags of a model input;
+- :func:`azimuth_counts`: a cloud's returns per azimuth bin (the node's sector-gap check,
+  :mod:`suit_ros.coverage`; float64 angles, tested against numpy's in float64);
 - :func:`paired_bev_iou`: rotated BEV IoU of box pairs (the NMS of the head and of the
   significance sampling), a loop per pair instead of some 60 tensor operations;
 - :func:`height_histograms` and :func:`level_heights`: the local ground under a model input
@@ -35,6 +37,7 @@ types a detector step uses, as the node does at start.
 from __future__ import annotations
 
 from collections.abc import Callable
+import math
 from typing import Any, TypeVar, cast
 
 import numba
@@ -441,6 +444,26 @@ def in_range_times(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # p
 
 
 @_jit
+def azimuth_counts(xyz: Any, bins: int) -> Any:  # pragma: no cover
+    """Returns per azimuth bin of ``(N, >= 2)`` points: bin ``k`` holds the angles (about
+    +z, counter-clockwise from +x, ``0 .. 2 pi``) in ``[k, k + 1) * 2 pi / bins``, the angle
+    ``atan2(y, x) mod 2 pi`` in float64 (an angle that rounds to 2 pi goes to the last
+    bin); a point with a NaN coordinate counts nowhere."""
+    counts = np.zeros(bins, np.int64)
+    two_pi = 2.0 * np.pi
+    scale = bins / two_pi
+    for i in range(xyz.shape[0]):
+        a = math.atan2(np.float64(xyz[i, 1]), np.float64(xyz[i, 0]))
+        if a != a:
+            continue
+        if a < 0.0:
+            a += two_pi
+        k = int(a * scale)
+        counts[min(k, bins - 1)] += 1
+    return counts
+
+
+@_jit
 def deskew_points(points: Any, times: Any, w: Any, v: Any) -> None:  # pragma: no cover
     """Move each return of ``(N, >= 3)`` float32 ``points`` (in place), taken ``times[i]``
     seconds after the stamp by a sensor moving with the constant twist ``w`` (rad/s), ``v``
@@ -772,6 +795,7 @@ def warm_up() -> None:
                              np.float32(5.0), start, owners, np.ones((1, 7), np.float32),
                              np.ones(1, np.float32), np.float32(0.1), np.ones(1, np.int64))
     distinct_values(model_input[:, 4])
+    azimuth_counts(sweep[:, :3], 72)
     height_histograms(model_input, -1.0, -1.0, 1.0, 2, 2, -1.0, 4)
     level_heights(model_input, np.zeros((2, 2), np.float32), -1.0, -1.0, 1.0,
                   model_input.copy())
