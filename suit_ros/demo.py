@@ -74,7 +74,9 @@ def _report(bag: Path, clouds: dict[int, float], dets: dict[int, Any],
     last = diags[-1] if diags else {}
     print('\n=== suit_ros demo ===')
     print(f'frames in {frames_in}, frames out {len(dets)}, dropped (node) '
-          f'{last.get("dropped_frames", "?")}, output rate {rate:.1f} Hz (playback and '
+          f'{last.get("dropped_frames", "?")} (taken into the sweeps: '
+          f'{last.get("frames_sweeps_only", "?")}; last input: '
+          f'{last.get("input_sweeps", "?")}), output rate {rate:.1f} Hz (playback and '
           f'settling took {play_s:.1f} s)')
     if lat:
         print(f'latency (cloud received -> detections received, through DDS): p50 '
