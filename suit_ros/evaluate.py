@@ -357,6 +357,7 @@ class ModelRun:
     drive: list[int] = field(default_factory=list)
     ignore: list[NDArray[np.float32] | None] = field(default_factory=list)
     carried: list[NDArray[np.bool_]] = field(default_factory=list)
+    used_memory: list[bool] = field(default_factory=list)   # per frame: a memory was fused
 
     def published(self, thresholds: Sequence[float], carry_thresholds: Sequence[float]
                   ) -> list[Detections]:
@@ -395,8 +396,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               precision: PrecisionChoice = 'float32',
               tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
               overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
-              deskew: bool = False, run_every: int = 1, buffer_skipped: bool = True
-              ) -> ModelRun:
+              deskew: bool = False, run_every: int = 1, buffer_skipped: bool = True,
+              max_gap_s: float = 0.5) -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -420,9 +421,9 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     :param run_every: the model runs on every this-many-th frame of a drive (the first, then
         each ``run_every``-th), as a node too slow for its sensor does; only those frames are
         in the run. The others are taken into the sweep buffer (``buffer_skipped``, as the
-        node does) or dropped (a node that feeds the model only the clouds it runs on). The
-        memory is fused whatever the gap (the node drops one older than ``max_gap_s``, 0.5 s
-        by default: from ``run_every`` 6 at 10 Hz).
+        node does) or dropped (a node that feeds the model only the clouds it runs on). As
+        the node, it drops a memory older than ``max_gap_s`` (the node's parameter; at 10 Hz
+        from ``run_every`` 6 on), the sweeps kept; with ``run_every`` 1 the gap is not read.
     """
     if run_every < 1:
         raise ValueError(f'run_every must be at least 1, got {run_every}')
@@ -434,6 +435,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     out = ModelRun([], [], [], [], [], {})
     for drive, seq in enumerate(sequences):
         runner.reset('new sequence')
+        last_run: int | None = None
         if transform is not None:
             seq = [transform(f) for f in seq]
         if deskew:
@@ -443,6 +445,10 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
                 if buffer_skipped:
                     runner.add_sweep(*step_inputs(frame))
                 continue
+            if run_every > 1 and last_run is not None and \
+                    (frame.stamp_ns - last_run) * 1e-9 > max_gap_s:
+                runner.reset('memory too old', sweeps=False)      # as the node's pipeline
+            last_run = frame.stamp_ns
             if drop_memory:
                 runner.reset('drop memory', sweeps=False)
             if history is not None:
@@ -456,6 +462,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
                 out.memory_after.setdefault(t + 1, []).append(res.memory_bytes)
             out.det.append(res.detections)
             out.carried.append(res.carried)
+            out.used_memory.append(res.used_memory)
             out.gt.append(frame.gt)
             out.num_points.append(frame.num_points)
             out.drive.append(drive)

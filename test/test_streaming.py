@@ -70,6 +70,11 @@ def test_a_sweep_added_without_a_step_feeds_the_next_input_only():
     dropped = run_model(model, seqs, run_every=2, buffer_skipped=False)
     assert len(dropped.det) == 3
     assert not np.array_equal(every.det[1].scores, dropped.det[1].scores)
+    # a memory older than max_gap_s is dropped, as the node's pipeline does (sweeps kept)
+    assert every.used_memory == [False, True, True]
+    stale = run_model(model, seqs, run_every=2, max_gap_s=0.15)
+    assert stale.used_memory == [False, False, False]
+    assert run_model(model, seqs, max_gap_s=0.05).used_memory[1:] == [True] * 4  # run_every 1
 
 
 def test_streaming_candidates_and_literal_modes():

@@ -62,7 +62,8 @@ def main() -> int:
                        memory_bytes=[full.memory_bytes[i] for i in keep],
                        drive=[full.drive[i] for i in keep],
                        ignore=[full.ignore[i] for i in keep],
-                       carried=[full.carried[i] for i in keep])
+                       carried=[full.carried[i] for i in keep],
+                       used_memory=[full.used_memory[i] for i in keep])
         runs = {'full rate': same,
                 f'every {k}, sweeps of the clouds it ran on': node_run(run_every=k,
                                                                        buffer_skipped=False),
