@@ -251,7 +251,8 @@ class DetectionPipeline:
         """Take a cloud the model will not run on (the node skipped it while the model was
         busy with an earlier one) into the sweep buffer only; never raises for bad input.
 
-        It is converted, checked and deskewed as :meth:`process` does, so the next input
+        It is converted, checked (but for the sector-gap check) and deskewed as
+        :meth:`process` does, so the next input
         holds the sweeps just before it, 0.1 s apart at 10 Hz, as the model was trained (fed
         only the clouds it ran on, an overloaded node would give it sweeps 0.2-0.3 s apart:
         docs/experiments/overload). No detections; its input warnings and resets count.
@@ -259,7 +260,9 @@ class DetectionPipeline:
         t0 = time.perf_counter()
         out = PipelineOutput(cloud.header, Detections.empty())
         last_pose = self.last_pose
-        points, stamp_ns, pose = self._prepare(cloud, out)
+        # the sector-gap check reads the clouds the model runs on (a third of a buffered
+        # 260k-point cloud's cost: docs/experiments/overload)
+        points, stamp_ns, pose = self._prepare(cloud, out, coverage=False)
         if pose is None and not out.reset_reason:
             # not buffered, nothing reset: the next cloud's pose-jump check still compares
             # with the last pose the memory and the sweeps were placed with
@@ -280,15 +283,19 @@ class DetectionPipeline:
             return None
         return f'memory {gap:.2f} s old (the model ran on no cloud since) exceeds max_gap_s'
 
-    def _prepare(self, cloud: Any, out: PipelineOutput
+    def _prepare(self, cloud: Any, out: PipelineOutput, coverage: bool = True
                  ) -> tuple[NDArray[np.float32], int, NDArray[np.float64] | None]:
         """A cloud's points (converted, filtered, deskewed), stamp and pose, after the
         stream's checks (time jumps, gaps, frame and pose changes reset the memory); input
-        warnings, the pose's source and the reset reason go into ``out``."""
+        warnings, the pose's source and the reset reason go into ``out``.
+
+        :param coverage: check the azimuth coverage (``sector_gap``) and add the cloud to its
+            norm (the clouds the model runs on; a skipped cloud need not pay for it).
+        """
         header = cloud.header
         stamp_ns = stamp_to_ns(header.stamp)
         frame_id = str(header.frame_id)
-        points, times = self._points(cloud, stamp_ns, out)
+        points, times = self._points(cloud, stamp_ns, out, coverage)
         reason = self._reset_reason(stamp_ns, frame_id)
         if self.last_frame_id is not None and frame_id != self.last_frame_id:
             self.coverage.reset()                    # another sensor: another norm
@@ -313,7 +320,7 @@ class DetectionPipeline:
             out.deskew = 'off: no points'
         return points, stamp_ns, pose
 
-    def _points(self, cloud: Any, stamp_ns: int, out: PipelineOutput
+    def _points(self, cloud: Any, stamp_ns: int, out: PipelineOutput, coverage: bool = True
                 ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
         """``(N, 4)`` filtered, scaled points and, for deskew, each one's time after the stamp
         (s; None without usable times); input-contract warnings into ``out``."""
@@ -349,7 +356,7 @@ class DetectionPipeline:
             if p.intensity_scale != 1.0:
                 points[:, 3] *= 1.0 / p.intensity_scale      # a fresh array after the mask
         out.points_used = len(points)
-        gap = self.coverage.update(points[:, :3]) if len(points) else None
+        gap = self.coverage.update(points[:, :3]) if coverage and len(points) else None
         if gap is not None:
             out.warnings['sector_gap'] = (f'sector_gap: no returns from azimuth {gap[0]:.0f} to '
                                           f'{gap[1]:.0f} deg, normally covered (a blocked '

@@ -601,9 +601,10 @@ def test_skipped_clouds_buffered_keep_the_inputs_sweeps_as_in_training(model, cl
     for p in (pipe, plain):
         feed_odometry(p, T0, T0 + 2 * S)
         p.process(cloud(classes, T0))
+    seen = pipe.coverage.seen
     out = pipe.buffer(cloud(classes, T0 + S // 10))
     assert out.warnings == {} and out.detections_msg is None and out.reset_reason == ''
-    assert out.buffered
+    assert out.buffered and pipe.coverage.seen == seen     # the sector check: processed only
     assert len(pipe.detector.sweeps) == 2
     out = pipe.process(cloud(classes, T0 + 2 * S // 10))
     assert out.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
