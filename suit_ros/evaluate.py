@@ -435,7 +435,6 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     out = ModelRun([], [], [], [], [], {})
     for drive, seq in enumerate(sequences):
         runner.reset('new sequence')
-        last_run: int | None = None
         if transform is not None:
             seq = [transform(f) for f in seq]
         if deskew:
@@ -445,10 +444,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
                 if buffer_skipped:
                     runner.add_sweep(*step_inputs(frame))
                 continue
-            if run_every > 1 and last_run is not None and \
-                    (frame.stamp_ns - last_run) * 1e-9 > max_gap_s:
-                runner.reset('memory too old', sweeps=False)      # as the node's pipeline
-            last_run = frame.stamp_ns
+            if run_every > 1:                   # as the node's pipeline
+                runner.drop_stale_memory(frame.stamp_ns, max_gap_s)
             if drop_memory:
                 runner.reset('drop memory', sweeps=False)
             if history is not None:

@@ -117,7 +117,6 @@ class DetectionPipeline:
         self.last_frame_id: str | None = None
         self.last_pose: NDArray[np.float64] | None = None
         self.last_reset_reason = 'start'
-        self.last_model_stamp_ns: int | None = None   # the last cloud the model ran on
         self.resets = 0
         self.odom_rejected = 0
         self.last_odom_error = ''
@@ -207,16 +206,14 @@ class DetectionPipeline:
         t0 = time.perf_counter()
         out = PipelineOutput(cloud.header, Detections.empty())
         points, stamp_ns, pose = self._prepare(cloud, out)
-        stale = self._stale_memory(stamp_ns)
-        if stale is not None:
-            self.detector.reset(stale, sweeps=False)   # the sweeps just before it stand
+        stale = self.detector.drop_stale_memory(stamp_ns, self.params.max_gap_s)
+        if stale is not None:                          # the sweeps just before it stand
             self.last_reset_reason = out.reset_reason = stale
             self.resets += 1
         t1 = time.perf_counter()
         model_timings: dict[str, float] = {}
         if len(points):
             result = self.detector.step(points, stamp_ns, pose, self.T_base_lidar)
-            self.last_model_stamp_ns = stamp_ns
             out.input_lags_s = self.detector.sweeps.last_lags_s
             out.detections = result.detections
             out.used_memory = result.used_memory
@@ -271,17 +268,6 @@ class DetectionPipeline:
             out.buffered = self.detector.add_sweep(points, stamp_ns, pose, self.T_base_lidar)
         out.timings = {'convert': time.perf_counter() - t0}
         return out
-
-    def _stale_memory(self, stamp_ns: int) -> str | None:
-        """Why the memory is too old to fuse (the clouds in between were only buffered as
-        sweeps, so the stream had no gap), or None."""
-        last = self.last_model_stamp_ns
-        if last is None or self.detector.memory is None:
-            return None
-        gap = (stamp_ns - last) * 1e-9
-        if gap <= self.params.max_gap_s:
-            return None
-        return f'memory {gap:.2f} s old (the model ran on no cloud since) exceeds max_gap_s'
 
     def _prepare(self, cloud: Any, out: PipelineOutput, coverage: bool = True
                  ) -> tuple[NDArray[np.float32], int, NDArray[np.float64] | None]:

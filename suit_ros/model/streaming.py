@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 import time
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -53,6 +53,14 @@ class StepResult:
     num_points: NDArray[np.uint32] = field(default_factory=lambda: np.zeros(0, np.uint32))
     carried: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     velocity_std: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
+
+
+def _as_points(points: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
+    """A sweep as the streaming detector takes it: ``(N, 4)`` or ``(N, 5)`` float32."""
+    pts = np.asarray(points, np.float32)
+    if pts.ndim != 2 or pts.shape[1] not in (4, 5):
+        raise ValueError(f'points must be (N, 4) or (N, 5), got {pts.shape}')
+    return pts
 
 
 class StreamingDetector:
@@ -246,13 +254,27 @@ class StreamingDetector:
         :return: whether it was buffered (no pose, an accumulation already, or a model of one
             sweep: not).
         """
-        pts = np.asarray(points, np.float32)
-        if pts.ndim != 2 or pts.shape[1] not in (4, 5):
-            raise ValueError(f'points must be (N, 4) or (N, 5), got {pts.shape}')
+        pts = _as_points(points)
         if T_odom_base is None:
             return False
         T_bl = np.eye(4) if T_base_lidar is None else np.asarray(T_base_lidar, np.float64)
         return self.sweeps.add(pts, np.asarray(T_odom_base, np.float64) @ T_bl, stamp_ns)
+
+    def drop_stale_memory(self, stamp_ns: int, max_age_s: float) -> str | None:
+        """Forget the feature memory (the sweeps and the tracks stay) when it is older than
+        ``max_age_s`` at ``stamp_ns``: the model ran on no cloud for that long while the
+        stream went on (the clouds in between only buffered, :meth:`add_sweep`).
+
+        :return: why it was dropped, or None (kept, or none held).
+        """
+        if self._memory is None:
+            return None
+        age = (stamp_ns - max(self._memory.stamps_ns)) * 1e-9
+        if age <= max_age_s:
+            return None
+        reason = f'memory {age:.2f} s old (the model ran on no cloud since) exceeds max_gap_s'
+        self.reset(reason, sweeps=False)
+        return reason
 
     @torch.inference_mode()
     def step(self, points: NDArray[np.float32], stamp_ns: int,
@@ -269,9 +291,7 @@ class StreamingDetector:
         """
         m = self.model
         t0 = self._sync()
-        pts = np.asarray(points, np.float32)
-        if pts.ndim != 2 or pts.shape[1] not in (4, 5):
-            raise ValueError(f'points must be (N, 4) or (N, 5), got {pts.shape}')
+        pts = _as_points(points)
         T_bl = np.eye(4) if T_base_lidar is None else np.asarray(T_base_lidar, np.float64)
         if T_odom_base is None and (self.memory is not None or len(self.sweeps)):
             self.reset('no pose')
