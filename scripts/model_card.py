@@ -231,7 +231,7 @@ def main() -> int:
     if filt:
         f, g = runs['suit, tracking'], runs.get('single, tracking', {})
         lines += ['', "**Tracking** (the node's defaults `tracking: true`, "
-                  '`track_score_mix: 0.7`, `coast_frames: 5`; `suit_ros/tracking.py`: '
+                  '`track_score_mix: 0.7`, `coast_s: 0.5`; `suit_ros/tracking.py`: '
                   'constant-velocity Kalman tracks over the detections in the odometry frame, '
                   "fed with the head's velocity and the velocity read from the sweeps, scores "
                   'smoothed over each track, confident tracks held where no ray of the sweep '

@@ -95,7 +95,7 @@ def main() -> int:
     if args.grid == 'velocity':
         base = TrackerConfig(score_mix=0.0, sweep_sigma=None)
         grid = {'pos_sigma': (0.2, 0.3), 'vel_sigma': (3.0, 4.5), 'accel_sigma': (1.0, 2.0),
-                'birth_score': (0.4, 0.5), 'max_misses': (4, 6)}
+                'birth_score': (0.4, 0.5), 'max_miss_s': (0.4, 0.6)}
     elif args.grid == 'scores':
         base = TrackerConfig(sweep_sigma=None)
         grid = {'score_mix': (0.0, 0.3, 0.5, 0.7)}

@@ -307,8 +307,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--no-occlusion', dest='occlusion', action='store_false',
                         help='skip the natural-occlusion runs (drives as the sensor saw them)')
-    parser.add_argument('--coast-frames', type=int, default=None, metavar='N',
-                        help="the tracker's coast_frames (default: the node's)")
+    parser.add_argument('--coast-s', type=float, default=None, metavar='S',
+                        help="the tracker's coast_s, seconds (default: the node's)")
     parser.add_argument('--json-out', help='write the figures as JSON here')
     parser.add_argument('--markdown', help='write the tables (markdown) here')
 
@@ -328,11 +328,11 @@ def run(args: argparse.Namespace) -> int:
                               'width_deg': args.width, 'length': args.length, 'runs': {},
                               'occlusion': {}, 'occlusion_ap': {}, 'deskew': args.deskew}
     tracker = TrackerConfig()
-    if args.coast_frames is not None:
+    if args.coast_s is not None:
         try:
-            tracker = TrackerConfig(coast_frames=args.coast_frames)
+            tracker = TrackerConfig(coast_s=args.coast_s)
         except ValueError as exc:
-            raise SystemExit(f'suit-ros outage: --coast-frames: {exc}') from None
+            raise SystemExit(f'suit-ros outage: --coast-s: {exc}') from None
     for name, path in models.items():
         model, cfg, meta = load_checkpoint(path)
         thr = published_thresholds(meta, cfg.class_names)

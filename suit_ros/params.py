@@ -38,7 +38,8 @@ def _spec(description: str, *, read_only: bool = False, lo: float | None = None,
 
 
 # parameters renamed in a release: old name -> new name (an old YAML fails with a pointer)
-RENAMED = {'velocity_filter': 'tracking'}
+RENAMED = {'velocity_filter': 'tracking',
+           'coast_frames': 'coast_s (seconds: 0.5 is 5 frames at 10 Hz)'}
 
 
 @dataclass(frozen=True)
@@ -84,11 +85,12 @@ class DetectorParams:
     track_score_mix: float = field(default=0.7, metadata=_spec(
         "with tracking: a tracked detection's score is (1 - mix) x its own + mix x its "
         "track's running score; 0: the model's scores", lo=0.0, hi=1.0))
-    coast_frames: int = field(default=5, metadata=_spec(
+    coast_s: float = field(default=0.5, metadata=_spec(
         'with tracking: a confident track that gets no detection is published where it is '
-        'predicted, with its running score and num_points 0, for up to this many frames while '
-        "no ray of the cloud passed through its box (a lost sector, an occluder's shadow; "
-        'docs/experiments/coast); 0: off', lo=0, hi=6))
+        'predicted, with its running score and num_points 0, for up to this many seconds '
+        "since its last detection while no ray of the cloud passed through its box (a lost "
+        "sector, an occluder's shadow; docs/experiments/coast; whole frames, the same at any "
+        'sensor rate; renamed from coast_frames: 5 frames); 0: off', lo=0.0, hi=0.6))
     ground: GroundChoice = field(default='checkpoint', metadata=_spec(
         "checkpoint | as_given | local: the input's heights as the checkpoint's config says "
         "(the shipped ones: local), as base_link has them, or leveled to the ground estimated "

@@ -142,7 +142,7 @@ class DetectionPipeline:
                                      None if chosen else self.detector.published_carry_thresholds)
         self.detector.set_tracker(
             TrackerConfig(max_gap_s=params.max_gap_s, score_mix=params.track_score_mix,
-                          coast_frames=params.coast_frames)
+                          coast_s=params.coast_s)
             if params.tracking else None)
         self.detector.sweeps.max_age_s = params.max_gap_s     # one staleness threshold
         self.detector.set_box_fit(params.box_fit)      # boxes only: the memory stands

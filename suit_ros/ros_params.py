@@ -9,7 +9,7 @@ from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescri
 from rclpy.node import Node
 
 from suit_ros.errors import ConfigError, SuitRosError
-from suit_ros.params import DetectorParams, parameter_descriptions
+from suit_ros.params import RENAMED, DetectorParams, parameter_descriptions
 
 
 def descriptor(name: str) -> ParameterDescriptor:
@@ -32,8 +32,16 @@ def declare_detector_parameters(node: Node) -> DetectorParams:
     """Declare every detector parameter on ``node`` and read them (not yet checked against
     the model's classes: :meth:`DetectorParams.validate`).
 
-    :raises SuitRosError: a value of the wrong type or out of range.
+    :raises SuitRosError: a value of the wrong type or out of range, or a parameter given
+        under a name it no longer has (rclpy would ignore it: the user's setting would be lost
+        without a word).
     """
+    # rclpy keeps the launch's overrides here; it has no public reader for them
+    given = set(getattr(node, '_parameter_overrides', {}))
+    old = sorted(given & set(RENAMED))
+    if old:
+        raise SuitRosError('renamed parameter(s): ' + '; '.join(
+            f'{name} is now {RENAMED[name]}' for name in old))
     for name, value in DetectorParams().ros_values().items():
         node.declare_parameter(name, value, descriptor(name))
     try:

@@ -70,15 +70,20 @@ class TrackerConfig:
         faster than this (m/s) and at least twice its standard deviation is turned round when
         its box's heading points more than 90 degrees away from that velocity (vehicles drive
         forwards); None: headings as the model gives them.
-    :param max_misses: frames a track survives without a detection.
+    :param max_miss_s: seconds a track survives without a detection (whole frames, give or
+        take a quarter of a frame interval for stamp jitter), the same at any
+        sensor rate and under overload (a node that runs on every other cloud). It was
+        ``max_misses``, 6 frames: 0.6 s at 10 Hz but 0.3 s at 20 Hz and 1.2 s at half rate
+        (docs/experiments/track_time).
     :param max_gap_s: a longer gap between frames (or time going back) drops every track.
-    :param coast_frames: a confident track (running score >= ``birth_score``) that gets no
-        detection is published where it is predicted to be, for up to this many frames (and
-        ``max_misses``), while the current sweep shows nothing in or beyond its box on its
-        bearings (:func:`unseen`: a lost sector, a blocked sensor, the shadow of an occluder):
-        an object that drove off leaves road returns, or a wall seen past it, where the track
-        expects it and is not held (0: off; 5, 0.5 s at 10 Hz: docs/experiments/coast).
-    :param coast_margin: see ``coast_frames`` (m the box is grown by).
+    :param coast_s: a confident track (running score >= ``birth_score``) that gets no
+        detection is published where it is predicted to be, for up to this many seconds since
+        its last detection (whole frames, as ``max_miss_s``; and while it lives), while the
+        current sweep shows nothing in or beyond its box on its bearings (:func:`unseen`: a
+        lost sector, a blocked sensor, the shadow of an occluder): an object that drove off
+        leaves road returns, or a wall seen past it, where the track expects it and is not
+        held (0: off; 0.5 s, 5 frames at 10 Hz: docs/experiments/coast; was ``coast_frames``).
+    :param coast_margin: see ``coast_s`` (m the box is grown by).
     :param speed_std_fraction: what :attr:`Tracker.velocity_std` adds to the filter's
         standard deviation for a box moving at speed v: ``sqrt(P_vv + (fraction * v)^2)``. The
         head under-reads speed along the direction of travel (by 15-30% on unseen drives, the
@@ -97,9 +102,9 @@ class TrackerConfig:
     sweep_classes: tuple[str, ...] = ('car', 'truck', 'cyclist')
     sweep_min_score: float = 0.2
     heading_min_speed: float | None = 1.5
-    max_misses: int = 6
+    max_miss_s: float = 0.6
     max_gap_s: float = 0.5
-    coast_frames: int = 5
+    coast_s: float = 0.5
     coast_margin: float = 0.5
     speed_std_fraction: float = 0.15
 
@@ -116,11 +121,7 @@ class TrackerConfig:
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f'TrackerConfig.{name} must be within 0..1, got {value}')
-        if self.max_misses < 0:
-            raise ValueError(f'TrackerConfig.max_misses must be >= 0, got {self.max_misses}')
-        if self.coast_frames < 0:
-            raise ValueError(f'TrackerConfig.coast_frames must be >= 0, got {self.coast_frames}')
-        for name in ('coast_margin', 'speed_std_fraction'):
+        for name in ('max_miss_s', 'coast_s', 'coast_margin', 'speed_std_fraction'):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
                 raise ValueError(f'TrackerConfig.{name} must be finite and >= 0, got {value}')
@@ -166,10 +167,11 @@ class Tracker:
         self.P = np.zeros((0, 2, 2))            # per axis: (position, velocity) covariance
         self.labels = np.zeros(0, np.int64)
         self.ids = np.zeros(0, np.int64)
-        self.misses = np.zeros(0, np.int64)
+        self.last_seen_ns = np.zeros(0, np.int64)   # stamp of each track's last detection
         self.score = np.zeros(0)                # running score (halving weights)
         self.shape = np.zeros((0, 5))           # z, length, width, height, yaw (odometry)
         self.stamp_ns = None
+        self.frame_s = 0.0                      # the last update's frame interval (s)
         self.coasted = 0                        # the last update's coasted detections
         # the last update's detections: each velocity's standard deviation per axis (m/s),
         # the filter's for a tracked one, the measurement's for one no track took, widened by
@@ -227,12 +229,12 @@ class Tracker:
             while its carried boxes last (``sampling.carry_frames``). Without a carry branch
             (None, or none carried) nothing changes.
         :param current: ``(M, >= 3)`` the current sweep's returns in the detections' frame,
-            for ``coast_frames`` (None: nothing coasts), and ``sensor`` where they were seen
+            for ``coast_s`` (None: nothing coasts), and ``sensor`` where they were seen
             from in that frame (default: its origin).
         :return: the detections with filtered velocities and smoothed scores, and their track
             ids (0, the measured velocity and the model's score, for a detection below
             ``birth_score`` that no track took); the last :attr:`coasted` of them are the
-            tracks held where the sweep shows nothing (``coast_frames``).
+            tracks held where the sweep shows nothing (``coast_s``).
         """
         cfg = self.config
         T = np.asarray(T_odom_frame, np.float64)
@@ -242,6 +244,7 @@ class Tracker:
                 self.reset()
             else:
                 self._predict(dt)
+                self.frame_s = dt
         self.stamp_ns = stamp_ns
         R = T[:2, :2]
         centres = det.boxes[:, :2].astype(np.float64) @ R.T + T[:2, 3]
@@ -272,7 +275,7 @@ class Tracker:
             self.score[t_seen] = 0.5 * (self.score[t_seen] + det.scores[seen_now])
         seen = np.zeros(len(self.x), bool)
         seen[match[hit]] = True
-        self.misses = np.where(seen, 0, self.misses + 1)
+        self.last_seen_ns[seen] = stamp_ns
         new = ~hit & confident
         n_new = int(new.sum())
         new_ids = np.arange(self.next_id, self.next_id + n_new, dtype=np.int64)
@@ -289,7 +292,8 @@ class Tracker:
         tracked = rows >= 0
         self.labels = np.concatenate([self.labels, det.labels[new]])
         self.ids = np.concatenate([self.ids, new_ids])
-        self.misses = np.concatenate([self.misses, np.zeros(n_new, np.int64)])
+        self.last_seen_ns = np.concatenate([self.last_seen_ns,
+                                            np.full(n_new, stamp_ns, np.int64)])
         self.score = np.concatenate([self.score, det.scores[new]])
         out_vel = measured_vel                                  # untracked: as measured
         out_vel[tracked] = self.x[rows[tracked], 2:] @ R
@@ -303,7 +307,7 @@ class Tracker:
         self.shape[rows[tracked]] = shape
         out = Detections(boxes, out_vel, scores, det.labels)
         self.coasted = 0
-        if cfg.coast_frames and current is not None:
+        if cfg.coast_s and current is not None:
             coast, coast_ids, coast_std = self._coast(T, current, sensor)
             if len(coast):
                 out = out.concat(coast)
@@ -311,21 +315,32 @@ class Tracker:
                 vel_std = np.concatenate([vel_std, coast_std])
                 self.coasted = len(coast)
         self.velocity_std = cfg.published_std(vel_std, out.velocities)
-        keep = self.misses <= cfg.max_misses
+        keep = self._missed_within(cfg.max_miss_s)
         self.x, self.P = self.x[keep], self.P[keep]
-        self.labels, self.ids, self.misses = self.labels[keep], self.ids[keep], self.misses[keep]
+        self.labels, self.ids = self.labels[keep], self.ids[keep]
+        self.last_seen_ns = self.last_seen_ns[keep]
         self.score, self.shape = self.score[keep], self.shape[keep]
         return out, ids
+
+    def _missed_within(self, limit_s: float) -> NDArray[np.bool_]:
+        """The tracks whose last detection is at most ``limit_s`` before the current stamp,
+        give or take a quarter of the last frame interval (stamps jitter): whole frames, never
+        more than fit in the limit."""
+        if self.stamp_ns is None:
+            return np.ones(len(self.x), bool)
+        missed_s = (self.stamp_ns - self.last_seen_ns) * 1e-9
+        return missed_s <= limit_s + 0.25 * self.frame_s
 
     def _coast(self, T: NDArray[np.float64], current: NDArray[np.floating[Any]],
                sensor: NDArray[np.floating[Any]] | None
                ) -> tuple[Detections, NDArray[np.int64], NDArray[np.float64]]:
-        """The boxes of the confident tracks missed this frame (for at most ``coast_frames``,
-        while they live) where the current sweep shows nothing of them, in the frame of ``T``
-        (see ``coast_frames`` and :func:`unseen`), their ids and velocity standard deviations."""
+        """The boxes of the confident tracks missed this frame (for at most ``coast_s`` since
+        their last detection, while they live) where the current sweep shows nothing of them,
+        in the frame of ``T`` (see ``coast_s`` and :func:`unseen`), their ids and velocity
+        standard deviations."""
         cfg = self.config
-        t = np.nonzero((self.misses >= 1)
-                       & (self.misses <= min(cfg.coast_frames, cfg.max_misses))
+        t = np.nonzero((self.last_seen_ns != self.stamp_ns)
+                       & self._missed_within(min(cfg.coast_s, cfg.max_miss_s))
                        & (self.score >= cfg.birth_score))[0]
         if len(t) == 0:
             return Detections.empty(), np.zeros(0, np.int64), np.zeros(0)
@@ -426,7 +441,7 @@ def track_step(tracks: Tracker, det: Detections, stamp_ns: int,
     :param det: the frame's detections in base_link (the model frame).
     :param model_points: the model input ``(N, 5)`` in base_link.
     :param carried: which detections a memory carries (:meth:`Tracker.update`).
-    :param current: the current sweep's returns in base_link (``coast_frames``), seen from
+    :param current: the current sweep's returns in base_link (``coast_s``), seen from
         ``sensor`` (the LiDAR's position in base_link).
     """
     fc = tracks.config

@@ -110,7 +110,8 @@ def test_plays_bag_and_publishes_stamped_detections(node_and_recorder, bag):
     speed = np.concatenate([np.hypot(*r['velocities'].T) for r in read])
     assert len(std) and np.isfinite(std).all() and (std > 0).all()
     cfg = TrackerConfig()                # coasting adds a little; the speed widens it
-    most = np.sqrt(cfg.vel_sigma ** 2 + cfg.coast_frames * (cfg.max_gap_s * cfg.accel_sigma) ** 2)
+    coast = int(cfg.coast_s * 10 + 0.25)                  # frames coasted at 10 Hz
+    most = np.sqrt(cfg.vel_sigma ** 2 + coast * (cfg.max_gap_s * cfg.accel_sigma) ** 2)
     assert (std <= np.hypot(most, cfg.speed_std_fraction * speed) + 1e-4).all()
     assert (std < 0.5 * cfg.vel_sigma).any()
     assert int(last['tracks']) > 0

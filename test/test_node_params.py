@@ -35,7 +35,11 @@ def make_node(checkpoint):
         rclpy.init(context=ctx)
         overrides = [Parameter('checkpoint', value=checkpoint)]
         overrides += [Parameter(k.replace('__', '.'), value=v) for k, v in params.items()]
-        node = DetectorNode(context=ctx, parameter_overrides=overrides)
+        try:
+            node = DetectorNode(context=ctx, parameter_overrides=overrides)
+        except BaseException:
+            rclpy.try_shutdown(context=ctx)
+            raise
         made.append((ctx, node))
         return node
     yield make
@@ -274,3 +278,15 @@ def test_clouds_lost_before_the_callback_are_counted_and_raise_a_warning(make_no
     node._on_cloud(cloud(t + 6 * S // 10), info(1))           # a restarted publisher: no gap
     node._on_cloud(cloud(t + 7 * S // 10), None)              # a middleware without numbers
     assert diag(node)[2]['lost_before_callback'] == '2'
+
+
+def test_a_renamed_parameter_stops_the_node_with_its_new_name(make_node):
+    """A launch file that still sets ``coast_frames`` (now ``coast_s``, in seconds) would be
+    ignored by rclpy without a word: the node refuses to start and names the new one."""
+    from suit_ros.errors import SuitRosError
+    with pytest.raises(SuitRosError, match=r'coast_frames is now coast_s \(seconds'):
+        make_node(coast_frames=3)
+    node = make_node(coast_s=0.3)
+    assert node.params.coast_s == 0.3
+    assert node.pipeline.detector.tracks.config.coast_s == 0.3
+

@@ -145,7 +145,7 @@ def test_outage_command_runs(tmp_path, capsys):
 @pytest.mark.slow
 def test_coasting_holds_the_shipped_models_cars_through_a_lost_sector():
     """The shipped SUIT model, tracked as the node runs it, on a synthetic drive with a
-    120-degree sector lost for 6 frames: with ``coast_frames`` its confident cars in the sector
+    120-degree sector lost for 6 frames: with ``coast_s`` its confident cars in the sector
     are still published on outage frames 3-6 (as carried boxes with no returns in them, a
     track id, within 2 m of an object that is there); without it none is."""
     from suit_ros.checkpoint import load_checkpoint
@@ -158,8 +158,8 @@ def test_coasting_holds_the_shipped_models_cars_through_a_lost_sector():
     frames = with_outages(seq, [lost])
     model = load_checkpoint('suit_default', 'cpu')[0]
     held = {}
-    for coast in (0, 5):
-        runner = StreamingDetector(model, tracker=TrackerConfig(coast_frames=coast))
+    for coast in (0.0, 0.5):
+        runner = StreamingDetector(model, tracker=TrackerConfig(coast_s=coast))
         held[coast] = []
         for k, f in enumerate(frames):
             r = runner.step(*step_inputs(f))
@@ -170,4 +170,4 @@ def test_coasting_holds_the_shipped_models_cars_through_a_lost_sector():
             assert (r.num_points[coasted] == 0).all() and (r.track_ids[coasted] > 0).all()
             for b in r.detections.boxes[coasted]:
                 assert np.hypot(*(f.gt.boxes[:, :2] - b[:2]).T).min() < 2.0
-    assert sum(held[0]) == 0 and min(held[5]) >= 1, held
+    assert sum(held[0.0]) == 0 and min(held[0.5]) >= 1, held

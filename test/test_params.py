@@ -34,6 +34,8 @@ def test_readme_links_point_at_files():
 def test_a_renamed_parameter_fails_with_its_new_name():
     with pytest.raises(ConfigError, match='velocity_filter is now tracking'):
         DetectorParams().updated({'velocity_filter': True})
+    with pytest.raises(ConfigError, match=r'coast_frames is now coast_s \(seconds'):
+        DetectorParams().updated({'coast_frames': 5})
 
 
 def test_yaml_values_override_defaults_and_unknown_keys_fail(tmp_path):

@@ -76,7 +76,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
-                       'intensity_field', 'tracking', 'track_score_mix', 'coast_frames',
+                       'intensity_field', 'tracking', 'track_score_mix', 'coast_s',
                        'ground', 'overhang', 'box_fit', 'deskew', 'time_field',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
@@ -242,33 +242,32 @@ def test_tracks_and_can_be_turned_off(model, classes, scene):
     assert pipe.detector.tracks is not None and pipe.detector.tracks.config.max_gap_s == 2.0
 
 
-def test_coast_frames_holds_tracked_objects_where_the_cloud_shows_nothing(model, classes,
-                                                                          scene):
+def test_coast_s_holds_tracked_objects_where_the_cloud_shows_nothing(model, classes, scene):
     """A static scene tracked for three frames, then three clouds with everything ahead
     (x > 0) lost: on the third, when the earlier sweeps no longer show them either, the
     confident objects there are still published with coasting (the default), with no return
-    in them and their track ids; with ``coast_frames: 0`` nothing is; the parameter reaches
+    in them and their track ids; with ``coast_s: 0`` nothing is; the parameter reaches
     the tracker at runtime."""
     ahead = scene[scene['x'] <= 0]
 
     def last(coast):
-        pipe = make_pipeline(model, classes, coast_frames=coast)
-        assert pipe.detector.tracks.config.coast_frames == coast
+        pipe = make_pipeline(model, classes, coast_s=coast)
+        assert pipe.detector.tracks.config.coast_s == coast
         feed_odometry(pipe, T0, T0 + S, speed=0.0)
         outs = [pipe.process(cloud(classes, T0 + k * S // 10, scene)) for k in range(3)]
         sure = outs[-1].track_ids[outs[-1].detections.boxes[:, 0] > 2.0]
         for k in range(3, 6):
             out = pipe.process(cloud(classes, T0 + k * S // 10, ahead))
         return sure, out, pipe
-    sure, held, pipe = last(5)
+    sure, held, pipe = last(0.5)
     boxes = held.detections.boxes
     blind = (boxes[:, 0] > 2.0) & (held.num_points == 0)
     assert len(sure) >= 1 and blind.sum() >= 1
     assert set(held.track_ids[blind]) <= set(sure) and 0 not in set(held.track_ids[blind])
-    _, none, _ = last(0)
+    _, none, _ = last(0.0)
     assert not ((none.detections.boxes[:, 0] > 2.0) & (none.num_points == 0)).any()
-    pipe.configure(replace(pipe.params, coast_frames=2))
-    assert pipe.detector.tracks.config.coast_frames == 2
+    pipe.configure(replace(pipe.params, coast_s=0.2))
+    assert pipe.detector.tracks.config.coast_s == 0.2
 
 
 @pytest.fixture(scope='module')

@@ -82,7 +82,7 @@ def test_classes_never_share_a_track_and_new_objects_get_new_ids():
 
 
 def test_tracks_end_after_misses_and_on_time_jumps():
-    cfg = TrackerConfig(max_misses=2)
+    cfg = TrackerConfig(max_miss_s=0.2)
     vf = Tracker(cfg)
     T = np.eye(4)
     vf.update(frame([[10, 0]], [[0, 0]]), 0, T)
@@ -123,7 +123,8 @@ def test_only_confident_detections_start_tracks_and_they_are_matched_first():
 
 @pytest.mark.parametrize('field,value', [('pos_sigma', 0.0), ('vel_sigma', -1.0),
                                          ('accel_sigma', float('nan')), ('gate', 0.0),
-                                         ('max_gap_s', float('inf')), ('max_misses', -1),
+                                         ('max_gap_s', float('inf')), ('max_miss_s', -0.1),
+                                         ('coast_s', float('nan')),
                                          ('birth_score', 1.5), ('score_mix', -0.1),
                                          ('sweep_sigma', 0.0), ('coast_margin', -0.1),
                                          ('speed_std_fraction', -0.1),
@@ -261,12 +262,13 @@ def road(T, around_odom, half=3.0, step=0.25):
 def test_coasting_holds_a_confident_track_only_where_the_sweep_shows_nothing():
     """A car tracked for 8 frames loses its detection: where the sweep has no return around
     its predicted box (a lost sector) it is published there, with its id, running score and
-    velocity, for ``coast_frames`` frames; where the road shows through (it drove off), not."""
+    velocity, for ``coast_s`` (0.3 s: 3 frames); where the road shows through (it drove off),
+    not."""
     v_true = np.array([6.0, 1.0])
     start = np.array([15.0, -3.0])
     held = []
     for blind in (True, False):
-        vf = Tracker(TrackerConfig(coast_frames=3))
+        vf = Tracker(TrackerConfig(coast_s=0.3))
         for k in range(14):
             t = k * 0.1
             T = ego_pose(t)
@@ -304,7 +306,7 @@ def test_velocity_std_is_the_filters_and_says_how_far_to_trust_a_young_track():
     runs = {}
     for fraction in (0.0, 0.15):
         rng = np.random.default_rng(1)
-        cfg = TrackerConfig(coast_frames=3, speed_std_fraction=fraction)
+        cfg = TrackerConfig(coast_s=0.3, speed_std_fraction=fraction)
         vf = Tracker(cfg)
         assert vf.velocity_std.shape == (0,)
         v_true = np.array([9.0, -3.0])
@@ -346,10 +348,10 @@ def test_velocity_std_is_the_filters_and_says_how_far_to_trust_a_young_track():
 
 def test_coasting_needs_a_confident_track_and_can_be_turned_off():
     T = np.eye(4)
-    for cfg, score, expect in ((TrackerConfig(coast_frames=3), 0.8, 1),
-                               (TrackerConfig(coast_frames=3), 0.35, 0),   # never confident
-                               (TrackerConfig(coast_frames=0), 0.8, 0),   # off
-                               (TrackerConfig(), 0.8, 1)):                # the default: 5
+    for cfg, score, expect in ((TrackerConfig(coast_s=0.3), 0.8, 1),
+                               (TrackerConfig(coast_s=0.3), 0.35, 0),   # never confident
+                               (TrackerConfig(coast_s=0.0), 0.8, 0),   # off
+                               (TrackerConfig(), 0.8, 1)):                # the default: 0.5 s
         vf = Tracker(cfg)
         for k in range(4):
             vf.update(frame([10.0, 0.0], [0.0, 0.0], scores=[score]), k * DT_NS, T,
@@ -357,19 +359,45 @@ def test_coasting_needs_a_confident_track_and_can_be_turned_off():
         out, _ = vf.update(Detections.empty(), 4 * DT_NS, T, current=np.zeros((0, 3)))
         assert len(out) == expect == vf.coasted, (cfg, score)
     # no current sweep given: nothing coasts
-    vf = Tracker(TrackerConfig(coast_frames=3))
+    vf = Tracker(TrackerConfig(coast_s=0.3))
     vf.update(frame([10.0, 0.0], [0.0, 0.0]), 0, T)
     assert len(vf.update(Detections.empty(), DT_NS, T)[0]) == 0
-    with pytest.raises(ValueError, match='coast_frames'):
-        TrackerConfig(coast_frames=-1)
+    with pytest.raises(ValueError, match='coast_s'):
+        TrackerConfig(coast_s=-1.0)
     with pytest.raises(ValueError, match='coast_margin'):
-        TrackerConfig(coast_frames=2, coast_margin=float('nan'))
-    # a track lives max_misses frames without a detection, and coasts no longer than that
-    vf = Tracker(TrackerConfig(max_misses=2))               # coast_frames 5 by default
+        TrackerConfig(coast_s=0.2, coast_margin=float('nan'))
+    # a track lives max_miss_s without a detection, and coasts no longer than that
+    vf = Tracker(TrackerConfig(max_miss_s=0.2))             # coast_s 0.5 by default
     vf.update(frame([10.0, 0.0], [0.0, 0.0]), 0, T)
     held = [len(vf.update(Detections.empty(), k * DT_NS, T, current=np.zeros((0, 3)))[0])
             for k in range(1, 5)]
     assert held == [1, 1, 0, 0]
+
+
+@pytest.mark.parametrize('rate_hz,coasted,lived', [(5.0, 2, 3), (10.0, 5, 6), (20.0, 10, 12),
+                                                    (12.5, 6, 7)])
+def test_track_lifetimes_are_seconds_at_any_frame_rate(rate_hz, coasted, lived):
+    """``coast_s`` (0.5) and ``max_miss_s`` (0.6) are seconds since the last detection, in
+    whole frames: a blind confident track is held 2 / 5 / 10 frames at 5 / 10 / 20 Hz (a node
+    that runs on every other cloud of a 10 Hz sensor, the sensor, a 20 Hz sensor) and lives 3 /
+    6 / 12; with stamps jittered by up to 8 ms at 10 Hz the same frames as without jitter."""
+    rng = np.random.default_rng(3)
+    T = np.eye(4)
+    blind = np.zeros((0, 3))
+    dt_ns = int(round(1e9 / rate_hz))
+    for jitter_ns in ((0, 8_000_000) if rate_hz == 10.0 else (0,)):
+        def stamp(k, jitter_ns=jitter_ns):
+            return k * dt_ns + int(rng.integers(-jitter_ns, jitter_ns + 1))
+        vf = Tracker()
+        for k in range(3):
+            vf.update(frame([10.0, 0.0], [0.0, 0.0], scores=[0.8]), stamp(k), T, current=blind)
+        held, alive = [], []
+        for k in range(3, 3 + 15):
+            out, _ = vf.update(Detections.empty(), stamp(k), T, current=blind)
+            held.append(len(out))
+            alive.append(len(vf))
+        assert held == [1] * coasted + [0] * (15 - coasted), (rate_hz, jitter_ns)
+        assert alive == [1] * lived + [0] * (15 - lived), (rate_hz, jitter_ns)
 
 
 def test_unseen_boxes_are_those_no_ray_passed_through():
