@@ -149,7 +149,9 @@ class DetectorParams:
         'reset the memory after a longer gap between cloud stamps (the one staleness '
         'threshold)', lo=0.01, hi=60.0))
     max_pose_jump_m: float = field(default=5.0, metadata=_spec(
-        'reset the memory when the pose jumps farther between frames (m)',
+        'reset the memory when the pose moves farther between two clouds than this per 0.1 s '
+        'of their gap, and at least this (m; 5: 50 m/s, so a cloud dropped at highway speed '
+        'is no jump)',
         lo=0.1, hi=1000.0))
     max_stamp_skew_s: float = field(default=1.0, metadata=_spec(
         'stamps farther than this from the node clock: latency is measured from the '

@@ -31,6 +31,9 @@ from suit_ros.tracking import TrackerConfig
 
 # the pipeline's settings are the node's: one owner (suit_ros.params)
 PipelineParams = DetectorParams
+# max_pose_jump_m is a distance per this much of the gap between two clouds (at least one such
+# distance): 5 m per 0.1 s is 50 m/s, so a cloud dropped at highway speed is no jump
+POSE_JUMP_PERIOD_S = 0.1
 
 # why a frame ran on its own sweep (no pose): the pipeline says it, diagnostics count it
 SingleFrameReason = Literal['no_odometry', 'outside_odometry']
@@ -116,6 +119,7 @@ class DetectionPipeline:
         self.last_stamp_ns: int | None = None
         self.last_frame_id: str | None = None
         self.last_pose: NDArray[np.float64] | None = None
+        self.last_pose_ns = 0                 # the stamp of the cloud last_pose was read for
         self.last_reset_reason = 'start'
         self.resets = 0
         self.odom_rejected = 0
@@ -256,14 +260,14 @@ class DetectionPipeline:
         """
         t0 = time.perf_counter()
         out = PipelineOutput(cloud.header, Detections.empty())
-        last_pose = self.last_pose
+        last_pose, last_pose_ns = self.last_pose, self.last_pose_ns
         # the sector-gap check reads the clouds the model runs on (a third of a buffered
         # 260k-point cloud's cost: docs/experiments/overload)
         points, stamp_ns, pose = self._prepare(cloud, out, coverage=False)
         if pose is None and not out.reset_reason:
             # not buffered, nothing reset: the next cloud's pose-jump check still compares
             # with the last pose the memory and the sweeps were placed with
-            self.last_pose = last_pose
+            self.last_pose, self.last_pose_ns = last_pose, last_pose_ns
         if len(points):
             out.buffered = self.detector.add_sweep(points, stamp_ns, pose, self.T_base_lidar)
         out.timings = {'convert': time.perf_counter() - t0}
@@ -293,13 +297,15 @@ class DetectionPipeline:
             out.single_frame = 'no_odometry' if self.poses.span() is None else 'outside_odometry'
         if reason is None and pose is not None and self.last_pose is not None:
             jump = float(np.linalg.norm(pose[:3, 3] - self.last_pose[:3, 3]))
-            if jump > self.params.max_pose_jump_m:
-                reason = f'pose jumped {jump:.1f} m between frames'
+            gap_s = (stamp_ns - self.last_pose_ns) * 1e-9
+            # per 0.1 s of the gap: a dropped cloud at highway speed is no jump
+            if jump > self.params.max_pose_jump_m * max(1.0, gap_s / POSE_JUMP_PERIOD_S):
+                reason = f'pose jumped {jump:.1f} m in {gap_s:.2f} s between frames'
         if reason is not None:
             self.reset(reason)
             out.reset_reason = reason
         self.last_stamp_ns, self.last_frame_id = stamp_ns, frame_id
-        self.last_pose = pose
+        self.last_pose, self.last_pose_ns = pose, stamp_ns
         if times is not None and len(points):
             points = self._deskew(points, times, stamp_ns, pose is not None, out)
         elif times is not None:

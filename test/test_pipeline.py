@@ -647,6 +647,34 @@ def test_max_pose_jump_m(model, classes):
     assert 'jumped 3.0 m' in pipe.process(cloud(classes, T0 + 2 * S // 10)).reset_reason
 
 
+def test_a_dropped_cloud_at_highway_speed_is_no_pose_jump(model, classes):
+    """The limit is per 0.1 s of the gap between the clouds (at least 5 m): at 35 m/s a
+    dropped cloud (7 m in 0.2 s) and a skipped one that could not be placed keep the memory;
+    an odometry that leaps 12 m in 0.1 s resets it, and so does one that leaps 12 m in 0.2 s
+    while standing (the gap is read from the cloud the last pose was read for)."""
+    pipe = make_pipeline(model, classes)
+    feed_odometry(pipe, T0, T0 + 2 * S, speed=35.0)
+    pipe.process(cloud(classes, T0))
+    out = pipe.process(cloud(classes, T0 + 2 * S // 10))              # one cloud lost
+    assert out.reset_reason == '' and out.used_memory
+    short = make_pipeline(model, classes)
+    feed_odometry(short, T0, T0 + 3 * S // 10, speed=35.0)
+    short.process(cloud(classes, T0 + 2 * S // 10))
+    assert not short.buffer(cloud(classes, T0 + 5 * S // 10)).buffered   # no pose for it
+    for t in range(T0 + 3 * S // 10 + S // 50, T0 + S, S // 50):
+        assert short.add_odometry(odom(t, 35.0 * (t - T0) / S))
+    out = short.process(cloud(classes, T0 + 6 * S // 10))           # 14 m in 0.4 s
+    assert out.reset_reason == '', out.reset_reason
+    for stand_still, dt in ((False, S // 10), (True, 2 * S // 10)):
+        leap = make_pipeline(model, classes)
+        for t in range(T0, T0 + S, S // 50):
+            x = (0.0 if stand_still else 10.0 * (t - T0) / S) + (12.0 if t > T0 + S // 20 else 0)
+            assert leap.add_odometry(odom(t, x))
+        leap.process(cloud(classes, T0))
+        reason = leap.process(cloud(classes, T0 + dt)).reset_reason
+        assert 'pose jumped' in reason and f'in {dt / S:.2f} s' in reason, reason
+
+
 # ------------------------------------------------------------------ the input contract
 def test_input_contract_cases(model, classes):
     pipe = make_pipeline(model, classes)
