@@ -37,7 +37,7 @@ from suit_ros.errors import ConfigError, SuitRosError
 from suit_ros.health import Reasons, health_report
 from suit_ros.params import DetectorParams, parameter_descriptions
 from suit_ros.points_subscription import PointsSubscription
-from suit_ros.ros_params import declare_detector_parameters, torch_threads
+from suit_ros.ros_params import declare_detector_parameters, ignored_overrides, torch_threads
 from suit_ros.worker import FrameWorker, Received, stamp_ns
 
 REASON_LOG_PERIOD_S = 30.0   # between two log lines of the same input-contract reason
@@ -91,6 +91,11 @@ class DetectorNode(Node):
         self._worker.start()
         self.create_timer(QOS_CHECK_PERIOD_S, self.points.update)
         self.create_timer(self.params.diagnostics_period_s, self._diagnostics)
+        self.ignored_parameters = ignored_overrides(self)
+        if self.ignored_parameters:
+            self.get_logger().warn(
+                f'parameters given to this node that it does not have, ignored (misspelt? '
+                f"the README's parameter table lists them): {self.ignored_parameters}")
 
     def _load_model(self, params: DetectorParams) -> Any:
         import torch

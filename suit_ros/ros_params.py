@@ -51,6 +51,14 @@ def declare_detector_parameters(node: Node) -> DetectorParams:
         raise SuitRosError(f'invalid parameters: {exc}') from exc
 
 
+def ignored_overrides(node: Node) -> list[str]:
+    """The parameters the launch gave ``node`` that it never declared: rclpy drops them
+    without a word (a misspelt name, a parameter of another node under ``/**``). Call it once
+    every parameter is declared (the QoS overrides are declared with their endpoints)."""
+    given = getattr(node, '_parameter_overrides', {})      # rclpy has no public reader
+    return sorted(name for name in given if not node.has_parameter(name))
+
+
 def torch_threads(requested: int) -> int:
     """Torch threads for ``threads`` (0: every core this process may use but one)."""
     if requested > 0:

@@ -289,4 +289,16 @@ def test_a_renamed_parameter_stops_the_node_with_its_new_name(make_node):
     node = make_node(coast_s=0.3)
     assert node.params.coast_s == 0.3
     assert node.pipeline.detector.tracks.config.coast_s == 0.3
+    assert node.ignored_parameters == []
+
+
+def test_a_parameter_the_node_does_not_have_is_named_not_dropped_in_silence(make_node):
+    """rclpy ignores an override for a parameter nobody declares: a misspelt
+    ``score_threshold`` would leave the thresholds at their defaults without a word. The node
+    names such parameters (and logs them); its own, ``use_sim_time`` and a QoS override of one
+    of its endpoints are not among them."""
+    node = make_node(score_threshold=0.5, use_sim_time=False,
+                     **{'qos_overrides./odom.subscription.depth': 50})
+    assert node.ignored_parameters == ['score_threshold']
+    assert node.params.score_thresholds == (0.0,)
 
