@@ -368,6 +368,16 @@ class ModelRun:
         return [d.select(d.scores >= np.where(c, carry[d.labels], thr[d.labels]))
                 for d, c in zip(self.det, carried)]
 
+    def select_frames(self, idx: Sequence[int]) -> ModelRun:
+        """The run on the frames ``idx`` only (in that order; ``memory_after`` kept)."""
+        def pick(values: list[Any]) -> list[Any]:
+            return [values[i] for i in idx] if values else values
+        return replace(self, gt=pick(self.gt), det=pick(self.det),
+                       num_points=pick(self.num_points), latency_s=pick(self.latency_s),
+                       memory_bytes=pick(self.memory_bytes), drive=pick(self.drive),
+                       ignore=pick(self.ignore), carried=pick(self.carried),
+                       used_memory=pick(self.used_memory))
+
     def as_published(self, thresholds: Sequence[float], carry_thresholds: Sequence[float]
                      ) -> ModelRun:
         """The run with only its published detections (:meth:`published`)."""

@@ -131,3 +131,21 @@ def test_a_run_publishes_carried_boxes_at_their_own_thresholds():
     # box 0 (carried, 0.2 >= 0.1), box 1 (seen, 0.5 >= 0.3); box 2 (seen, class 1, 0.2 < 0.6);
     # box 3 (carried, 0.5 >= 0.1)
     assert got.scores.tolist() == pytest.approx([0.2, 0.5, 0.5])
+
+
+def test_a_run_on_some_of_its_frames_keeps_every_per_frame_list_in_step():
+    dets = [Detections(np.zeros((k, 7)), np.zeros((k, 2)), np.full(k, 0.5), np.zeros(k, int))
+            for k in range(4)]
+    run = ModelRun(dets, dets, [np.full(k, k, np.uint32) for k in range(4)],
+                   [0.1 * k for k in range(4)], [10 * k for k in range(4)], {2: [5]},
+                   drive=[0, 0, 1, 1], ignore=[None] * 4,
+                   carried=[np.zeros(k, bool) for k in range(4)],
+                   used_memory=[False, True, False, True])
+    sub = run.select_frames([3, 1])
+    assert [len(d) for d in sub.det] == [3, 1] and [len(g) for g in sub.gt] == [3, 1]
+    assert [n.tolist() for n in sub.num_points] == [[3, 3, 3], [1]]
+    assert sub.latency_s == pytest.approx([0.3, 0.1]) and sub.memory_bytes == [30, 10]
+    assert sub.drive == [1, 0] and sub.used_memory == [True, True]
+    assert [len(c) for c in sub.carried] == [3, 1] and sub.memory_after == {2: [5]}
+    assert len(ModelRun(dets, dets, [None] * 4, [0.0] * 4, [0] * 4, {}).select_frames(
+        [0]).drive) == 0                                          # lists left empty stay empty

@@ -17,7 +17,6 @@ Usage: docs/experiments/overload/measure.py [--every 2 3] [--drives 16] [--out F
 from __future__ import annotations
 
 import argparse
-from dataclasses import replace
 import json
 import time
 
@@ -56,14 +55,7 @@ def main() -> int:
     report: dict[str, object] = {}
     for k in args.every:
         keep = [i for i, t in enumerate(frame_of_drive) if t % k == 0]
-        same = replace(full, gt=[full.gt[i] for i in keep], det=[full.det[i] for i in keep],
-                       num_points=[full.num_points[i] for i in keep],
-                       latency_s=[full.latency_s[i] for i in keep],
-                       memory_bytes=[full.memory_bytes[i] for i in keep],
-                       drive=[full.drive[i] for i in keep],
-                       ignore=[full.ignore[i] for i in keep],
-                       carried=[full.carried[i] for i in keep],
-                       used_memory=[full.used_memory[i] for i in keep])
+        same = full.select_frames(keep)
         runs = {'full rate': same,
                 f'every {k}, sweeps of the clouds it ran on': node_run(run_every=k,
                                                                        buffer_skipped=False),

@@ -33,8 +33,6 @@ from pathlib import Path
 import time
 from typing import Any
 
-import numpy as np
-
 
 def drives_20hz(n: int, frames: int, cache_dir: str) -> list[list[Any]]:
     """The outage split's first ``n`` drives at 20 Hz (cached as npz)."""
@@ -51,16 +49,6 @@ def drives_20hz(n: int, frames: int, cache_dir: str) -> list[list[Any]]:
         save_sequence(path, seq)
         out.append(seq)
     return out
-
-
-def frames_of(run: Any, idx: list[int]) -> Any:
-    """The run on the frames ``idx`` only."""
-    def pick(values: list[Any]) -> list[Any]:
-        return [values[i] for i in idx] if values else values
-    return replace(run, gt=pick(run.gt), det=pick(run.det), num_points=pick(run.num_points),
-                   latency_s=pick(run.latency_s), memory_bytes=pick(run.memory_bytes),
-                   drive=pick(run.drive), ignore=pick(run.ignore), carried=pick(run.carried),
-                   used_memory=pick(run.used_memory))
 
 
 def main() -> int:
@@ -130,7 +118,7 @@ def main() -> int:
                                               for k in range(len(seq)))
                  if not any(o.active(k) for o in outs[d])]
         print(f'the {len(quiet)} frames outside the outages')
-        part['outside_outages'] = compare({n: frames_of(r, quiet) for n, r in runs.items()})
+        part['outside_outages'] = compare({n: r.select_frames(quiet) for n, r in runs.items()})
         part['outage'] = {}
         for n, run in runs.items():
             counts = count_outage(seqs, published_by_drive(run, thr, carry), outs,
@@ -165,5 +153,4 @@ def main() -> int:
 
 
 if __name__ == '__main__':
-    np.set_printoptions(precision=3)
     raise SystemExit(main())
