@@ -62,10 +62,6 @@ class TrackerConfig:
         is left for them).
     :param score_mix: weight of the track's running score in a tracked detection's score (0:
         the model's scores unchanged).
-    :param score_half_life_s: the running score's memory: an earlier detection weighs half as
-        much as one this much later, in frame intervals (0.1: each earlier detection half as
-        much as the next at 10 Hz, as at any rate in seconds); None: half as much per detection
-        at any rate (docs/experiments/track_time).
     :param sweep_sigma: noise (m/s, per axis) of the velocity read from the sweeps
         (:func:`sweep_velocities`), fused with the head's; None: not read.
     :param sweep_classes: the classes it is read for (they move along their heading), on
@@ -102,7 +98,6 @@ class TrackerConfig:
     gate: float = 13.8
     birth_score: float = 0.4
     score_mix: float = 0.7
-    score_half_life_s: float | None = None
     sweep_sigma: float | None = 1.5
     sweep_classes: tuple[str, ...] = ('car', 'truck', 'cyclist')
     sweep_min_score: float = 0.2
@@ -118,10 +113,6 @@ class TrackerConfig:
             value = getattr(self, name)
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f'TrackerConfig.{name} must be finite and > 0, got {value}')
-        if self.score_half_life_s is not None and not (np.isfinite(self.score_half_life_s)
-                                                        and self.score_half_life_s > 0):
-            raise ValueError(f'TrackerConfig.score_half_life_s must be finite and > 0 (or '
-                             f'None), got {self.score_half_life_s}')
         if self.sweep_sigma is not None and not (np.isfinite(self.sweep_sigma)
                                                   and self.sweep_sigma > 0):
             raise ValueError(f'TrackerConfig.sweep_sigma must be finite and > 0 (or None), got '
@@ -281,9 +272,7 @@ class Tracker:
             # a carried detection holds its track's score (see ``carried``)
             seen_now = hit if carried is None else hit & ~np.asarray(carried, bool)
             t_seen = match[seen_now]
-            keep = (0.5 if cfg.score_half_life_s is None or self.frame_s <= 0
-                    else 0.5 ** (self.frame_s / cfg.score_half_life_s))
-            self.score[t_seen] = keep * self.score[t_seen] + (1 - keep) * det.scores[seen_now]
+            self.score[t_seen] = 0.5 * (self.score[t_seen] + det.scores[seen_now])
         seen = np.zeros(len(self.x), bool)
         seen[match[hit]] = True
         self.last_seen_ns[seen] = stamp_ns

@@ -125,7 +125,6 @@ def test_only_confident_detections_start_tracks_and_they_are_matched_first():
                                          ('accel_sigma', float('nan')), ('gate', 0.0),
                                          ('max_gap_s', float('inf')), ('max_miss_s', -0.1),
                                          ('coast_s', float('nan')),
-                                         ('score_half_life_s', 0.0),
                                          ('birth_score', 1.5), ('score_mix', -0.1),
                                          ('sweep_sigma', 0.0), ('coast_margin', -0.1),
                                          ('speed_std_fraction', -0.1),
@@ -399,26 +398,6 @@ def test_track_lifetimes_are_seconds_at_any_frame_rate(rate_hz, coasted, lived):
             alive.append(len(vf))
         assert held == [1] * coasted + [0] * (15 - coasted), (rate_hz, jitter_ns)
         assert alive == [1] * lived + [0] * (15 - lived), (rate_hz, jitter_ns)
-
-
-def test_running_score_halves_per_detection_or_per_half_life():
-    """The track's running score (what ``score_mix`` mixes in): halved per detection by
-    default; with ``score_half_life_s`` 0.1, per 0.1 s of frame interval, so two detections at
-    20 Hz move it as far as one at 10 Hz, and at 10 Hz it is the default's."""
-    T = np.eye(4)
-
-    def running(cfg, dt_ns, n):
-        vf = Tracker(cfg)
-        vf.update(frame([10.0, 0.0], [0.0, 0.0], scores=[0.8]), 0, T)
-        for k in range(1, n + 1):
-            vf.update(frame([10.0, 0.0], [0.0, 0.0], scores=[0.2]), k * dt_ns, T)
-        return float(vf.score[0])
-    per_second = TrackerConfig(score_half_life_s=0.1)
-    assert running(TrackerConfig(), DT_NS, 1) == pytest.approx(0.5)
-    assert running(per_second, DT_NS, 1) == pytest.approx(0.5)
-    assert running(per_second, DT_NS // 2, 2) == pytest.approx(0.5)
-    assert running(TrackerConfig(), DT_NS // 2, 2) == pytest.approx(0.35)   # 0.1 s: two halvings
-    assert running(per_second, 2 * DT_NS, 1) == pytest.approx(0.2 + 0.6 * 0.25)
 
 
 def test_unseen_boxes_are_those_no_ray_passed_through():

@@ -21,14 +21,8 @@ frame counts gave at that rate, and with the seconds.
     other cloud (the skipped ones buffered as the node does). Frames: coast 5, live 6 (1.0 /
     1.2 s at 5 Hz). mAP, NDS, moving-car velocity error.
 
-(c) ``smoothing`` (after the lifetimes were shipped): the track's running score halved per
-    detection (as shipped: at 20 Hz it spans half the time it does at 10 Hz) against halved per
-    0.1 s of frame interval (``score_half_life_s`` 0.1), on the 20 Hz drives (objects kept;
-    frames outside the outages) and on the validation drives at half rate.
-
 Per-drive bootstrap (200 resamples), paired over the same drives and frames.
-Usage: docs/experiments/track_time/measure.py [--part 20hz half smoothing] [--drives 16]
-[--out F.json]
+Usage: docs/experiments/track_time/measure.py [--part 20hz half] [--drives 16] [--out F.json]
 """
 from __future__ import annotations
 
@@ -59,8 +53,7 @@ def drives_20hz(n: int, frames: int, cache_dir: str) -> list[list[Any]]:
 
 def main() -> int:
     parser = argparse.ArgumentParser(description=(__doc__ or '').splitlines()[0])
-    parser.add_argument('--part', nargs='+', choices=['20hz', 'half', 'smoothing'],
-                        default=['20hz', 'half'])
+    parser.add_argument('--part', nargs='+', choices=['20hz', 'half'], default=['20hz', 'half'])
     parser.add_argument('--drives', type=int, default=16)
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--out', default='')
@@ -153,29 +146,6 @@ def main() -> int:
                                                  run_every=2),
                 'seconds (0.5 / 0.6 s)': node_run(seqs, TrackerConfig(), run_every=2)}
         report['half'] = compare(runs)
-    if 'smoothing' in args.part:
-        # the running score halved per detection (as shipped) or per 0.1 s of frame interval
-        per_second = TrackerConfig(score_half_life_s=0.1)
-        frames, length = 80, 12
-        plain = drives_20hz(args.drives, frames, args.cache_dir)
-        outs = [outages_for(i, frames, 120.0, length, period=28) for i in range(len(plain))]
-        seqs = [with_outages(seq, o) for seq, o in zip(plain, outs)]
-        runs = {'per detection': node_run(seqs, TrackerConfig()),
-                'per 0.1 s': node_run(seqs, per_second)}
-        print('20 Hz, every frame, objects scored where the sensor would have seen them')
-        seen = [f.num_points for seq in plain for f in seq]
-        part = {'objects_kept': compare({n: replace(r, num_points=seen)
-                                         for n, r in runs.items()})}
-        quiet = [i for i, (d, k) in enumerate((d, k) for d, seq in enumerate(seqs)
-                                              for k in range(len(seq)))
-                 if not any(o.active(k) for o in outs[d])]
-        print(f'20 Hz, the {len(quiet)} frames outside the outages')
-        part['outside_outages'] = compare({n: r.select_frames(quiet) for n, r in runs.items()})
-        val = synthetic_split('val', args.drives, 40, args.cache_dir)
-        print('validation, the model on every other cloud')
-        part['half'] = compare({'per detection': node_run(val, TrackerConfig(), run_every=2),
-                                'per 0.1 s': node_run(val, per_second, run_every=2)})
-        report['smoothing'] = part
     if args.out:
         with open(args.out, 'w', encoding='utf-8') as f:
             json.dump(report, f, indent=1, default=float)
