@@ -37,9 +37,16 @@ def _spec(description: str, *, read_only: bool = False, lo: float | None = None,
             'choices': choices, 'length': length}
 
 
-# parameters renamed in a release: old name -> new name (an old YAML fails with a pointer)
-RENAMED = {'velocity_filter': 'tracking',
-           'coast_frames': 'coast_s (seconds: 0.5 is 5 frames at 10 Hz)'}
+# parameters renamed in a release: old name -> new name (an old YAML fails with a pointer),
+# and what changed besides the name
+RENAMED = {'velocity_filter': 'tracking', 'coast_frames': 'coast_s'}
+RENAMED_NOTES = {'coast_frames': 'seconds: 0.5 is 5 frames at 10 Hz'}
+
+
+def renamed_message(old: str) -> str:
+    """``'<old> is now <new>'`` for a renamed parameter, with what else changed."""
+    note = RENAMED_NOTES.get(old)
+    return f'{old} is now {RENAMED[old]}' + (f' ({note})' if note else '')
 
 
 @dataclass(frozen=True)
@@ -89,8 +96,9 @@ class DetectorParams:
         'with tracking: a confident track that gets no detection is published where it is '
         'predicted, with its running score and num_points 0, for up to this many seconds '
         "since its last detection while no ray of the cloud passed through its box (a lost "
-        "sector, an occluder's shadow; docs/experiments/coast; whole frames, the same at any "
-        'sensor rate; renamed from coast_frames: 5 frames); 0: off', lo=0.0, hi=0.6))
+        "sector, an occluder's shadow; docs/experiments/coast; in whole frames, about the same "
+        'time at any sensor rate; renamed from coast_frames: 5 frames); 0.0: off', lo=0.0,
+        hi=0.6))
     ground: GroundChoice = field(default='checkpoint', metadata=_spec(
         "checkpoint | as_given | local: the input's heights as the checkpoint's config says "
         "(the shipped ones: local), as base_link has them, or leveled to the ground estimated "
@@ -222,8 +230,7 @@ class DetectorParams:
         known = {f.name: f for f in fields(self)}
         unknown = sorted(set(values) - set(known))
         if unknown:
-            renamed = ''.join(f'; {old} is now {RENAMED[old]}' for old in unknown
-                              if old in RENAMED)
+            renamed = ''.join(f'; {renamed_message(old)}' for old in unknown if old in RENAMED)
             raise ConfigError(f'unknown detector parameter(s) {unknown}{renamed}; known: '
                               f'{sorted(known)}')
         changes = {}

@@ -298,8 +298,10 @@ class DetectionPipeline:
         if reason is None and pose is not None and self.last_pose is not None:
             jump = float(np.linalg.norm(pose[:3, 3] - self.last_pose[:3, 3]))
             gap_s = (stamp_ns - self.last_pose_ns) * 1e-9
-            # per 0.1 s of the gap: a dropped cloud at highway speed is no jump
-            if jump > self.params.max_pose_jump_m * max(1.0, gap_s / POSE_JUMP_PERIOD_S):
+            # per 0.1 s of the gap: a dropped cloud at highway speed is no jump (the gap read
+            # at most as max_gap_s: clouds that could not be placed do not widen it further)
+            steps = min(gap_s, self.params.max_gap_s) / POSE_JUMP_PERIOD_S
+            if jump > self.params.max_pose_jump_m * max(1.0, steps):
                 reason = f'pose jumped {jump:.1f} m in {gap_s:.2f} s between frames'
         if reason is not None:
             self.reset(reason)

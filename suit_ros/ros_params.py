@@ -6,10 +6,11 @@ from __future__ import annotations
 import os
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.exceptions import InvalidParameterTypeException
 from rclpy.node import Node
 
 from suit_ros.errors import ConfigError, SuitRosError
-from suit_ros.params import RENAMED, DetectorParams, parameter_descriptions
+from suit_ros.params import RENAMED, DetectorParams, parameter_descriptions, renamed_message
 
 
 def descriptor(name: str) -> ParameterDescriptor:
@@ -40,10 +41,14 @@ def declare_detector_parameters(node: Node) -> DetectorParams:
     given = set(getattr(node, '_parameter_overrides', {}))
     old = sorted(given & set(RENAMED))
     if old:
-        raise SuitRosError('renamed parameter(s): ' + '; '.join(
-            f'{name} is now {RENAMED[name]}' for name in old))
+        raise SuitRosError('renamed parameter(s): ' + '; '.join(map(renamed_message, old)))
     for name, value in DetectorParams().ros_values().items():
-        node.declare_parameter(name, value, descriptor(name))
+        try:
+            node.declare_parameter(name, value, descriptor(name))
+        except InvalidParameterTypeException as exc:
+            kind = type(value).__name__
+            hint = ' (a float needs a decimal point: 0.0, not 0)' if kind == 'float' else ''
+            raise SuitRosError(f'parameter {name} must be a {kind}{hint}: {exc}') from exc
     try:
         return DetectorParams.from_mapping(
             {n: node.get_parameter(n).value for n in parameter_descriptions()})

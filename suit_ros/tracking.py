@@ -70,8 +70,8 @@ class TrackerConfig:
         faster than this (m/s) and at least twice its standard deviation is turned round when
         its box's heading points more than 90 degrees away from that velocity (vehicles drive
         forwards); None: headings as the model gives them.
-    :param max_miss_s: seconds a track survives without a detection (whole frames, give or
-        take a quarter of a frame interval for stamp jitter), the same at any
+    :param max_miss_s: seconds a track survives without a detection (whole frames, up to a
+        quarter of a frame interval more, for stamp jitter), about the same time at any
         sensor rate and under overload (a node that runs on every other cloud). It was
         ``max_misses``, 6 frames: 0.6 s at 10 Hz but 0.3 s at 20 Hz and 1.2 s at half rate
         (docs/experiments/track_time).
@@ -161,6 +161,12 @@ class Tracker:
         self.stamp_ns: int | None = None
         self.reset()
 
+    def reconfigure(self, config: TrackerConfig) -> None:
+        """Use ``config`` from the next update on; the tracks and their ids go on."""
+        self.config = config
+        self.vehicle_labels = frozenset(i for i, n in enumerate(self.class_names)
+                                        if n in config.sweep_classes)
+
     def reset(self) -> None:
         """Forget every track (ids keep counting up)."""
         self.x = np.zeros((0, 4))               # x, y, vx, vy (odometry frame)
@@ -171,7 +177,7 @@ class Tracker:
         self.score = np.zeros(0)                # running score (halving weights)
         self.shape = np.zeros((0, 5))           # z, length, width, height, yaw (odometry)
         self.stamp_ns = None
-        self.frame_s = 0.0                      # the last update's frame interval (s)
+        self.frame_s = 0.0                      # the frame interval, smoothed (s)
         self.coasted = 0                        # the last update's coasted detections
         # the last update's detections: each velocity's standard deviation per axis (m/s),
         # the filter's for a tracked one, the measurement's for one no track took, widened by
@@ -244,7 +250,8 @@ class Tracker:
                 self.reset()
             else:
                 self._predict(dt)
-                self.frame_s = dt
+                # smoothed: one early or late cloud does not move the lifetimes' tolerance
+                self.frame_s = dt if self.frame_s == 0 else 0.9 * self.frame_s + 0.1 * dt
         self.stamp_ns = stamp_ns
         R = T[:2, :2]
         centres = det.boxes[:, :2].astype(np.float64) @ R.T + T[:2, 3]
@@ -324,8 +331,8 @@ class Tracker:
 
     def _missed_within(self, limit_s: float) -> NDArray[np.bool_]:
         """The tracks whose last detection is at most ``limit_s`` before the current stamp,
-        give or take a quarter of the last frame interval (stamps jitter): whole frames, never
-        more than fit in the limit."""
+        or up to a quarter of the (smoothed) frame interval more, for stamp jitter: whole
+        frames, the limit's time give or take that quarter."""
         if self.stamp_ns is None:
             return np.ones(len(self.x), bool)
         missed_s = (self.stamp_ns - self.last_seen_ns) * 1e-9

@@ -282,10 +282,14 @@ def test_clouds_lost_before_the_callback_are_counted_and_raise_a_warning(make_no
 
 def test_a_renamed_parameter_stops_the_node_with_its_new_name(make_node):
     """A launch file that still sets ``coast_frames`` (now ``coast_s``, in seconds) would be
-    ignored by rclpy without a word: the node refuses to start and names the new one."""
+    ignored by rclpy without a word: the node refuses to start and names the new one; an
+    integer where a float belongs stops it with what to write instead of a traceback."""
     from suit_ros.errors import SuitRosError
     with pytest.raises(SuitRosError, match=r'coast_frames is now coast_s \(seconds'):
         make_node(coast_frames=3)
+    # an integer for a float parameter (coast_frames: 0 becoming coast_s: 0) says what to write
+    with pytest.raises(SuitRosError, match=r'coast_s must be a float \(a float needs a decimal'):
+        make_node(coast_s=0)
     node = make_node(coast_s=0.3)
     assert node.params.coast_s == 0.3
     assert node.pipeline.detector.tracks.config.coast_s == 0.3

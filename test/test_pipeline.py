@@ -266,8 +266,11 @@ def test_coast_s_holds_tracked_objects_where_the_cloud_shows_nothing(model, clas
     assert set(held.track_ids[blind]) <= set(sure) and 0 not in set(held.track_ids[blind])
     _, none, _ = last(0.0)
     assert not ((none.detections.boxes[:, 0] > 2.0) & (none.num_points == 0)).any()
+    tracks, ids = pipe.detector.tracks, pipe.detector.tracks.ids.copy()
     pipe.configure(replace(pipe.params, coast_s=0.2))
     assert pipe.detector.tracks.config.coast_s == 0.2
+    # the tracks and their ids go on (a new tracker would hand out id 1 again)
+    assert pipe.detector.tracks is tracks and pipe.detector.tracks.ids.tolist() == ids.tolist()
 
 
 @pytest.fixture(scope='module')
@@ -673,6 +676,17 @@ def test_a_dropped_cloud_at_highway_speed_is_no_pose_jump(model, classes):
         leap.process(cloud(classes, T0))
         reason = leap.process(cloud(classes, T0 + dt)).reset_reason
         assert 'pose jumped' in reason and f'in {dt / S:.2f} s' in reason, reason
+    # clouds that could not be placed for 2 s (odometry gone) do not widen the limit past
+    # max_gap_s: a 30 m relocalisation when the odometry comes back still resets
+    lost = make_pipeline(model, classes)
+    feed_odometry(lost, T0, T0 + 3 * S // 10, speed=0.0)
+    lost.process(cloud(classes, T0 + 2 * S // 10))
+    for k in range(5, 21, 3):
+        assert lost.buffer(cloud(classes, T0 + k * S // 10)).reset_reason == ''
+    for t in range(T0 + 19 * S // 10, T0 + 23 * S // 10, S // 50):
+        assert lost.add_odometry(odom(t, 30.0))
+    reason = lost.process(cloud(classes, T0 + 22 * S // 10)).reset_reason
+    assert 'pose jumped 30.0 m in 2.00 s' in reason, reason
 
 
 # ------------------------------------------------------------------ the input contract

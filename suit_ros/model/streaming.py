@@ -179,12 +179,15 @@ class StreamingDetector:
         self.box_fit: BoxFitMode = box_fit
 
     def set_tracker(self, config: TrackerConfig | None) -> None:
-        """Turn the tracker on (with ``config``; tracks kept when it is unchanged) or
-        off (None)."""
+        """Turn the tracker on (with ``config``) or off (None). A tracker already on takes a
+        changed config in place: its tracks and their ids go on (a downstream stack must not
+        see an id used twice)."""
         if config is None:
             self.tracks = None
-        elif self.tracks is None or self.tracks.config != config:
+        elif self.tracks is None:
             self.tracks = Tracker(config, self.cfg.class_names)
+        elif self.tracks.config != config:
+            self.tracks.reconfigure(config)
 
     def reset(self, reason: str = 'reset', sweeps: bool = True) -> None:
         """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps and

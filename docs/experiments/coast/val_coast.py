@@ -1,4 +1,5 @@
-"""Validation of coasting (docs/experiments/coast): suit_default tracked, coast_frames 0 and N,
+"""Validation of coasting (docs/experiments/coast): suit_default tracked, coasting off and N
+frames at 10 Hz (coast_s N / 10),
 paired per-drive bootstrap over the fixed validation drives.
 
     python docs/experiments/coast/val_coast.py N OUT.json
@@ -18,8 +19,8 @@ torch.set_num_threads(2)
 n = int(sys.argv[1])
 val = synthetic_split('val', 16, 40, 'data_cache')
 model, cfg, _ = load_checkpoint('suit_default')
-runs = {f'tracking, coast {n}': run_model(model, val, tracker=TrackerConfig(coast_frames=n)),
-        'tracking': run_model(model, val, tracker=TrackerConfig(coast_frames=0))}
+runs = {f'tracking, coast {n}': run_model(model, val, tracker=TrackerConfig(coast_s=n / 10)),
+        'tracking': run_model(model, val, tracker=TrackerConfig(coast_s=0.0))}
 stats, diffs = bootstrap(runs, cfg.class_names, [(f'tracking, coast {n}', 'tracking')], 100)
 out = {'runs': plain_intervals(stats), 'differences': plain_intervals(diffs)}
 json.dump(out, open(sys.argv[2], 'w'), indent=2)
