@@ -159,7 +159,10 @@ class DetectorNode(Node):
                                      'model_precision': self.detector.precision,
                                      # what `checkpoint` resolved to (the model's input)
                                      'model_ground': self.detector.ground,
-                                     'model_overhang': self.detector.overhang})
+                                     'model_overhang': self.detector.overhang,
+                                     # given at launch, not this node's: rclpy ignored them
+                                     'ignored_parameters': ', '.join(self.ignored_parameters)
+                                     or 'none'})
         level, message, values = health_report(snap)
         return DiagnosticStatus(
             name='suit_ros: detector', hardware_id='suit_ros', message=message,

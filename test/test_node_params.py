@@ -305,4 +305,8 @@ def test_a_parameter_the_node_does_not_have_is_named_not_dropped_in_silence(make
                      **{'qos_overrides./odom.subscription.depth': 50})
     assert node.ignored_parameters == ['score_threshold']
     assert node.params.score_thresholds == (0.0,)
+    values = {kv.key: kv.value for kv in node.diagnostic_status().values}
+    assert values['ignored_parameters'] == 'score_threshold'
+    values = {kv.key: kv.value for kv in make_node().diagnostic_status().values}
+    assert values['ignored_parameters'] == 'none'
 
