@@ -37,9 +37,7 @@ def declare_detector_parameters(node: Node) -> DetectorParams:
         under a name it no longer has (rclpy would ignore it: the user's setting would be lost
         without a word).
     """
-    # rclpy keeps the launch's overrides here; it has no public reader for them
-    given = set(getattr(node, '_parameter_overrides', {}))
-    old = sorted(given & set(RENAMED))
+    old = sorted(_overrides(node) & set(RENAMED))
     if old:
         raise SuitRosError('renamed parameter(s): ' + '; '.join(map(renamed_message, old)))
     for name, value in DetectorParams().ros_values().items():
@@ -56,12 +54,17 @@ def declare_detector_parameters(node: Node) -> DetectorParams:
         raise SuitRosError(f'invalid parameters: {exc}') from exc
 
 
+def _overrides(node: Node) -> set[str]:
+    """The names of the parameters the launch gave ``node``."""
+    # rclpy keeps them here; it has no public reader for them
+    return set(getattr(node, '_parameter_overrides', {}))
+
+
 def ignored_overrides(node: Node) -> list[str]:
     """The parameters the launch gave ``node`` that it never declared: rclpy drops them
     without a word (a misspelt name, a parameter of another node under ``/**``). Call it once
     every parameter is declared (the QoS overrides are declared with their endpoints)."""
-    given = getattr(node, '_parameter_overrides', {})      # rclpy has no public reader
-    return sorted(name for name in given if not node.has_parameter(name))
+    return sorted(name for name in _overrides(node) if not node.has_parameter(name))
 
 
 def torch_threads(requested: int) -> int:

@@ -151,12 +151,8 @@ class Tracker:
     def __init__(self, config: TrackerConfig | None = None,
                  class_names: Sequence[str] | None = None) -> None:
         from suit_ros import CLASS_NAMES
-        self.config = config or TrackerConfig()
-        names = tuple(class_names or CLASS_NAMES)
-        self.class_names = names
-        # the classes that move along their heading (the sweep reading's, too)
-        self.vehicle_labels = frozenset(i for i, n in enumerate(names)
-                                        if n in self.config.sweep_classes)
+        self.class_names = tuple(class_names or CLASS_NAMES)
+        self.reconfigure(config or TrackerConfig())
         self.next_id = 1
         self.stamp_ns: int | None = None
         self.reset()
@@ -164,6 +160,7 @@ class Tracker:
     def reconfigure(self, config: TrackerConfig) -> None:
         """Use ``config`` from the next update on; the tracks and their ids go on."""
         self.config = config
+        # the classes that move along their heading (the sweep reading's, too)
         self.vehicle_labels = frozenset(i for i, n in enumerate(self.class_names)
                                         if n in config.sweep_classes)
 
@@ -315,30 +312,28 @@ class Tracker:
         out = Detections(boxes, out_vel, scores, det.labels)
         self.coasted = 0
         if cfg.coast_s and current is not None:
-            coast, coast_ids, coast_std = self._coast(T, current, sensor)
+            coast, coast_ids, coast_std = self._coast(stamp_ns, T, current, sensor)
             if len(coast):
                 out = out.concat(coast)
                 ids = np.concatenate([ids, coast_ids])
                 vel_std = np.concatenate([vel_std, coast_std])
                 self.coasted = len(coast)
         self.velocity_std = cfg.published_std(vel_std, out.velocities)
-        keep = self._missed_within(cfg.max_miss_s)
+        keep = self._missed_within(stamp_ns, cfg.max_miss_s)
         self.x, self.P = self.x[keep], self.P[keep]
         self.labels, self.ids = self.labels[keep], self.ids[keep]
         self.last_seen_ns = self.last_seen_ns[keep]
         self.score, self.shape = self.score[keep], self.shape[keep]
         return out, ids
 
-    def _missed_within(self, limit_s: float) -> NDArray[np.bool_]:
-        """The tracks whose last detection is at most ``limit_s`` before the current stamp,
-        or up to a quarter of the (smoothed) frame interval more, for stamp jitter: whole
-        frames, the limit's time give or take that quarter."""
-        if self.stamp_ns is None:
-            return np.ones(len(self.x), bool)
-        missed_s = (self.stamp_ns - self.last_seen_ns) * 1e-9
+    def _missed_within(self, stamp_ns: int, limit_s: float) -> NDArray[np.bool_]:
+        """The tracks whose last detection is at most ``limit_s`` before ``stamp_ns``, or up
+        to a quarter of the (smoothed) frame interval more, for stamp jitter: whole frames,
+        the limit's time give or take that quarter."""
+        missed_s = (stamp_ns - self.last_seen_ns) * 1e-9
         return missed_s <= limit_s + 0.25 * self.frame_s
 
-    def _coast(self, T: NDArray[np.float64], current: NDArray[np.floating[Any]],
+    def _coast(self, stamp_ns: int, T: NDArray[np.float64], current: NDArray[np.floating[Any]],
                sensor: NDArray[np.floating[Any]] | None
                ) -> tuple[Detections, NDArray[np.int64], NDArray[np.float64]]:
         """The boxes of the confident tracks missed this frame (for at most ``coast_s`` since
@@ -346,8 +341,8 @@ class Tracker:
         in the frame of ``T`` (see ``coast_s`` and :func:`unseen`), their ids and velocity
         standard deviations."""
         cfg = self.config
-        t = np.nonzero((self.last_seen_ns != self.stamp_ns)
-                       & self._missed_within(min(cfg.coast_s, cfg.max_miss_s))
+        t = np.nonzero((self.last_seen_ns != stamp_ns)
+                       & self._missed_within(stamp_ns, min(cfg.coast_s, cfg.max_miss_s))
                        & (self.score >= cfg.birth_score))[0]
         if len(t) == 0:
             return Detections.empty(), np.zeros(0, np.int64), np.zeros(0)
