@@ -12,8 +12,11 @@ settings the earlier ones chose):
   the least mAVE + moving-car velocity error;
 - ``scores``: ``score_mix`` (no sweep reading); the choice: the highest NDS;
 - ``sweeps``: ``sweep_sigma``; the choice: the least mAVE + moving-car velocity error.
+- ``spread``: ``sweep_spread_gain`` with ``sweep_sigma`` (how far a reading whose earlier
+  sweeps disagree is trusted); the choice: the least mAVE + moving-car velocity error;
+- ``single``: ``sweep_single_sigma`` (a reading only one earlier sweep gave); the same choice.
 
-Usage: scripts/tune_tracker.py --grid velocity|scores|sweeps [--out tune.json]
+Usage: scripts/tune_tracker.py --grid velocity|scores|sweeps|spread|single [--out F.json]
 """
 from __future__ import annotations
 
@@ -34,7 +37,8 @@ def main() -> int:
     parser.add_argument('--frames', type=int, default=40)
     parser.add_argument('--cache-dir', default='data_cache')
     parser.add_argument('--out', default='')
-    parser.add_argument('--grid', choices=['velocity', 'scores', 'sweeps'], default='sweeps',
+    parser.add_argument('--grid', choices=['velocity', 'scores', 'sweeps', 'spread', 'single'],
+                        default='single',
                         help='which choice to make (see the module docstring)')
     parser.add_argument('--threads', type=int, default=2)
     args = parser.parse_args()
@@ -99,9 +103,16 @@ def main() -> int:
     elif args.grid == 'scores':
         base = TrackerConfig(sweep_sigma=None)
         grid = {'score_mix': (0.0, 0.3, 0.5, 0.7)}
+    elif args.grid == 'sweeps':
+        base = TrackerConfig(sweep_spread_gain=0.0)
+        grid = {'sweep_sigma': (None, 1.0, 1.5, 2.5, 4.0)}
+    elif args.grid == 'spread':
+        base = TrackerConfig(sweep_single_sigma=None)
+        grid = {'sweep_spread_gain': (0.0, 0.5, 1.0, 2.0, 3.0, 4.0),
+                'sweep_sigma': (0.5, 0.75, 1.0, 1.5)}
     else:
         base = TrackerConfig()
-        grid = {'sweep_sigma': (None, 1.0, 1.5, 2.5, 4.0)}
+        grid = {'sweep_single_sigma': (None, 0.75, 1.0, 1.5, 2.0, 3.0, 4.0, 6.0)}
     rows: list[dict[str, Any]] = [{'setting': 'head velocities', **score(None)}]
     print(rows[0])
     for values in itertools.product(*grid.values()):

@@ -259,7 +259,7 @@ def test_sweep_velocities_equal_the_array_code_on_moving_cars():
     pts = np.concatenate(parts).astype(np.float32)
     boxes_a = np.array(boxes)
     which = rng.random(len(boxes_a)) < 0.9
-    vel, ok = sweep_velocities(pts, boxes_a, which)
+    vel, ok, _ = sweep_velocities(pts, boxes_a, which)
     want_vel, want_ok = _numpy_sweep_velocities(pts, boxes_a, which)
     assert ok.sum() >= 15
     np.testing.assert_array_equal(ok, want_ok)

@@ -164,3 +164,7 @@ def test_eval_cli_on_nuscenes_format(dataset, tmp_path, capsys):
                  '--json-out', str(tmp_path / 'm.json')]) == 0
     out = capsys.readouterr().out
     assert 'mAP' in out and json.loads((tmp_path / 'm.json').read_text())['summary']['frames'] == 6
+    # tracked as the node tracks, over keyframes 0.5 s apart (tracker_for)
+    assert main(['eval', '--nuscenes', str(dataset), '--version', VERSION, '--sweeps', '2',
+                 '--tracker', '--json-out', str(tmp_path / 't.json')]) == 0
+    assert json.loads((tmp_path / 't.json').read_text())['summary']['frames'] == 6

@@ -207,25 +207,79 @@ def test_sweep_velocities_read_motion_along_the_heading():
                       [-8.0, -6.0, 0.8, 4.5, 1.9, 1.6, -1.2 + np.pi],   # heading flipped
                       [12.0, 4.0, 0.8, 4.5, 1.9, 1.6, 0.6],
                       [-20.0, 15.0, 0.8, 4.5, 1.9, 1.6, 0.0]])          # nothing there
-    vel, ok = sweep_velocities(pts, boxes, np.array([True, True, False, True]))
+    vel, ok, spread = sweep_velocities(pts, boxes, np.array([True, True, False, True]))
     assert ok.tolist() == [True, True, False, False]
     np.testing.assert_allclose(vel[0], 9.0 * np.array([np.cos(0.6), np.sin(0.6)]), atol=0.4)
     np.testing.assert_allclose(vel[1], 0.0, atol=0.3)
     assert not vel[2:].any()
+    # both earlier sweeps read the same speed; what was not read has no spread
+    assert spread[0] <= 1.0 and spread[1] <= 1.0
+    assert np.isinf(spread[2:]).all()
     one_sweep = pts[pts[:, 4] == 0]                       # no earlier sweep: nothing to read
-    assert not sweep_velocities(one_sweep, boxes, np.ones(4, bool))[1].any()
+    assert not sweep_velocities(one_sweep, boxes, np.ones(4, bool)).read.any()
+    two_sweeps = pts[pts[:, 4] < 0.15]                    # one earlier sweep: read, spread inf
+    one = sweep_velocities(two_sweeps, boxes, np.array([True, False, False, False]))
+    assert one.read[0] and np.isinf(one.spread[0])
+    np.testing.assert_allclose(one.velocities[0], vel[0], atol=1.0)
+
+
+def test_sweep_readings_whose_sweeps_disagree_are_trusted_less():
+    """An earlier sweep whose returns sit where another car's would: the two earlier sweeps
+    read speeds far apart, and the spread says so."""
+    from suit_ros.tracking import sweep_velocities
+    rng = np.random.default_rng(4)
+    steady = car_points((12.0, 4.0), 0.0, 8.0, (0.0, 0.1, 0.2), rng)
+    # the sweep 0.2 s back sees the car 1.2 m further on than a steady 8 m/s puts it: it
+    # reads 2 m/s, the sweep 0.1 s back 8 m/s
+    jumpy = steady.copy()
+    old = np.isclose(jumpy[:, 4], 0.2)
+    jumpy[old, 0] += 1.2
+    box = np.array([[12.0, 4.0, 0.8, 4.5, 1.9, 1.6, 0.0]])
+    calm = sweep_velocities(steady.astype(np.float32), box, np.ones(1, bool))
+    torn = sweep_velocities(jumpy.astype(np.float32), box, np.ones(1, bool))
+    assert calm.read[0] and torn.read[0]
+    assert calm.spread[0] <= 1.0
+    assert 4.0 <= torn.spread[0] <= 8.0
 
 
 def test_swept_velocity_is_fused_with_the_heads():
-    cfg = TrackerConfig(vel_sigma=4.0, sweep_sigma=2.0)
+    from suit_ros.tracking import SweepReading
+    cfg = TrackerConfig(vel_sigma=4.0, sweep_sigma=2.0, sweep_spread_gain=0.0)
     vf = Tracker(cfg)
     det = frame([[10, 0], [20, 0]], [[0, 0], [5, 0]])
-    swept = (np.array([[10.0, 0.0], [9.0, 0.0]]), np.array([True, False]))
+    swept = SweepReading(np.array([[10.0, 0.0], [9.0, 0.0]]), np.array([True, False]),
+                         np.array([np.inf, np.inf]))
     out, _ = vf.update(det, 0, np.eye(4), swept)
     # inverse-variance weights 1/16 and 1/4: (0 * 1 + 10 * 4) / 5 = 8
     np.testing.assert_allclose(out.velocities, [[8.0, 0.0], [5.0, 0.0]])
     plain, _ = Tracker(replace(cfg, sweep_sigma=None)).update(det, 0, np.eye(4), swept)
     np.testing.assert_allclose(plain.velocities, [[0.0, 0.0], [5.0, 0.0]])
+
+
+def test_a_reading_is_fused_by_how_far_its_sweeps_agree():
+    """With ``sweep_spread_gain`` the reading's variance is ``sweep_sigma^2 + (gain x
+    spread)^2``: sweeps that agree count as ``sweep_sigma``, a spread of 1 m/s at gain 2 as
+    sqrt(4 + 4), and a reading from one earlier sweep (spread inf) as ``sweep_single_sigma``,
+    or not at all."""
+    from suit_ros.tracking import SweepReading
+    cfg = TrackerConfig(vel_sigma=4.0, sweep_sigma=2.0, sweep_spread_gain=2.0,
+                        sweep_single_sigma=None)
+    det = frame([[10, 0], [20, 0], [30, 0]], [[0, 0], [0, 0], [0, 0]])
+    swept = SweepReading(np.full((3, 2), [10.0, 0.0]), np.ones(3, bool),
+                         np.array([0.0, 1.0, np.inf]))
+    vf = Tracker(cfg)
+    out, _ = vf.update(det, 0, np.eye(4), swept)
+    # weights: head 1/16; the sweeps 1/4, 1/8 and 0
+    np.testing.assert_allclose(out.velocities[:, 0], [8.0, 10 * 2 / 3, 0.0])
+    np.testing.assert_allclose(out.velocities[:, 1], 0.0)
+    # the new tracks start with the fused variance
+    np.testing.assert_allclose(vf.P[:, 1, 1], [1 / (1 / 16 + 1 / 4), 1 / (1 / 16 + 1 / 8), 16])
+    single, _ = Tracker(replace(cfg, sweep_single_sigma=2.0)).update(det, 0, np.eye(4), swept)
+    np.testing.assert_allclose(single.velocities[:, 0], [8.0, 10 * 2 / 3, 8.0])
+    with pytest.raises(ValueError, match='sweep_single_sigma'):
+        TrackerConfig(sweep_single_sigma=0.0)
+    with pytest.raises(ValueError, match='sweep_spread_gain'):
+        TrackerConfig(sweep_spread_gain=-1.0)
 
 
 def test_a_vehicle_driving_backwards_by_a_confident_velocity_is_turned_round():
@@ -460,3 +514,32 @@ def test_unseen_matches_its_definition_on_random_clouds():
             z = p[on, 2] * near / r[on]
             lo, hi = b[2] - b[5] / 2 - 0.5 - o[2], b[2] + b[5] / 2 + 0.5 - o[2]
             assert got[m] == (not np.any((z >= lo) & (z <= hi))), (trial, m)
+
+
+def test_keyframes_half_a_second_apart_keep_their_tracks_offline():
+    """nuScenes keyframes come at 2 Hz, about 0.5 s apart with jitter. At the node's
+    max_gap_s (0.5 s) a keyframe 0.52 s late drops every track; the offline run's tracker
+    (``tracker_for``) widens the gap to 2.5 frame intervals and keeps them, while a 10 Hz
+    drive keeps the node's setting."""
+    from types import SimpleNamespace
+
+    from suit_ros.evaluate import tracker_for
+    stamps = np.cumsum([0, 0.48, 0.52, 0.5, 0.55, 0.47]) * 1e9
+    keyframes = [[SimpleNamespace(stamp_ns=int(t)) for t in stamps]]
+    cfg = tracker_for(keyframes)
+    assert cfg.max_gap_s == pytest.approx(2.5 * 0.5)
+    ten_hz = [[SimpleNamespace(stamp_ns=k * DT_NS) for k in range(6)]]
+    assert tracker_for(ten_hz) == TrackerConfig()
+    assert tracker_for([[SimpleNamespace(stamp_ns=0)]]) == TrackerConfig()
+    custom = TrackerConfig(score_mix=0.2)
+    assert tracker_for(keyframes, custom).score_mix == 0.2
+
+    def ids_over(config):
+        vf, out = Tracker(config), []
+        for k, t in enumerate(stamps):
+            _, ids = vf.update(frame([[10.0 + 5.0 * k * 0.5, 2.0]], [[5.0, 0.0]]), int(t),
+                               np.eye(4))
+            out.append(int(ids[0]))
+        return out
+    assert ids_over(cfg) == [1] * len(stamps)
+    assert len(set(ids_over(TrackerConfig()))) > 1       # the late keyframes restart it
