@@ -484,7 +484,8 @@ def tracker_for(sequences: Sequence[Sequence[Frame]], config: TrackerConfig | No
     its ``max_gap_s`` widened to 2.5 frame intervals (the median within the sequences) where
     the frames come further apart than a LiDAR's. nuScenes keyframes are 2 Hz, about 0.5 s
     apart with jitter: at the node's 0.5 s, every keyframe that came a little late would drop
-    every track. Sequence boundaries still reset the tracks."""
+    every track. Sequence boundaries still reset the tracks. The lifetimes stay in seconds
+    (``max_miss_s``, ``coast_s``): at 2 Hz a track outlives no missed keyframe."""
     from suit_ros.tracking import TrackerConfig
     cfg = config if config is not None else TrackerConfig()
     gaps = [b.stamp_ns - a.stamp_ns for seq in sequences for a, b in zip(seq[:-1], seq[1:])]

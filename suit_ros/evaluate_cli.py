@@ -24,7 +24,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                      'folder, a split folder or one log folder); parked bicycles and '
                      'motorcycles are neither objects nor false positives')
     parser.add_argument('--version', default='v1.0-mini', help='nuScenes table version')
-    parser.add_argument('--sweeps', type=int, default=10, help='nuScenes sweeps per keyframe')
+    parser.add_argument('--sweeps', type=int, default=None,
+                        help="sweeps per nuScenes keyframe input (default: the checkpoint's), "
+                        'taken 0.1 s apart as the shipped models were trained')
     parser.add_argument('--image-width', type=float, default=1242.0,
                         help='KITTI camera image width (px) that bounds the scored view')
     parser.add_argument('--kitti-intensity-scale', type=float, default=1.0,
@@ -147,7 +149,8 @@ def run(args: argparse.Namespace) -> int:
         seqs: Any
         if args.nuscenes:
             from suit_ros.data.sequences import nuscenes_sequences
-            seqs = nuscenes_sequences(args.nuscenes, args.version, args.sweeps)
+            seqs = nuscenes_sequences(args.nuscenes, args.version,
+                                      args.sweeps or model.cfg.sweeps)
         elif args.av2:
             from suit_ros.data.av2 import av2_sequences
             seqs = av2_sequences(args.av2, model.cfg.class_names)

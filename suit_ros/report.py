@@ -537,7 +537,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--cache-dir', default='data_cache')
 
 
-def _sequences(args: argparse.Namespace, class_names: Sequence[str]) -> tuple[list[Any], str]:
+def _sequences(args: argparse.Namespace, class_names: Sequence[str], sweeps: int
+               ) -> tuple[list[Any], str]:
     if args.av2:
         from suit_ros.data.av2 import av2_sequences
         return list(av2_sequences(args.av2, class_names)), f'Argoverse 2 ({args.av2})'
@@ -547,7 +548,8 @@ def _sequences(args: argparse.Namespace, class_names: Sequence[str]) -> tuple[li
             f'KITTI ({args.kitti}, camera field of view)'
     if args.nuscenes:
         from suit_ros.data.sequences import nuscenes_sequences
-        return nuscenes_sequences(args.nuscenes, args.version), f'nuScenes ({args.nuscenes})'
+        return nuscenes_sequences(args.nuscenes, args.version, sweeps), \
+            f'nuScenes ({args.nuscenes})'
     from suit_ros.data.sequences import SPLIT_SEEDS, synthetic_sequence, synthetic_split
     from suit_ros.data.sim.config import PRESETS
     if args.synthetic == 'demo':
@@ -586,7 +588,7 @@ def run(args: argparse.Namespace) -> int:
     model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
     names = tuple(cfg.class_names)
     thresholds = report_thresholds(meta, names, args.score_thresholds)
-    seqs, source = _sequences(args, names)
+    seqs, source = _sequences(args, names, cfg.sweeps)
     if not seqs or not any(len(s) for s in seqs):
         raise DatasetError('the dataset holds no frame')
     baseline = None
@@ -596,6 +598,9 @@ def run(args: argparse.Namespace) -> int:
             raise ConfigError(f'--baseline {args.baseline} detects {base_cfg.class_names}, '
                               f'the checkpoint {names}: compare checkpoints of one class list')
     filt = None if args.no_tracking else TrackerConfig()
+    if filt is not None and args.nuscenes:
+        from suit_ros.evaluate import tracker_for
+        filt = tracker_for(seqs, filt)          # keyframes 0.5 s apart: see tracker_for
     deskew = args.deskew == 'on'
     result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
                        box_fit=args.box_fit, deskew=deskew)

@@ -21,8 +21,8 @@ earlier ones with ego motion removed, and a moving vehicle's returns are smeared
 shift between the sweeps; where it can be read it is fused with the head's velocity (inverse
 variance, ``sweep_sigma`` against ``vel_sigma``) before the Kalman update, so even an object's
 first frame gets it. Each earlier sweep reads a speed of its own too; a reading whose sweeps
-disagree counts for less (``sweep_spread_gain``), and one that a single earlier sweep gave for
-nothing.
+disagree counts for less (``sweep_spread_gain``), and one that a single earlier sweep gave
+counts as ``sweep_single_sigma`` says.
 
 A tracked detection's score is also smoothed over its track (``score_mix``): ``(1 - mix) x``
 its own score ``+ mix x`` the track's running score (each earlier detection weighing half as
@@ -499,10 +499,15 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     times the heading direction.
 
     Each earlier sweep also gives a speed of its own (its correlation's peak); where two or
-    more do, how far apart they lie (``spread``) says how far to trust the reading. A reading
-    whose sweeps disagree is mostly a wrong one: on the tune split's moving cars, readings
-    whose sweeps agree within 1 m/s (80% of them) are off by 1.2 m/s on average, the others
-    by 4.4, and one read from a single earlier sweep by 3.3 (docs/experiments/velocity_filter).
+    more do, how far apart they lie (``spread``) says how far to trust the reading. A sweep
+    reads in steps of about ``bin_m`` over its lag (1 m/s for the sweep 0.1 s back, its
+    histograms' bins), so sweeps reading one speed can lie up to a step apart; the tracker's
+    weights were chosen with that in them (taking the step off read worse on the tune split:
+    docs/experiments/velocity_filter).
+    A reading whose sweeps disagree is mostly a wrong one: on the tune split's moving cars,
+    readings whose sweeps agree within 1 m/s (80% of them) are off by 1.2 m/s on average, the
+    others by 4.4, and one read from a single earlier sweep by 3.3
+    (docs/experiments/velocity_filter).
 
     :param points: ``(N, 5)`` x, y, z, intensity, time lag (s) in the boxes' frame, ground at
         z = 0 (the model input).

@@ -194,9 +194,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def training_sequences(tc: TrainConfig, class_names: tuple[str, ...]) -> Any:
+def training_sequences(tc: TrainConfig, class_names: tuple[str, ...], sweeps: int = 3) -> Any:
     """The training data a config names (sequences of sensor frames; KITTI and Argoverse 2 are
-    read lazily, a real split does not fit in memory)."""
+    read lazily, a real split does not fit in memory); ``sweeps``: the model's (a nuScenes
+    keyframe comes with the earlier sweeps it takes)."""
     from suit_ros.data.sequences import synthetic_split
     data: Any
     if tc.dataset == 'synthetic':
@@ -222,7 +223,7 @@ def training_sequences(tc: TrainConfig, class_names: tuple[str, ...]) -> Any:
         from suit_ros.data.sequences import nuscenes_sequences
         if not tc.dataset_paths:
             raise ConfigError('dataset nuscenes needs dataset_paths: [ROOT]')
-        data = nuscenes_sequences(tc.dataset_paths[0], tc.nuscenes_version)
+        data = nuscenes_sequences(tc.dataset_paths[0], tc.nuscenes_version, sweeps)
     elif tc.dataset == 'kitti':
         from suit_ros.data.sequences import kitti_sequences
         if not tc.dataset_paths:
@@ -461,7 +462,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         from torch.nn.parallel import DistributedDataParallel
         model = DistributedDataParallel(module, find_unused_parameters=True)
     out.mkdir(parents=True, exist_ok=True)
-    data = training_sequences(tc, mcfg.class_names)
+    data = training_sequences(tc, mcfg.class_names, mcfg.sweeps)
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
     ground = None

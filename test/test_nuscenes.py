@@ -110,7 +110,8 @@ def test_reader_agrees_with_devkit(dataset):
     from nuscenes.nuscenes import NuScenes
     from nuscenes.utils.data_classes import LidarPointCloud
     nusc = NuScenes(VERSION, str(dataset), verbose=False)
-    reader = NuScenesReader(dataset, VERSION, sweeps=3)
+    # the previous sweeps as they come (no spacing), as the devkit stacks them
+    reader = NuScenesReader(dataset, VERSION, sweeps=3, spacing_s=0.0)
     frames = {f.stamp_ns: f for scene in reader.scenes() for f in reader.sequence(scene)}
     assert len(frames) == 6
     for sample in nusc.sample:
@@ -144,6 +145,24 @@ def test_reader_agrees_with_devkit(dataset):
             np.testing.assert_allclose(f.gt.boxes[k, 3:6], [wlh[1], wlh[0], wlh[2]], atol=1e-5)
             assert np.cos(f.gt.boxes[k, 6] - yaw) == pytest.approx(1.0, abs=1e-5)
             np.testing.assert_allclose(f.gt.velocities[k], vel, atol=1e-4)
+
+
+def test_keyframes_take_their_sweeps_as_far_apart_as_in_training(dataset):
+    """The LIDAR_TOP sweeps come every 0.05 s; a keyframe input for a model trained on 10 Hz
+    sweeps takes the one 0.1 s back, not the one 0.05 s back (no spacing: as they come)."""
+    def lags(reader):
+        first = next(reader.sequence(reader.scenes()[0]))
+        later = list(reader.sequence(reader.scenes()[0]))[1]
+        return (sorted(set(np.round(first.points[:, 4].astype(float), 3).tolist())),
+                sorted(set(np.round(later.points[:, 4].astype(float), 3).tolist())))
+    assert lags(NuScenesReader(dataset, VERSION, sweeps=2)) == ([0.0, 0.1], [0.0, 0.1])
+    assert lags(NuScenesReader(dataset, VERSION, sweeps=2, spacing_s=0.0)) == \
+        ([0.0, 0.05], [0.0, 0.05])
+    # a scene's first keyframe has two earlier sweeps: a 5-sweep input (lags 0.1-0.4) takes
+    # the one nearest 0.1 s back, and no more
+    assert lags(NuScenesReader(dataset, VERSION, sweeps=5))[0] == [0.0, 0.1]
+    with pytest.raises(DatasetError, match='sweeps'):
+        NuScenesReader(dataset, VERSION, sweeps=0)
 
 
 def test_class_mapping_and_errors(tmp_path, dataset):

@@ -303,3 +303,41 @@ def test_occlusion_weight_draws_clips_with_occlusions_more_often(tmp_path):
     assert abs(drawn(0.0) - uniform) < 0.5 * uniform + 0.5
     with pytest.raises(ValueError, match='occlusion_weight'):
         ClipSampler(seqs, [L], 0, occlusion_weight=-1.0)
+
+
+@pytest.mark.parametrize('lags, want', [
+    ((0.1, 0.2, 0.3), [0, 1]),                    # 10 Hz: the previous sweeps
+    ((0.05, 0.1, 0.15, 0.2), [1, 3]),             # 20 Hz: 0.1 and 0.2 s back, not 0.05 and 0.1
+    ((0.2, 0.4), [0, 1]),                         # 5 Hz: whatever is there, in order
+    ((0.083, 0.167, 0.25), [0, 1]),               # 12 Hz: the nearest
+    ((0.1, 0.3), [0, 1]),                         # 10 Hz with a cloud lost: as before
+    ((0.05,), [0]),                               # a stream's second frame
+    ((), []),
+])
+def test_pick_sweeps_takes_the_sweeps_nearest_the_trained_spacing(lags, want):
+    from suit_ros.model.sweeps import pick_sweeps
+    assert pick_sweeps(lags, 2, 0.1) == want
+    assert pick_sweeps(lags, 2, 0.0) == list(range(min(2, len(lags))))   # no spacing: in order
+
+
+def test_a_20hz_stream_gets_its_sweeps_as_far_apart_as_in_training():
+    """A 20 Hz sensor: the node's input takes the sweeps 0.1 and 0.2 s back (lags 0, 0.1, 0.2,
+    as the 10 Hz training drives), the buffer keeps what the next input takes and no more, and
+    model_frame (evaluation, training) builds the same input; with no spacing the buffer gives
+    the three latest sweeps, 0.05 s apart."""
+    frames = [Frame(np.c_[sweep_at(0.05 * k).points, np.zeros(3, np.float32)],
+                    sweep_at(0.05 * k).T_odom_lidar, sweep_at(0.05 * k).stamp_ns,
+                    T_base_lidar=T_BL) for k in range(10)]
+    spaced, plain = SweepBuffer(3), SweepBuffer(3, spacing_s=0.0)
+    for t, f in enumerate(frames):
+        live = spaced.push(f.points[:, :4], f.pose, f.stamp_ns, T_BL)
+        plain.push(f.points[:, :4], f.pose, f.stamp_ns, T_BL)
+        np.testing.assert_array_equal(model_frame(frames, t, 3).points, live)
+        if t >= 4:
+            assert spaced.last_lags_s == pytest.approx((0.0, 0.1, 0.2))
+            assert plain.last_lags_s == pytest.approx((0.0, 0.05, 0.1))
+            # the next two inputs want the sweeps up to 0.15 s back from the newest: the
+            # buffer holds those and the newest, the plain one the last two
+            assert len(spaced) == 4 and len(plain) == 2
+    with pytest.raises(ValueError, match='spacing_s'):
+        SweepBuffer(3, spacing_s=-0.1)

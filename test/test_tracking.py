@@ -264,18 +264,22 @@ def test_a_reading_is_fused_by_how_far_its_sweeps_agree():
     from suit_ros.tracking import SweepReading
     cfg = TrackerConfig(vel_sigma=4.0, sweep_sigma=2.0, sweep_spread_gain=2.0,
                         sweep_single_sigma=None)
-    det = frame([[10, 0], [20, 0], [30, 0]], [[0, 0], [0, 0], [0, 0]])
-    swept = SweepReading(np.full((3, 2), [10.0, 0.0]), np.ones(3, bool),
-                         np.array([0.0, 1.0, np.inf]))
+    # the second box could not be read (its spread inf, its velocity 0): the others keep
+    # their own weights
+    det = frame([[10, 0], [40, 0], [20, 0], [30, 0]], [[0, 0], [2, 0], [0, 0], [0, 0]])
+    swept = SweepReading(np.array([[10.0, 0.0], [0.0, 0.0], [10.0, 0.0], [10.0, 0.0]]),
+                         np.array([True, False, True, True]),
+                         np.array([0.0, np.inf, 1.0, np.inf]))
     vf = Tracker(cfg)
     out, _ = vf.update(det, 0, np.eye(4), swept)
-    # weights: head 1/16; the sweeps 1/4, 1/8 and 0
-    np.testing.assert_allclose(out.velocities[:, 0], [8.0, 10 * 2 / 3, 0.0])
+    # weights: head 1/16; the sweeps 1/4, none, 1/8 and 0
+    np.testing.assert_allclose(out.velocities[:, 0], [8.0, 2.0, 10 * 2 / 3, 0.0])
     np.testing.assert_allclose(out.velocities[:, 1], 0.0)
     # the new tracks start with the fused variance
-    np.testing.assert_allclose(vf.P[:, 1, 1], [1 / (1 / 16 + 1 / 4), 1 / (1 / 16 + 1 / 8), 16])
+    np.testing.assert_allclose(vf.P[:, 1, 1],
+                               [1 / (1 / 16 + 1 / 4), 16, 1 / (1 / 16 + 1 / 8), 16])
     single, _ = Tracker(replace(cfg, sweep_single_sigma=2.0)).update(det, 0, np.eye(4), swept)
-    np.testing.assert_allclose(single.velocities[:, 0], [8.0, 10 * 2 / 3, 8.0])
+    np.testing.assert_allclose(single.velocities[:, 0], [8.0, 2.0, 10 * 2 / 3, 8.0])
     with pytest.raises(ValueError, match='sweep_single_sigma'):
         TrackerConfig(sweep_single_sigma=0.0)
     with pytest.raises(ValueError, match='sweep_spread_gain'):

@@ -46,11 +46,13 @@ SPLIT_SENSORS: dict[str, tuple[str, ...]] = {
 VAL_SEQUENCES = 16
 
 
-def _cache_key(preset_name: str, sensor: str, seed: int, frames: int) -> str:
+def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
+               rate_hz: float | None = None) -> str:
     from dataclasses import asdict
 
     from suit_ros.data.sim import preset
-    cfg = asdict(preset(preset_name, sensor=sensor, frames=frames))
+    rate = {} if rate_hz is None else {'rate_hz': rate_hz}
+    cfg = asdict(preset(preset_name, sensor=sensor, frames=frames, **rate))
     for name in ('realism', 'exact_sectors'):   # off: the box world, keys as before they existed
         if not cfg[name]:
             del cfg[name]
@@ -66,22 +68,24 @@ PointsDtype = type[np.float32] | type[np.float16]
 
 def synthetic_sequence(preset_name: str, seed: int, frames: int,
                        cache_dir: str | os.PathLike[str] | None = None,
-                       sensor: str = 'sim32', points_dtype: PointsDtype = np.float32
-                       ) -> list[Frame]:
+                       sensor: str = 'sim32', points_dtype: PointsDtype = np.float32,
+                       rate_hz: float | None = None) -> list[Frame]:
     """One simulated drive as sensor frames, optionally cached on disk (npz per drive).
 
     :param points_dtype: float16 halves the memory of a training set (the cache stores float16,
         so nothing is lost against a cached drive; the model input is float32 again after
         :func:`~suit_ros.model.sweeps.accumulate_sweeps`).
+    :param rate_hz: the sensor's rate (None: the preset's, 10 Hz).
     """
     from dataclasses import replace
 
     from suit_ros.data.sim import preset, sim_frames
-    cfg = preset(preset_name, sensor=sensor, frames=frames)
+    rate = {} if rate_hz is None else {'rate_hz': rate_hz}
+    cfg = preset(preset_name, sensor=sensor, frames=frames, **rate)
     path = None
     if cache_dir is not None:
         path = Path(cache_dir) / f'{preset_name}-{sensor}-{seed}-{frames}-' \
-            f'{_cache_key(preset_name, sensor, seed, frames)}.npz'
+            f'{_cache_key(preset_name, sensor, seed, frames, rate_hz)}.npz'
         if path.is_file():
             cached = load_sequence(path, points_dtype)
             # a drive cached before the returns' times were kept is made again
@@ -113,11 +117,11 @@ def split_drives(split: str, sequences: int, first: int = 0) -> list[tuple[int, 
 def synthetic_split(split: str, sequences: int, frames: int,
                     cache_dir: str | os.PathLike[str] | None = None,
                     preset_name: str | None = None, points_dtype: PointsDtype = np.float32,
-                    first: int = 0) -> list[list[Frame]]:
+                    first: int = 0, rate_hz: float | None = None) -> list[list[Frame]]:
     """A split (``train``, ``tune``, ``val``, ``heldout``): ``sequences`` drives from drive
-    number ``first`` (see module docstring)."""
+    number ``first`` (see module docstring), at ``rate_hz`` (None: 10 Hz)."""
     name = preset_name or ('train-real' if split == 'train' else 'val-real')
-    return [synthetic_sequence(name, seed, frames, cache_dir, sensor, points_dtype)
+    return [synthetic_sequence(name, seed, frames, cache_dir, sensor, points_dtype, rate_hz)
             for seed, sensor in split_drives(split, sequences, first)]
 
 
@@ -321,8 +325,10 @@ def bag_sequences(paths: Sequence[str | os.PathLike[str]]) -> list[list[Frame]]:
 
 
 def nuscenes_sequences(root: str | os.PathLike[str], version: str = 'v1.0-mini',
-                       sweeps: int = 10) -> list[list[Frame]]:
-    """Every scene of a nuScenes-format dataset as a sequence of keyframes (with sweeps)."""
+                       sweeps: int = 3) -> list[list[Frame]]:
+    """Every scene of a nuScenes-format dataset as a sequence of keyframes, each with the
+    earlier sweeps a model of ``sweeps`` sweeps takes, as far apart as in training
+    (:class:`~suit_ros.data.nuscenes.NuScenesReader`)."""
     from suit_ros.data.nuscenes import NuScenesReader
     reader = NuScenesReader(root, version, sweeps)
     return [list(reader.sequence(s)) for s in reader.scenes()]

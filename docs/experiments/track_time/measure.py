@@ -29,26 +29,8 @@ from __future__ import annotations
 import argparse
 from dataclasses import replace
 import json
-from pathlib import Path
 import time
 from typing import Any
-
-
-def drives_20hz(n: int, frames: int, cache_dir: str) -> list[list[Any]]:
-    """The outage split's first ``n`` drives at 20 Hz (cached as npz)."""
-    from suit_ros.data.sequences import load_sequence, save_sequence, split_drives
-    from suit_ros.data.sim import preset, sim_frames
-    out = []
-    for seed, sensor in split_drives('outage', n):
-        path = Path(cache_dir) / f'track-time-20hz-val-real-{sensor}-{seed}-{frames}.npz'
-        if path.is_file():
-            out.append(load_sequence(path))
-            continue
-        cfg = preset('val-real', sensor=sensor, frames=frames, rate_hz=20.0)
-        seq = list(sim_frames(cfg, seed))
-        save_sequence(path, seq)
-        out.append(seq)
-    return out
 
 
 def main() -> int:
@@ -98,7 +80,7 @@ def main() -> int:
 
     if '20hz' in args.part:
         frames, length = 80, 12
-        plain = drives_20hz(args.drives, frames, args.cache_dir)
+        plain = synthetic_split('outage', args.drives, frames, args.cache_dir, rate_hz=20.0)
         outs = [outages_for(i, frames, 120.0, length, period=28) for i in range(len(plain))]
         seqs = [with_outages(seq, o) for seq, o in zip(plain, outs)]
         print(f'20 Hz: {len(seqs)} drives x {frames} frames, {sum(map(len, outs))} outages '
