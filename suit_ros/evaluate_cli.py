@@ -25,8 +25,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                      'motorcycles are neither objects nor false positives')
     parser.add_argument('--version', default='v1.0-mini', help='nuScenes table version')
     parser.add_argument('--sweeps', type=int, default=None,
-                        help="sweeps per nuScenes keyframe input (default: the checkpoint's), "
-                        'taken 0.1 s apart as the shipped models were trained')
+                        help="sweeps per nuScenes keyframe input (default: the checkpoint's): "
+                        'the keyframe and the sweeps before it')
     parser.add_argument('--image-width', type=float, default=1242.0,
                         help='KITTI camera image width (px) that bounds the scored view')
     parser.add_argument('--kitti-intensity-scale', type=float, default=1.0,

@@ -17,7 +17,6 @@ from typing import Any, Generic, Protocol, TypeVar
 
 from suit_ros.health import HealthSnapshot, Reasons, frame_stats
 from suit_ros.inbox import CloudMailbox, OdometryGate
-from suit_ros.model.sweeps import SWEEP_SPACING_S, pick_sweeps
 from suit_ros.params import DetectorParams
 
 # the worker runs this much nicer than the executor, so that on a loaded machine the OS runs
@@ -70,24 +69,19 @@ class FrameWorker:
         anybody subscribes to the markers (they cost more than the rest of the output).
     :param odometry_published: whether anybody publishes odometry (no wait otherwise).
     :param keep_skipped: the model's previous sweeps (``sweeps - 1``): of the clouds skipped
-        while the model was busy, at most this many are taken into the sweep buffer before the
-        next cloud runs: those its input takes, nearest ``spacing_s`` apart (the newest at 10
-        Hz; at 20 Hz the ones 0.1 and 0.2 s back: :func:`~suit_ros.model.sweeps.pick_sweeps`).
-        The mailbox holds four times as many for the choice.
+        while the model was busy, this many (the newest) are taken into the sweep buffer
+        before the next cloud runs.
     """
 
     def __init__(self, pipeline: Pipeline, params: Callable[[], DetectorParams],
                  clock_ns: Callable[[], int], publish: Callable[[Any], None],
                  want_markers: Callable[[], bool], odometry_published: Callable[[], bool],
-                 reasons: Reasons, log: Any, keep_skipped: int = 0,
-                 spacing_s: float = SWEEP_SPACING_S) -> None:
+                 reasons: Reasons, log: Any, keep_skipped: int = 0) -> None:
         self.pipeline, self.params, self.clock_ns = pipeline, params, clock_ns
         self.publish, self.want_markers = publish, want_markers
         self.odometry_published, self.reasons, self.log = odometry_published, reasons, log
         self.lock = threading.Condition()      # requests, counters and the last frame
-        self.keep_skipped, self.spacing_s = keep_skipped, spacing_s
-        self.mailbox: CloudMailbox[Received[Any]] = CloudMailbox(
-            keep_replaced=4 * keep_skipped)
+        self.mailbox: CloudMailbox[Received[Any]] = CloudMailbox(keep_replaced=keep_skipped)
         self.frames_sweeps_only = 0     # skipped clouds taken into the sweeps (no detection)
         self.odometry: OdometryGate[Any] = OdometryGate()
         self.reset_request: str | None = None
@@ -161,16 +155,12 @@ class FrameWorker:
 
     def _in_order(self, skipped: list[Received[Any]], newest: Received[Any]
                   ) -> list[Received[Any]]:
-        """The skipped clouds that fall between the last cloud taken and the newest and that
-        its input takes (``keep_skipped``, ``spacing_s``), in stamp order (one that arrived
-        out of order must not read as time going backwards)."""
+        """The skipped clouds that fall between the last cloud taken and the newest, in stamp
+        order (one that arrived out of order must not read as time going backwards)."""
         last = self.pipeline.last_stamp_ns
         top = stamp_ns(newest.msg)
-        between = sorted((r for r in skipped if (last is None or stamp_ns(r.msg) > last)
-                          and stamp_ns(r.msg) < top), key=lambda r: -stamp_ns(r.msg))
-        chosen = pick_sweeps([(top - stamp_ns(r.msg)) * 1e-9 for r in between],
-                             self.keep_skipped, self.spacing_s)
-        return [between[i] for i in reversed(chosen)]
+        return sorted((r for r in skipped if (last is None or stamp_ns(r.msg) > last)
+                       and stamp_ns(r.msg) < top), key=lambda r: stamp_ns(r.msg))
 
     def buffer(self, received: Received[Any]) -> None:
         """Take a skipped cloud into the model's sweeps (no detection); its input warnings

@@ -110,8 +110,7 @@ def test_reader_agrees_with_devkit(dataset):
     from nuscenes.nuscenes import NuScenes
     from nuscenes.utils.data_classes import LidarPointCloud
     nusc = NuScenes(VERSION, str(dataset), verbose=False)
-    # the previous sweeps as they come (no spacing), as the devkit stacks them
-    reader = NuScenesReader(dataset, VERSION, sweeps=3, spacing_s=0.0)
+    reader = NuScenesReader(dataset, VERSION, sweeps=3)
     frames = {f.stamp_ns: f for scene in reader.scenes() for f in reader.sequence(scene)}
     assert len(frames) == 6
     for sample in nusc.sample:
@@ -147,20 +146,15 @@ def test_reader_agrees_with_devkit(dataset):
             np.testing.assert_allclose(f.gt.velocities[k], vel, atol=1e-4)
 
 
-def test_keyframes_take_their_sweeps_as_far_apart_as_in_training(dataset):
-    """The LIDAR_TOP sweeps come every 0.05 s; a keyframe input for a model trained on 10 Hz
-    sweeps takes the one 0.1 s back, not the one 0.05 s back (no spacing: as they come)."""
-    def lags(reader):
-        first = next(reader.sequence(reader.scenes()[0]))
+def test_keyframes_take_the_models_sweeps(dataset):
+    """A keyframe input holds the keyframe and the sweeps before it, as many as asked (the
+    model's count), as they come; none is refused."""
+    def lags(sweeps):
+        reader = NuScenesReader(dataset, VERSION, sweeps=sweeps)
         later = list(reader.sequence(reader.scenes()[0]))[1]
-        return (sorted(set(np.round(first.points[:, 4].astype(float), 3).tolist())),
-                sorted(set(np.round(later.points[:, 4].astype(float), 3).tolist())))
-    assert lags(NuScenesReader(dataset, VERSION, sweeps=2)) == ([0.0, 0.1], [0.0, 0.1])
-    assert lags(NuScenesReader(dataset, VERSION, sweeps=2, spacing_s=0.0)) == \
-        ([0.0, 0.05], [0.0, 0.05])
-    # a scene's first keyframe has two earlier sweeps: a 5-sweep input (lags 0.1-0.4) takes
-    # the one nearest 0.1 s back, and no more
-    assert lags(NuScenesReader(dataset, VERSION, sweeps=5))[0] == [0.0, 0.1]
+        return sorted(set(np.round(later.points[:, 4].astype(float), 3).tolist()))
+    assert lags(2) == [0.0, 0.05]
+    assert lags(3) == [0.0, 0.05, 0.1]
     with pytest.raises(DatasetError, match='sweeps'):
         NuScenesReader(dataset, VERSION, sweeps=0)
 

@@ -165,8 +165,9 @@ def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monk
     orig = seqs.synthetic_sequence
     monkeypatch.setattr(seqs, 'synthetic_sequence',
                         lambda name, seed, frames, cache_dir=None, sensor='sim32',
-                        points_dtype=np.float32:
-                        orig('test', seed, frames, cache_dir, points_dtype=points_dtype))
+                        points_dtype=np.float32, rate_hz=None:
+                        orig('test', seed, frames, cache_dir, points_dtype=points_dtype,
+                             rate_hz=rate_hz))
     # an interrupted run (time budget) ...
     metrics = train(tiny(tmp_path, temporal='suit', max_minutes=1e-6), tmp_path / 'run')
     assert metrics['steps'] == 1 and 'mAP' in metrics

@@ -136,18 +136,3 @@ def test_clouds_skipped_while_busy_feed_the_next_inputs_sweeps(request):
     w, published = one_round(pipe, mc, [T0 + 8 * S // 10, T0 + 9 * S // 10, T0 + S], 'test')
     assert w.frames_sweeps_only == 0 and pipe.last_reset_reason == 'test'
     assert w.last.input_lags_s == (0.0,)
-
-
-def test_a_20hz_sensor_skipped_while_busy_gives_sweeps_as_far_apart_as_in_training(request):
-    """A 20 Hz sensor: four clouds wait behind the newest. The worker buffers the two its
-    input takes, 0.1 and 0.2 s back (not the newest two, 0.05 and 0.1 s back), and lets the
-    others go."""
-    from test_pipeline import make_pipeline
-    mc = request.getfixturevalue('classes')
-    pipe = make_pipeline(request.getfixturevalue('model'), mc)
-    for t in range(T0 - S // 2, T0 + 2 * S, S // 50):
-        assert pipe.add_odometry(odom(t))
-    w, published = one_round(pipe, mc, [T0 + k * S // 20 for k in range(5)])
-    assert stamp_ns(published[0].detections_msg) == T0 + 4 * S // 20
-    assert w.frames_sweeps_only == 2 and w.mailbox.dropped == 4
-    assert w.last.input_lags_s == pytest.approx((0.0, 0.1, 0.2))

@@ -327,8 +327,8 @@ def bag_sequences(paths: Sequence[str | os.PathLike[str]]) -> list[list[Frame]]:
 def nuscenes_sequences(root: str | os.PathLike[str], version: str = 'v1.0-mini',
                        sweeps: int = 3) -> list[list[Frame]]:
     """Every scene of a nuScenes-format dataset as a sequence of keyframes, each with the
-    earlier sweeps a model of ``sweeps`` sweeps takes, as far apart as in training
-    (:class:`~suit_ros.data.nuscenes.NuScenesReader`)."""
+    ``sweeps - 1`` sweeps before it (the model's count: :class:`~suit_ros.data.nuscenes.
+    NuScenesReader`)."""
     from suit_ros.data.nuscenes import NuScenesReader
     reader = NuScenesReader(root, version, sweeps)
     return [list(reader.sequence(s)) for s in reader.scenes()]

@@ -28,34 +28,6 @@ from suit_ros.ops.kernels import transform_sweep
 from suit_ros.structures import Detections, Frame
 
 DEFAULT_MAX_AGE_S = 0.5
-# the time between the sweeps of a model input, as the shipped models were trained (10 Hz
-# drives); a faster sensor's input takes the earlier sweeps nearest to it (pick_sweeps)
-SWEEP_SPACING_S = 0.1
-
-
-def pick_sweeps(lags_s: Sequence[float], wanted: int, spacing_s: float) -> list[int]:
-    """Which earlier sweeps go into a model input: for ``k = 1..wanted`` the sweep whose lag is
-    nearest ``k x spacing_s`` (the newer of two as near), each older than the one picked
-    before it.
-
-    At 10 Hz that is the previous sweeps, as ever; a 20 Hz sensor's input takes the sweeps
-    0.1 and 0.2 s back, not 0.05 and 0.1, so its sweeps lie as far apart as in training; a
-    5 Hz sensor's (or a node on every other cloud that keeps nothing of the others) takes 0.2
-    and 0.4. ``spacing_s`` 0: the previous sweeps, however far apart.
-
-    :param lags_s: the earlier sweeps' lags (s, > 0), newest first.
-    :return: indices into ``lags_s``, newest first (fewer than ``wanted`` when they run out).
-    """
-    picked: list[int] = []
-    start = 0
-    for k in range(1, wanted + 1):
-        if start >= len(lags_s):
-            break
-        target = k * spacing_s
-        best = min(range(start, len(lags_s)), key=lambda i: (abs(lags_s[i] - target), i))
-        picked.append(best)
-        start = best + 1
-    return picked
 
 
 def already_accumulated(points: NDArray[np.float32]) -> bool:
@@ -116,23 +88,14 @@ class SweepBuffer:
     :param sweeps: sweeps per model input (current included); 1 keeps nothing.
     :param max_age_s: previous sweeps older than this (relative to the current stamp) are
         dropped; a gap that long means the stream restarted.
-    :param spacing_s: the time between an input's sweeps as the model was trained
-        (:func:`pick_sweeps`; None: :data:`SWEEP_SPACING_S`; 0: the previous sweeps). The
-        buffer keeps the sweeps a next input may take: at 10 Hz the previous ``sweeps - 1``,
-        at 20 Hz twice as many.
     """
 
-    def __init__(self, sweeps: int, max_age_s: float = DEFAULT_MAX_AGE_S,
-                 spacing_s: float | None = None) -> None:
+    def __init__(self, sweeps: int, max_age_s: float = DEFAULT_MAX_AGE_S) -> None:
         if sweeps < 1:
             raise ValueError(f'sweeps must be >= 1, got {sweeps}')
-        spacing = SWEEP_SPACING_S if spacing_s is None else spacing_s
-        if not (np.isfinite(spacing) and spacing >= 0):
-            raise ValueError(f'spacing_s must be finite and >= 0, got {spacing_s}')
         self.sweeps = sweeps
         self.max_age_s = max_age_s
-        self.spacing_s = spacing
-        self.past: deque[Sweep] = deque()
+        self.past: deque[Sweep] = deque(maxlen=max(sweeps - 1, 0))
         # the time lags (s) of the sweeps in the last input :meth:`push` made, newest first
         self.last_lags_s: tuple[float, ...] = ()
 
@@ -161,13 +124,11 @@ class SweepBuffer:
             self.last_lags_s = (0.0,)
             return accumulate_sweeps([Sweep(points, np.eye(4), stamp_ns)], T_base_lidar)
         current = self._current(points, T_odom_lidar, stamp_ns)
-        earlier = list(reversed(self.past))
-        chosen = pick_sweeps([(stamp_ns - s.stamp_ns) * 1e-9 for s in earlier],
-                             self.sweeps - 1, self.spacing_s)
-        used = [current, *(earlier[i] for i in chosen)]
+        used = [current, *reversed(self.past)]
         self.last_lags_s = tuple((stamp_ns - s.stamp_ns) * 1e-9 for s in used)
         out = accumulate_sweeps(used, T_base_lidar)
-        self._keep(current)
+        if self.past.maxlen:
+            self.past.append(current)
         return out
 
     def add(self, points: NDArray[np.float32], T_odom_lidar: NDArray[np.float64] | None,
@@ -185,30 +146,10 @@ class SweepBuffer:
             self.clear()
             return False
         current = self._current(points, T_odom_lidar, stamp_ns)
-        if self.sweeps < 2:
+        if not self.past.maxlen:
             return False
-        self._keep(current)
+        self.past.append(current)
         return True
-
-    def _keep(self, sweep: Sweep) -> None:
-        """Buffer ``sweep`` (the newest), then drop the oldest sweeps the next input will not
-        take: while the one after the oldest, one more frame interval on (the last one), is
-        already about as old as the oldest sweep an input wants, the oldest is never the
-        nearest (:func:`pick_sweeps`). At 10 Hz that keeps the last ``sweeps - 1``, as a plain
-        ring would; with no spacing, exactly those."""
-        wanted = self.sweeps - 1
-        if wanted < 1:
-            return
-        self.past.append(sweep)
-        if self.spacing_s == 0:
-            while len(self.past) > wanted:
-                self.past.popleft()
-            return
-        gap_ns = sweep.stamp_ns - self.past[-2].stamp_ns if len(self.past) > 1 else 0
-        reach_ns = (wanted - 0.25) * self.spacing_s * 1e9
-        while (len(self.past) > wanted
-               and sweep.stamp_ns - self.past[1].stamp_ns + gap_ns >= reach_ns):
-            self.past.popleft()
 
     def _current(self, points: NDArray[np.float32], T_odom_lidar: NDArray[np.float64],
                  stamp_ns: int) -> Sweep:
@@ -228,17 +169,9 @@ def model_frame(sequence: Sequence[Frame], t: int, sweeps: int,
     GT and pose in base_link (``pose = T_odom_base``, ``T_base_lidar`` identity)."""
     f = sequence[t]
     T_bl = np.asarray(f.T_base_lidar, np.float64)
-    past = []
-    if sweeps > 1 and not already_accumulated(f.points):
-        for j in range(t - 1, -1, -1):            # the earlier frames within max_age_s
-            lag = f.stamp_ns - sequence[j].stamp_ns
-            if lag > max_age_s * 1e9:
-                break
-            if lag > 0:
-                past.append(sequence[j])
-        chosen = pick_sweeps([(f.stamp_ns - p.stamp_ns) * 1e-9 for p in past], sweeps - 1,
-                             SWEEP_SPACING_S)
-        past = [past[i] for i in chosen]
+    past = [sequence[j] for j in range(t - 1, max(t - sweeps, -1), -1)]
+    past = [p for p in past if 0 < f.stamp_ns - p.stamp_ns <= max_age_s * 1e9
+            and not already_accumulated(f.points)]
     points = accumulate_sweeps([Sweep(f.points, f.pose, f.stamp_ns)]
                                + [Sweep(p.points, p.pose, p.stamp_ns) for p in past], T_bl)
     gt = f.gt
