@@ -132,6 +132,8 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate and report."""
     if args.run_every < 1:
         raise ConfigError(f'--run-every must be at least 1, got {args.run_every}')
+    if args.sweeps is not None and args.sweeps < 1:
+        raise ConfigError(f'--sweeps must be at least 1, got {args.sweeps}')
     if args.run_every != 1 and (args.bag or args.kitti or args.nuscenes
                                 or args.history is not None):
         # nuScenes keyframes come with their sweeps accumulated: nothing to buffer
@@ -150,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
         if args.nuscenes:
             from suit_ros.data.sequences import nuscenes_sequences
             seqs = nuscenes_sequences(args.nuscenes, args.version,
-                                      args.sweeps or model.cfg.sweeps)
+                                      model.cfg.sweeps if args.sweeps is None else args.sweeps)
         elif args.av2:
             from suit_ros.data.av2 import av2_sequences
             seqs = av2_sequences(args.av2, model.cfg.class_names)

@@ -597,6 +597,10 @@ def run(args: argparse.Namespace) -> int:
         if tuple(base_cfg.class_names) != names:
             raise ConfigError(f'--baseline {args.baseline} detects {base_cfg.class_names}, '
                               f'the checkpoint {names}: compare checkpoints of one class list')
+        if args.nuscenes and base_cfg.sweeps != cfg.sweeps:
+            raise ConfigError(f'--baseline {args.baseline} takes {base_cfg.sweeps} sweeps, the '
+                              f'checkpoint {cfg.sweeps}: nuScenes keyframes are read once, with '
+                              "the checkpoint's count; compare checkpoints of one count")
     filt = None if args.no_tracking else TrackerConfig()
     if filt is not None and args.nuscenes:
         from suit_ros.evaluate import tracker_for
@@ -607,7 +611,7 @@ def run(args: argparse.Namespace) -> int:
     base_run = None if baseline is None else run_model(
         baseline, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
         box_fit=args.box_fit, deskew=deskew)
-    notes = ['as the node by default: 3 sweeps, tracker on (tracker and score '
+    notes = [f'as the node by default: {cfg.sweeps} sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.ground is not None or cfg.pillars.ground != 'as_given':
         notes.append(f'input heights: ground {args.ground or cfg.pillars.ground} '

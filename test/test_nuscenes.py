@@ -148,7 +148,7 @@ def test_reader_agrees_with_devkit(dataset):
 
 def test_keyframes_take_the_models_sweeps(dataset):
     """A keyframe input holds the keyframe and the sweeps before it, as many as asked (the
-    model's count), as they come; none is refused."""
+    model's count), as they come; fewer than one is refused."""
     def lags(sweeps):
         reader = NuScenesReader(dataset, VERSION, sweeps=sweeps)
         later = list(reader.sequence(reader.scenes()[0]))[1]
@@ -181,3 +181,36 @@ def test_eval_cli_on_nuscenes_format(dataset, tmp_path, capsys):
     assert main(['eval', '--nuscenes', str(dataset), '--version', VERSION, '--sweeps', '2',
                  '--tracker', '--json-out', str(tmp_path / 't.json')]) == 0
     assert json.loads((tmp_path / 't.json').read_text())['summary']['frames'] == 6
+
+
+def test_eval_and_report_read_nuscenes_with_the_checkpoints_sweeps(dataset, tmp_path,
+                                                                   monkeypatch):
+    """``eval --nuscenes`` without ``--sweeps`` and ``report --nuscenes`` read each keyframe
+    with the checkpoint's count of sweeps (3 for the shipped model, not nuScenes recipes' 10),
+    and track over the keyframes with the gap widened (tracker_for); ``--sweeps 0`` is
+    refused."""
+    from suit_ros.cli import main
+    import suit_ros.data.nuscenes as nus
+    import suit_ros.evaluate as ev
+    counts, gaps = [], []
+    reader_init, widen = nus.NuScenesReader.__init__, ev.tracker_for
+
+    def spy_init(self, root, version='v1.0-mini', sweeps=3, *a, **k):
+        counts.append(sweeps)
+        reader_init(self, root, version, sweeps, *a, **k)
+
+    def spy_widen(seqs, config=None):
+        out = widen(seqs, config)
+        gaps.append(out.max_gap_s)
+        return out
+    monkeypatch.setattr(nus.NuScenesReader, '__init__', spy_init)
+    monkeypatch.setattr(ev, 'tracker_for', spy_widen)
+    assert main(['eval', '--nuscenes', str(dataset), '--version', VERSION, '--tracker',
+                 '--json-out', str(tmp_path / 'e.json')]) == 0
+    assert counts == [3] and gaps == [pytest.approx(1.25)]
+    assert main(['report', '--nuscenes', str(dataset), '--version', VERSION,
+                 '--out', str(tmp_path / 'report')]) == 0
+    assert counts == [3, 3] and gaps == [pytest.approx(1.25)] * 2
+    assert (tmp_path / 'report' / 'report.json').is_file()
+    assert main(['eval', '--nuscenes', str(dataset), '--version', VERSION,
+                 '--sweeps', '0']) != 0

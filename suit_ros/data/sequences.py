@@ -51,7 +51,7 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
     from dataclasses import asdict
 
     from suit_ros.data.sim import preset
-    rate = {} if rate_hz is None else {'rate_hz': rate_hz}
+    rate = {} if rate_hz is None else {'rate_hz': float(rate_hz)}   # 10 and 10.0: one key
     cfg = asdict(preset(preset_name, sensor=sensor, frames=frames, **rate))
     for name in ('realism', 'exact_sectors'):   # off: the box world, keys as before they existed
         if not cfg[name]:
