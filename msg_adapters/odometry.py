@@ -92,13 +92,20 @@ class PoseBuffer:
     """Recent poses by stamp; interpolates (linear position, slerp rotation) at any stamp.
 
     Out-of-order arrivals are inserted in place, a duplicate stamp replaces the old pose, poses
-    older than ``max_age_ns`` before the newest are dropped. A lookup within ``tolerance_ns``
-    outside the buffered span returns the edge pose; further out raises PoseLookupError.
+    older than ``max_age_ns`` before the newest are dropped. A pose stamped more than
+    ``rewind_ns`` before the newest means that time went back (a looped bag, a simulator
+    reset, a clock reset): the buffer is emptied first (counted in :attr:`rewinds`), since
+    its poses are from another time line, and a lookup at the new stamps must not interpolate
+    between the two. A lookup within ``tolerance_ns`` outside the buffered span returns the
+    edge pose; further out raises PoseLookupError.
     """
 
-    def __init__(self, max_age_ns: int = 10_000_000_000, tolerance_ns: int = 100_000_000) -> None:
+    def __init__(self, max_age_ns: int = 10_000_000_000, tolerance_ns: int = 100_000_000,
+                 rewind_ns: int = 1_000_000_000) -> None:
         self.max_age_ns = int(max_age_ns)
         self.tolerance_ns = int(tolerance_ns)
+        self.rewind_ns = int(rewind_ns)
+        self.rewinds = 0
         self._stamps: list[int] = []
         self._t: list[NDArray[np.float64]] = []
         self._q: list[NDArray[np.float64]] = []
@@ -121,6 +128,9 @@ class PoseBuffer:
         T = np.asarray(T, np.float64)
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise MessageError('pose must be a finite 4x4 matrix')
+        if self._stamps and stamp_ns < self._stamps[-1] - self.rewind_ns:
+            self.clear()
+            self.rewinds += 1
         i = bisect.bisect_left(self._stamps, stamp_ns)
         q = matrix_to_quaternion(T[:3, :3])
         if i < len(self._stamps) and self._stamps[i] == stamp_ns:

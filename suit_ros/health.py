@@ -137,7 +137,6 @@ def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
                          if last.input_lags_s else 'none'),
         'input_warnings': ','.join(last.warnings) or 'none',
         'last_warning': last.warning or 'none'})
-    levels.extend((WARN, text) for text in s.held_warnings)
     if last.single_frame is not None:
         levels.append((WARN, f'single-frame: {last.pose_source}'))
 
@@ -161,6 +160,8 @@ def health_report(s: HealthSnapshot) -> tuple[int, str, dict[str, str]]:
     values['odometry_delay_ms_p50'] = _ms(s.odom_delays, 'p50')
     values['odometry_delay_ms_max'] = _ms(s.odom_delays, 'max')
     _timing(s, period, levels, values)
+    # the reasons seen lately, also before any frame got through (refused odometry, failures)
+    levels.extend((WARN, text) for text in s.held_warnings)
     _last_frame(s, levels, values)
     for key, count in s.single_reasons:
         values[f'single_frame.{key}'] = str(count)

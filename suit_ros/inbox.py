@@ -3,12 +3,14 @@
 - :class:`CloudMailbox`: one slot. A cloud that arrives while the worker is busy replaces the
   waiting one (counted as dropped: the model always takes the newest, a stale cloud is never
   queued), and the last few replaced ones go to the worker with it, so that they still feed the
-  model's sweeps; the same cloud arriving twice (through a retiring subscription) is taken
-  once; the publisher's sequence numbers tell the clouds lost before the callback.
+  model's sweeps; the same cloud arriving twice (through a retiring subscription, while one
+  overlaps the new one) is taken once; the publisher's sequence numbers tell the clouds lost
+  before the callback.
 - :class:`OdometryGate`: odometry queued by its callback and drained by the worker, and the
   worker's wait (up to a timeout) for odometry that reaches a cloud's stamp, as a tf2 message
   filter would. A stamp further ahead of the clock than the skew tolerance does not end a
-  wait (the pipeline refuses that message when it is drained).
+  wait (the pipeline refuses that message when it is drained); a stamp more than
+  :data:`REWIND_NS` before the newest means time went back, and the newest is that stamp.
 
 Both are thread-safe; :meth:`close` wakes every waiter for shutdown.
 """
@@ -21,6 +23,8 @@ import time
 from typing import Any, Generic, TypeVar
 
 T = TypeVar('T')
+
+REWIND_NS = 1_000_000_000   # a stamp this far before the newest: time went back (as PoseBuffer)
 
 
 class CloudMailbox(Generic[T]):
@@ -46,8 +50,14 @@ class CloudMailbox(Generic[T]):
         self.reader_delays: collections.deque[float] = collections.deque(maxlen=200)
 
     def put(self, item: T, key: Hashable, info: dict[str, Any] | None = None,
-            count_gaps: bool | Callable[[], bool] = True) -> bool:
+            count_gaps: bool | Callable[[], bool] = True, dedupe: bool = True) -> bool:
         """Offer a cloud; False for a duplicate.
+
+        :param key: what tells one message from another (two copies of one message share it;
+            a publisher that repeats a header stamp sends different messages, so the key needs
+            more than the stamp: the node adds the publisher's sequence number).
+        :param dedupe: whether a key seen among the last few clouds means a copy (only while a
+            retiring subscription overlaps the new one can a message arrive twice).
 
         :param info: the middleware's message info (``publication_sequence_number``,
             ``received_timestamp`` in ns since the epoch) or None.
@@ -57,7 +67,7 @@ class CloudMailbox(Generic[T]):
         """
         now = time.monotonic()
         with self._cv:
-            if key in self._recent:
+            if dedupe and key in self._recent:
                 self.duplicates += 1
                 return False
             self._recent.append(key)
@@ -130,7 +140,8 @@ class OdometryGate(Generic[T]):
             self.delays.append(delay)
             self._queue.append(msg)
             if not now_ns or -delay <= max_ahead_s:
-                self.latest_ns = max(self.latest_ns, stamp_ns)
+                self.latest_ns = (stamp_ns if stamp_ns < self.latest_ns - REWIND_NS
+                                  else max(self.latest_ns, stamp_ns))
             self._cv.notify_all()
 
     def drain(self) -> list[T]:

@@ -126,12 +126,18 @@ class DetectorNode(Node):
 
     def _on_cloud(self, msg: PointCloud2, info: dict[str, Any] | None) -> None:
         # (rclpy passes the message info to a two-argument callback.) The same cloud through a
-        # retiring subscription is taken once; sequence gaps count as losses only while one
-        # publisher and one subscription exist
+        # retiring subscription is taken once: a copy has the same stamp, publisher sequence
+        # number and source time, while a publisher that repeats a stamp (0, a looped bag)
+        # sends new messages. Sequence gaps count as losses only while one publisher and one
+        # subscription exist
         received = Received(msg, self.get_clock().now().nanoseconds, time.monotonic())
-        key = (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id)
-        self.worker.mailbox.put(received, key, info, count_gaps=lambda: not self.points.overlapping
-                         and self.count_publishers(self._points_topic) <= 1)
+        key = (msg.header.stamp.sec, msg.header.stamp.nanosec, msg.header.frame_id,
+               *((info.get('publication_sequence_number'), info.get('source_timestamp'))
+                 if info else ()))
+        overlapping = self.points.overlapping
+        self.worker.mailbox.put(received, key, info, count_gaps=lambda: not overlapping
+                                and self.count_publishers(self._points_topic) <= 1,
+                                dedupe=overlapping)
 
     def _on_odom(self, msg: Odometry) -> None:
         self.worker.odometry.put(msg, stamp_ns(msg), self.get_clock().now().nanoseconds,

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from suit_ros.coverage import SectorCoverage
 from suit_ros.deskew import TIME_FIELDS, deskew_sweep, relative_times, sweep_speed
+from suit_ros.errors import ConfigError
 from suit_ros.model.streaming import StreamingDetector
 from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.detections import detections_to_markerarray, detections_to_pointcloud2
@@ -52,10 +53,12 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
     """
     import torch
 
-    from suit_ros.checkpoint import load_checkpoint
+    from suit_ros.checkpoint import load_checkpoint, published_thresholds
+    if params.device == 'cuda' and not torch.cuda.is_available():
+        raise ConfigError('device is cuda, but this torch sees no CUDA device (a CPU build, '
+                          'or no GPU visible): set device to auto or cpu')
     dev = ('cuda' if params.device == 'cuda'
            or (params.device == 'auto' and torch.cuda.is_available()) else 'cpu')
-    from suit_ros.checkpoint import published_thresholds
     model, cfg, meta = load_checkpoint(params.checkpoint, dev)
     runner = StreamingDetector(model, dev, precision=params.precision,
                                ground=params.ground_mode(), overhang=params.overhang_mode(),
@@ -188,6 +191,11 @@ class DetectionPipeline:
             return False
         self.poses.add(stamp, T)
         return True
+
+    @property
+    def odom_rewinds(self) -> int:
+        """How often odometry went back in time (the pose buffer emptied: PoseBuffer)."""
+        return self.poses.rewinds
 
     def reset(self, reason: str) -> None:
         """Forget the temporal memory."""
@@ -442,6 +450,8 @@ class DetectionPipeline:
     def _pose(self, stamp_ns: int) -> tuple[NDArray[np.float64] | None, str, float]:
         span = self.poses.span()
         if span is None:
+            if self.odom_rejected:           # odometry comes, but none of it is usable
+                return None, f'none: odometry rejected: {self.last_odom_error}', float('nan')
             return None, 'none: no odometry received', float('nan')
         age = (stamp_ns - span[1]) * 1e-9
         try:

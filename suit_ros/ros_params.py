@@ -6,7 +6,7 @@ from __future__ import annotations
 import os
 
 from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.exceptions import InvalidParameterTypeException
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.node import Node
 
 from suit_ros.errors import ConfigError, SuitRosError
@@ -47,6 +47,11 @@ def declare_detector_parameters(node: Node) -> DetectorParams:
             kind = type(value).__name__
             hint = ' (a float needs a decimal point: 0.0, not 0)' if kind == 'float' else ''
             raise SuitRosError(f'parameter {name} must be a {kind}{hint}: {exc}') from exc
+        except InvalidParameterValueException as exc:   # outside the descriptor's range
+            m = parameter_descriptions()[name]
+            allowed = (f'within {m["lo"]}..{m["hi"]}' if m['lo'] is not None
+                       else 'one of ' + ', '.join(m['choices']) if m['choices'] else 'valid')
+            raise SuitRosError(f'parameter {name} must be {allowed}: {exc}') from exc
     try:
         return DetectorParams.from_mapping(
             {n: node.get_parameter(n).value for n in parameter_descriptions()})

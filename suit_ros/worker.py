@@ -50,6 +50,9 @@ class Pipeline(Protocol):
     resets: int
     odom_rejected: int
 
+    @property
+    def odom_rewinds(self) -> int: ...
+
     def configure(self, params: DetectorParams) -> None: ...
 
     def reset(self, reason: str) -> None: ...
@@ -89,6 +92,7 @@ class FrameWorker:
         self.stopping = False
         self.started = time.monotonic()
         self.frames_out = self.frames_single = 0
+        self.frames_failed = 0      # clouds whose step raised (logged, counted, held)
         self.single_reasons: collections.Counter[str] = collections.Counter()
         self.stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
         self.last: Any = None
@@ -135,6 +139,11 @@ class FrameWorker:
                 if self.stopping:
                     return
                 self.log.error(f'frame failed: {type(exc).__name__}: {exc}')
+                with self.lock:
+                    self.frames_failed += 1
+                # held: the diagnostics warn while frames fail, not only the log
+                self.reasons.report({'frame_failed': f'frame failed: {type(exc).__name__}: '
+                                     f'{exc}'}, time.monotonic())
 
     def _wait_for_odometry(self, stamp: int) -> None:
         """Wait up to ``odom_wait_s`` for odometry at or after ``stamp``; no wait while
@@ -147,11 +156,17 @@ class FrameWorker:
 
     def _drain_odometry(self) -> None:
         now = self.clock_ns()
+        rewinds = self.pipeline.odom_rewinds
         for odom in self.odometry.drain():
             if not self.pipeline.add_odometry(odom, now):
                 self.reasons.report({'odometry_rejected': 'odometry rejected: '
                                      f'{self.pipeline.last_odom_error}'}, time.monotonic(),
                                     hold=False)
+        if self.pipeline.odom_rewinds != rewinds:
+            message = ('odometry went back in time (a looped bag, a simulator or clock reset): '
+                       'the poses before it were dropped')
+            self.reasons.report({'odometry_rewound': message}, time.monotonic(), hold=False)
+            self.log.info(message)
 
     def _in_order(self, skipped: list[Received[Any]], newest: Received[Any]
                   ) -> list[Received[Any]]:
@@ -216,6 +231,8 @@ class FrameWorker:
                 reason_counts=self.reasons.sorted_counts(),
                 counters={'frames_in': box.frames_in, 'frames_out': self.frames_out,
                           'dropped_frames': box.dropped, 'lost_before_callback': box.lost,
+                          'duplicate_clouds': box.duplicates,
+                          'frames_failed': self.frames_failed,
                           'frames_single_frame': self.frames_single,
                           'frames_sweeps_only': self.frames_sweeps_only,
                           'odometry_waits': self.odometry.waits},

@@ -85,3 +85,30 @@ def test_odometry_gate_waits_for_the_stamp_and_ignores_the_future():
     assert sim.latest_ns == 500 * S
     gate.close()
     assert not gate.wait_for(10**12, 5.0)
+
+
+def test_repeated_stamps_are_new_clouds_unless_a_subscription_overlaps():
+    """The node keys a cloud by its stamp, frame and the publisher's sequence number and
+    source time: a driver that stamps every cloud 0, or a bag played in a loop, sends new
+    clouds, all taken; only a copy (same key) while a retiring subscription overlaps the new
+    one is dropped, and counted."""
+    box: CloudMailbox[int] = CloudMailbox()
+    for k in range(20):
+        key = (0, 0, 'lidar', k + 1, 12345 + k)
+        assert box.put(k, key, {'publication_sequence_number': k + 1}, dedupe=False)
+    assert (box.frames_in, box.duplicates) == (20, 0)
+    assert box.put(20, ('a',), dedupe=True) and not box.put(21, ('a',), dedupe=True)
+    assert box.duplicates == 1 and box.frames_in == 21
+    assert box.put(22, ('a',), dedupe=False) and box.frames_in == 22
+
+
+def test_the_odometry_gate_follows_time_back():
+    """After a loop or a clock reset the gate's newest stamp goes back with the odometry, so
+    the worker waits for the new time line's poses again instead of seeing them covered."""
+    gate: OdometryGate[str] = OdometryGate()
+    gate.put('a', 1000 * S, 0, 1.0)
+    assert gate.covers(999 * S)
+    gate.put('b', 5 * S, 0, 1.0)                       # 995 s back: time went back
+    assert gate.latest_ns == 5 * S and not gate.covers(6 * S)
+    gate.put('c', 5 * S - S // 2, 0, 1.0)              # a little late: the newest stays
+    assert gate.latest_ns == 5 * S

@@ -290,6 +290,13 @@ def test_a_renamed_parameter_stops_the_node_with_its_new_name(make_node):
     # an integer for a float parameter (coast_frames: 0 becoming coast_s: 0) says what to write
     with pytest.raises(SuitRosError, match=r'coast_s must be a float \(a float needs a decimal'):
         make_node(coast_s=0)
+    # a value outside the declared range, and a device this torch does not have
+    with pytest.raises(SuitRosError, match=r'parameter threads must be within 0..256'):
+        make_node(threads=300)
+    import torch
+    if not torch.cuda.is_available():
+        with pytest.raises(SuitRosError, match=r'device is cuda, but this torch sees no CUDA'):
+            make_node(device='cuda')
     node = make_node(coast_s=0.3)
     assert node.params.coast_s == 0.3
     assert node.pipeline.detector.tracks.config.coast_s == 0.3

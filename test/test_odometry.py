@@ -152,12 +152,25 @@ def test_duplicates_replace_and_old_poses_evicted():
         buf.add(k * 400_000_000, make_pose([k, 0, 0], 0))
     # newest 2.8 s: everything before 1.8 s is gone, the rest kept in order
     assert buf.span() == (2_000_000_000, 2_800_000_000) and len(buf) == 3
-    buf.add(1_000_000_000, make_pose([9, 0, 0], 0))       # late and too old: dropped at once
-    assert buf.span() == (2_000_000_000, 2_800_000_000)
     buf.add(2_200_000_000, make_pose([7, 0, 0], 0))       # late but recent: inserted in order
     np.testing.assert_allclose(buf.lookup(2_100_000_000)[0, 3], 6.0)
     buf.add(3_000_000_000 + 10**9, make_pose([1, 0, 0], 0))
-    assert buf.span() == (4_000_000_000, 4_000_000_000)
+    assert buf.span() == (4_000_000_000, 4_000_000_000) and buf.rewinds == 0
+
+
+def test_time_going_back_empties_the_buffer():
+    """A looped bag or a simulator reset: poses more than rewind_ns before the newest are
+    another time line. The buffer starts again from them (nothing of the old one is
+    interpolated with them), and counts it; a pose a little late is inserted in place."""
+    buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0, rewind_ns=10**9)
+    for k in range(50):                                   # 1000.0 .. 1004.9 s
+        buf.add(1000 * 10**9 + k * 10**8, make_pose([100 + k, 0, 0], 0))
+    buf.add(1004 * 10**9 + 5 * 10**7, make_pose([0, 0, 0], 0))   # 0.85 s late: in place
+    assert buf.rewinds == 0 and len(buf) == 51
+    for k in range(20):                                   # the bag again: 5.0 .. 6.9 s
+        buf.add(5 * 10**9 + k * 10**8, make_pose([k, 0, 0], 0))
+    assert buf.rewinds == 1 and buf.span() == (5 * 10**9, 6_900_000_000) and len(buf) == 20
+    np.testing.assert_allclose(buf.lookup(6 * 10**9)[0, 3], 10.0)
 
 
 def test_nan_pose_rejected():

@@ -86,6 +86,75 @@ def test_a_reset_and_new_settings_apply_before_the_next_frame(worker):
     assert stamp_ns(published[0].detections_msg) == T0
 
 
+
+def test_a_looped_bag_runs_on_its_odometry_again_and_says_so(worker):
+    """Time goes back (a bag played in a loop): the worker's odometry wait and the pose
+    buffer follow it, the cloud runs with odometry (not single-frame), the diagnostics say
+    that odometry went back; the clouds of the loop, which repeat stamps, are all taken (keyed
+    as the node keys them: with the publisher's sequence number)."""
+    w, mc, published, log, clock = worker
+    seq = [0]
+
+    def put(stamp):
+        seq[0] += 1
+        w.mailbox.put(Received(cloud(mc, stamp), stamp, time.monotonic()),
+                      (stamp, 'lidar', seq[0]), None, count_gaps=False, dedupe=False)
+        assert until(lambda: w.frames_out == seq[0])
+        assert w.last.pose_source == 'odometry', w.last.pose_source
+
+    for _ in range(2):
+        for t in range(T0 - S // 2, T0 + 1, S // 20):
+            w.odometry.put(odom(t), t, clock['ns'], 1.0)
+        put(T0)
+        # the bag ends and plays again: odometry restarts 60 s back
+        for t in range(T0 - 61 * S, T0 - 60 * S + 1, S // 20):
+            w.odometry.put(odom(t), t, clock['ns'], 1.0)
+        put(T0 - 60 * S)
+        for t in range(T0 - 60 * S, T0 - 60 * S + S // 5, S // 20):   # and forward again
+            w.odometry.put(odom(t), t, clock['ns'], 1.0)
+        put(T0 - 60 * S + S // 10)
+    _, message, values = health_report(w.snapshot({}))
+    assert int(values['warnings.odometry_rewound']) == 2      # back twice (forward: no)
+    assert values['duplicate_clouds'] == '0' and values['frames_out'] == '6'
+    assert not [line for kind, line in log.lines if kind == 'error']
+
+
+def test_refused_odometry_is_named_as_the_reason_for_single_frame(worker):
+    w, mc, published, log, clock = worker
+    for t in range(T0 - S // 2, T0 + 1, S // 20):
+        bad = odom(t)
+        bad.pose.pose.orientation.w = float('nan')
+        w.odometry.put(bad, t, clock['ns'], 1.0)
+    put_cloud(w, mc, T0)
+    assert until(lambda: w.frames_out == 1)
+    assert w.last.pose_source.startswith('none: odometry rejected: '), w.last.pose_source
+    _, message, _ = health_report(w.snapshot({}))
+    assert 'odometry rejected' in message and 'no odometry received' not in message
+
+
+def test_a_frame_that_fails_is_counted_and_held_in_the_diagnostics(worker):
+    """Whatever makes a step raise (here the pipeline made to raise once), the node goes on
+    and its diagnostics warn, not only its log."""
+    w, mc, published, log, clock = worker
+    real = w.pipeline.process
+    calls = []
+
+    def failing_once(msg, markers=True):
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError('out of memory')
+        return real(msg, markers)
+
+    w.pipeline.process = failing_once
+    put_cloud(w, mc, T0)
+    assert until(lambda: w.frames_failed == 1)
+    level, message, values = health_report(w.snapshot({}))
+    assert level >= 1 and 'frame failed: RuntimeError: out of memory' in message
+    assert values['frames_failed'] == '1'
+    put_cloud(w, mc, T0 + S // 10)
+    assert until(lambda: w.frames_out == 1)               # and the next frame runs
+
+
 def one_round(pipe, mc, stamps, reset=None):
     """A fresh worker (keep_skipped 2) on ``pipe`` finds clouds of ``stamps`` waiting in
     arrival order, runs until it published once, stops; returns it and what it published."""
