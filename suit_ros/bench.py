@@ -187,6 +187,9 @@ def run(args: argparse.Namespace) -> int:
     """Run every measurement and print the table."""
     import torch
 
+    from suit_ros.outputs import output_file
+    if args.markdown:
+        output_file(args.markdown, '--markdown file')   # before the runs, not after them
     from suit_ros.heap import keep_freed_memory
     keep_freed_memory()          # the allocator as the node sets it (suit_ros.heap)
 

@@ -105,6 +105,9 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
     """Return a checkpoint's metadata without loading its tensors."""
     from safetensors import safe_open
     path = resolve_checkpoint(path)
+    if path.is_dir():
+        raise CheckpointError(f'checkpoint {path} is a folder: give the .safetensors file in '
+                              'it (a training run writes model.safetensors)')
     if not path.is_file():
         raise CheckpointError(f'checkpoint {path} does not exist; train one with '
                               '`suit-ros train`, pass a path, or name a shipped one: '
@@ -123,6 +126,9 @@ def read_metadata(path: str | os.PathLike[str]) -> dict[str, Any]:
         meta = json.loads(raw)
     except json.JSONDecodeError as exc:
         raise CheckpointError(f'{path}: corrupt suit_ros metadata ({exc})') from exc
+    if not isinstance(meta, dict):
+        raise CheckpointError(f'{path}: corrupt suit_ros metadata (a JSON '
+                              f'{type(meta).__name__}, not an object)')
     if meta.get('format') != FORMAT:
         raise CheckpointError(f'{path}: unsupported checkpoint format {meta.get("format")!r} '
                               f'(this suit_ros reads {FORMAT})')
@@ -149,7 +155,7 @@ def published_thresholds(meta: dict[str, Any], class_names: tuple[str, ...] | li
 def update_metadata(path: str | os.PathLike[str], **changes: Any) -> Path:
     """Rewrite a checkpoint with the same tensors and its metadata updated (atomically)."""
     from safetensors.torch import load_file, save_file
-    path = Path(path)
+    path = resolve_checkpoint(path)         # a shipped one by name, as read_metadata takes it
     meta = read_metadata(path)
     meta.update(changes)
     state = load_file(str(path), device='cpu')
@@ -247,6 +253,7 @@ def load_weights_into(model: torch.nn.Module, path: str | os.PathLike[str]) -> l
     from safetensors.torch import load_file
 
     from suit_ros.model.pillars import PillarEncoder
+    path = resolve_checkpoint(path)         # a shipped one by name (init_from: suit_default)
     meta = read_metadata(path)
     state = load_file(str(path), device='cpu')
     own = model.state_dict()

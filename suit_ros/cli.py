@@ -70,6 +70,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except SuitRosError as exc:
         print(f'suit-ros {args.command}: error: {exc}', file=sys.stderr)
         return 1
+    except OSError as exc:      # a file or folder the command could not read or write
+        print(f'suit-ros {args.command}: error: {exc}', file=sys.stderr)
+        return 1
     except KeyboardInterrupt:
         print(f'suit-ros {args.command}: interrupted', file=sys.stderr)
         return 130

@@ -379,6 +379,8 @@ def run(args: argparse.Namespace) -> int:
         if not resolve_checkpoint(path).is_file():
             raise SuitRosError(f'checkpoint {path} does not exist (a path, or a shipped one '
                                f'by name: {", ".join(shipped_checkpoints())})')
+    from suit_ros.outputs import output_dir
+    output_dir(args.out, '--out folder')      # before the runs, not after them
     try:
         result, runs, val = compare(checkpoints, variants, args.drives, args.frames,
                                     args.resamples, args.cache_dir, args.precision)

@@ -31,8 +31,8 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.rosenv import local_ros_env
     # the demo's own node, player and recorder: a private graph on this machine
     os.environ.update(local_ros_env())
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    from suit_ros.outputs import output_dir
+    out = output_dir(args.out, '--out folder')
     from suit_ros.node_probe import demo_bag
     bag = Path(demo_bag(str(out), args.seed, args.frames, progress=True))
     from suit_ros.checkpoint import default_checkpoint_path, read_metadata

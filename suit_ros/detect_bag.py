@@ -10,6 +10,7 @@ import argparse
 import collections
 import math
 from pathlib import Path
+import shutil
 import sys
 import time
 from typing import Any, get_args
@@ -131,27 +132,41 @@ def run(args: argparse.Namespace) -> int:
     """Process the bag; print a summary."""
     from suit_ros.heap import keep_freed_memory
     keep_freed_memory()          # the allocator as the node sets it (suit_ros.heap)
-    from suit_ros.data.bag import open_reader, open_writer
+    from suit_ros.data.bag import ODOMETRY, POINTCLOUD2, check_topic, open_reader, open_writer
     from suit_ros.msg_adapters.classes import MessageClasses
+    from suit_ros.outputs import output_dir
     out_path = Path(args.output)
     params = params_from_args(args)
+    if params.points_topic == params.odom_topic:
+        raise ConfigError(f'points_topic and odom_topic are both {params.points_topic}: name '
+                          'the cloud topic with --points-topic, the odometry with --odom-topic')
     t0 = time.monotonic()
     with open_reader(args.input) as reader:
         if out_path.exists():
             raise BagError(f'{out_path} already exists; choose a new output path')
-        topics = {c.topic: c for c in reader.connections}
-        if params.points_topic not in topics:
-            raise BagError(f'{args.input} has no {params.points_topic} topic; topics: '
-                           f'{sorted(topics)} (use --points-topic)')
+        output_dir(out_path.parent, 'folder of the output bag')
+        check_topic(reader, params.points_topic, POINTCLOUD2, hint='use --points-topic')
+        check_topic(reader, params.odom_topic, ODOMETRY, required=False,
+                    hint='use --odom-topic')
+        check_topic(reader, args.gt_topic, POINTCLOUD2, required=False, hint='use --gt-topic')
+        clouds = sum(c.msgcount for c in reader.connections if c.topic == params.points_topic)
+        if clouds == 0:
+            raise BagError(f'{args.input} holds no message on {params.points_topic}: nothing '
+                           'to detect in')
         if args.extrinsic_from_tf:
             xyz, rpy = extrinsic_from_tf_static(reader, args.base_frame,
                                                 _cloud_frame(reader, params.points_topic))
             params = params.updated({'extrinsic_xyz': xyz, 'extrinsic_rpy': rpy})
             print(f'detect-bag: extrinsic from /tf_static: xyz {[round(v, 4) for v in xyz]}, '
                   f'rpy {[round(v, 4) for v in rpy]}')
-        with open_writer(out_path, args.storage) as bag:
-            pipe = build_pipeline(params, MessageClasses.from_rosbags(bag.store))
-            summary = _process_bag(args, params, reader, bag, pipe)
+        try:
+            with open_writer(out_path, args.storage) as bag:
+                pipe = build_pipeline(params, MessageClasses.from_rosbags(bag.store))
+                summary = _process_bag(args, params, reader, bag, pipe)
+        except BaseException:     # no partial bag left behind to block the next try
+            if out_path.is_dir():
+                shutil.rmtree(out_path, ignore_errors=True)
+            raise
     summary.print(time.monotonic() - t0, pipe.class_names)
     print(f'wrote {out_path} ({DET_TOPIC}, {MARKER_TOPIC}'
           f'{", inputs copied" if args.copy_inputs else ""})', file=sys.stderr)

@@ -57,18 +57,16 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def _from_bag(args: argparse.Namespace) -> Any:
-    from suit_ros.data.bag import messages, open_reader
+    from suit_ros.data.bag import POINTCLOUD2, check_topic, messages, open_reader
     from suit_ros.evaluate import evaluate
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
     from suit_ros.msg_adapters.odometry import stamp_to_ns
     from suit_ros.structures import Detections
     found: dict[str, dict[int, Any]] = {args.det_topic: {}, args.gt_topic: {}}
     with open_reader(args.bag) as reader:
-        topics = {c.topic for c in reader.connections}
         for t in found:
-            if t not in topics:
-                raise BagError(f'{args.bag} has no {t} topic (topics: {sorted(topics)}); run '
-                               '`suit-ros detect-bag IN OUT --copy-inputs` on a bag with GT')
+            check_topic(reader, t, POINTCLOUD2, hint=f'{args.bag}: run `suit-ros detect-bag '
+                        'IN OUT --copy-inputs` on a bag with GT')
         conns = [c for c in reader.connections if c.topic in found]
         for conn, _, raw in messages(reader, conns):
             msg = reader.deserialize(raw, conn.msgtype)
@@ -134,6 +132,12 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f'--run-every must be at least 1, got {args.run_every}')
     if args.sweeps is not None and args.sweeps < 1:
         raise ConfigError(f'--sweeps must be at least 1, got {args.sweeps}')
+    if args.history is not None and args.history < 1:
+        raise ConfigError(f'--history must be at least 1 frame, got {args.history}')
+    from suit_ros.outputs import output_file
+    for option, path in (('--json-out', args.json_out), ('--plot', args.plot)):
+        if path:                    # checked before the run, not after it
+            output_file(path, f'{option} file')
     if args.run_every != 1 and (args.bag or args.kitti or args.nuscenes
                                 or args.history is not None):
         # nuScenes keyframes come with their sweeps accumulated: nothing to buffer
@@ -159,7 +163,10 @@ def run(args: argparse.Namespace) -> int:
         else:
             seqs = synthetic_sequences(args.synthetic, args.cache_dir)
         if not seqs or not seqs[0]:
-            raise DatasetError('the synthetic split is empty')
+            raise DatasetError('no frame to evaluate: ' + (
+                f'{args.nuscenes} holds no nuScenes sample' if args.nuscenes else
+                f'{args.av2} holds no Argoverse 2 sweep' if args.av2 else
+                'the synthetic split is empty'))
         if filt is not None and args.nuscenes:
             from suit_ros.evaluate import tracker_for
             filt = tracker_for(seqs, filt)          # keyframes 0.5 s apart: see tracker_for

@@ -317,6 +317,10 @@ def run(args: argparse.Namespace) -> int:
     """Run every model with and without the tracker; print and write the table."""
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, published_thresholds
     from suit_ros.data.sequences import synthetic_split
+    from suit_ros.outputs import output_file
+    for option, path in (('--json-out', args.json_out), ('--markdown', args.markdown)):
+        if path:                    # checked before the runs, not after them
+            output_file(path, f'{option} file')
     shipped = default_checkpoint_path().parent
     models = dict(a.split('=', 1) for a in args.checkpoint) if args.checkpoint else {
         'SUIT': str(shipped / 'suit_default.safetensors'),

@@ -193,10 +193,13 @@ class DetectorParams:
                 raise ConfigError(f'{f.name} must be within {m["lo"]}..{m["hi"]}, '
                                   f'not {value}')
         thr = self.score_thresholds
-        sizes = (1,) if num_classes is None else (1, num_classes)
-        if len(thr) not in sizes or any(not 0.0 <= v <= 1.0 for v in thr):
-            raise ConfigError(f'score_thresholds needs {" or ".join(map(str, sizes))} '
-                              f'values within 0..1, got {list(thr)}')
+        # without the model's class count (before a checkpoint is loaded) any count is taken
+        # here; the caller checks it again with the count
+        count_ok = len(thr) >= 1 if num_classes is None else len(thr) in (1, num_classes)
+        if not count_ok or any(not 0.0 <= v <= 1.0 for v in thr):
+            sizes = 'one or more' if num_classes is None else f'1 or {num_classes}'
+            raise ConfigError(f'score_thresholds needs {sizes} values within 0..1, got '
+                              f'{list(thr)}')
         if self.min_range >= self.max_range:
             raise ConfigError(f'min_range ({self.min_range}) must be below max_range '
                               f'({self.max_range})')
@@ -248,8 +251,14 @@ class DetectorParams:
     def from_yaml(cls, path: str) -> DetectorParams:
         """Read a node parameter file (``detector: ros__parameters:`` layout or flat)."""
         import yaml
-        with open(path, encoding='utf-8') as f:
-            data = yaml.safe_load(f) or {}
+        try:
+            with open(path, encoding='utf-8') as f:
+                data = yaml.safe_load(f) or {}
+        except OSError as exc:
+            raise ConfigError(f'cannot read the parameter file {path}: '
+                              f'{exc.strerror or exc}') from exc
+        except yaml.YAMLError as exc:
+            raise ConfigError(f'{path} is not valid YAML: {exc}') from exc
         if not isinstance(data, dict):
             raise ConfigError(f'{path}: expected a mapping')
         for key in ('detector', '/detector', '/**'):
@@ -280,7 +289,7 @@ def _coerce(name: str, value: Any, default: Any) -> Any:
         if isinstance(value, bool):
             raise TypeError
         return float(value)
-    except (TypeError, ValueError) as exc:
+    except (TypeError, ValueError, OverflowError) as exc:     # OverflowError: int(inf)
         raise ConfigError(f'{name} must be {_kind(default)}, got {value!r}') from exc
 
 

@@ -83,6 +83,8 @@ def run(args: argparse.Namespace) -> int:
     from suit_ros.dds import use_large_data_profile
     if args.rate <= 0:
         raise BagError('--rate must be > 0')
+    if args.start_delay < 0 or args.wait_subscribers < 0:
+        raise BagError('--start-delay and --wait-subscribers are seconds >= 0')
     with open_reader(args.bag) as reader:
         conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
         if not conns:
@@ -111,6 +113,10 @@ def run(args: argparse.Namespace) -> int:
                                       else ReliabilityPolicy.RELIABLE))
         pubs[topic] = node.create_publisher(cls, topic, qos)
     recorded = [m for m in recorded if m[0] in pubs]
+    if not recorded:
+        node.destroy_node()
+        try_shutdown()
+        raise BagError(f'no message type of {args.bag} is known here: nothing to play')
     clock_pub = node.create_publisher(Clock, '/clock', 10) if args.clock else None
     sent = 0
     late_max = 0.0

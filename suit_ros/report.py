@@ -585,6 +585,8 @@ def run(args: argparse.Namespace) -> int:
                           'drop it for a dataset folder or the demo drive')
     if args.resamples < 0 or (args.baseline and args.resamples == 0):
         raise ConfigError('--resamples must be >= 0, and > 0 with --baseline')
+    from suit_ros.outputs import output_dir
+    out = output_dir(args.out, '--out folder')       # before the run, not after it
     model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
     names = tuple(cfg.class_names)
     thresholds = report_thresholds(meta, names, args.score_thresholds)
@@ -644,8 +646,6 @@ def run(args: argparse.Namespace) -> int:
                                  result.num_points)
         report.intervals = ap_intervals(places, names, args.max_range, args.resamples)
         report.baseline = args.baseline
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     (out / 'report.json').write_text(json.dumps(report.to_json(), indent=2), encoding='utf-8')
     (out / 'report.md').write_text(report.markdown(), encoding='utf-8')
     scored, drawn_at = result.scored_detections(), list(thresholds)

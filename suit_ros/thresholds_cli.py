@@ -52,9 +52,12 @@ def run(args: argparse.Namespace) -> int:
     """Choose (and with ``--write`` store) the published thresholds."""
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, update_metadata
     from suit_ros.data.sequences import synthetic_split
+    from suit_ros.errors import ConfigError
     from suit_ros.evaluate import run_model
     from suit_ros.report import class_counts
     from suit_ros.tracking import TrackerConfig
+    if args.drives < 1:
+        raise ConfigError(f'--drives must be at least 1 (thresholds need GT), got {args.drives}')
     path = args.checkpoint or default_checkpoint_path()
     model, cfg, _ = load_checkpoint(path)
     names = tuple(cfg.class_names)

@@ -95,7 +95,13 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
             data = yaml.safe_load(f) or {}
     except FileNotFoundError as exc:
         raise ConfigError(f'training config {path} does not exist') from exc
+    except OSError as exc:
+        raise ConfigError(f'cannot read the training config {path}: '
+                          f'{exc.strerror or exc}') from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f'training config {path} is not valid YAML: {exc}') from exc
     tc = typing.cast(TrainConfig, dataclass_from_dict(TrainConfig, data, os.fspath(path)))
+    check_budget(tc, os.fspath(path))
     if tc.train_sequences < 1 or tc.train_first_sequence < 0:
         raise ConfigError(f'{path}: train_sequences must be >= 1 and train_first_sequence >= 0, '
                           f'not {tc.train_sequences} and {tc.train_first_sequence}')
@@ -125,6 +131,17 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
         raise ConfigError(f'{path}: outage_probability must be in [0, 1] and distill_weight '
                           f'>= 0, not {tc.outage_probability} and {tc.distill_weight}')
     return tc
+
+
+def check_budget(tc: TrainConfig, where: str) -> None:
+    """``steps`` at least 1 and ``max_minutes`` not negative (from the file or the flags).
+
+    :raises ConfigError: naming ``where`` (the file, or the flags)."""
+    if tc.steps < 1:
+        raise ConfigError(f'{where}: steps must be at least 1, not {tc.steps}')
+    if not tc.max_minutes >= 0:
+        raise ConfigError(f'{where}: max_minutes must be >= 0 (0 or none: no time limit), '
+                          f'not {tc.max_minutes}')
 
 
 FREEZABLE = ('pillars', 'backbone', 'fusion', 'fusion.current', 'fusion.past', 'geonet',
@@ -190,7 +207,10 @@ def run(args: argparse.Namespace) -> int:
         if value is not None:
             overrides[key] = value
     tc = replace(tc, **overrides)
-    train(tc, Path(args.out), device=args.device, threads=args.threads, resume=args.resume)
+    check_budget(tc, f'{args.config} with the flags')
+    from suit_ros.outputs import output_dir
+    train(tc, output_dir(args.out, '--out folder'), device=args.device, threads=args.threads,
+          resume=args.resume)
     return 0
 
 

@@ -117,6 +117,32 @@ def test_corrupt_truncated_foreign_missing(tmp_path, ckpt):
     save_file({'w': torch.zeros(3)}, str(tmp_path / 'foreign.safetensors'))
     with pytest.raises(CheckpointError, match='not a suit_ros checkpoint'):
         load_checkpoint(tmp_path / 'foreign.safetensors')
+    save_file({'w': torch.zeros(3)}, str(tmp_path / 'list.safetensors'),
+              metadata={'suit_ros': '[1, 2]'})
+    with pytest.raises(CheckpointError, match='corrupt suit_ros metadata .a JSON list'):
+        load_checkpoint(tmp_path / 'list.safetensors')
+    with pytest.raises(CheckpointError, match='is a folder: give the .safetensors file'):
+        load_checkpoint(tmp_path)
+
+
+def test_shipped_names_reach_the_writers_and_initialisation(tmp_path, monkeypatch):
+    """``init_from: suit_default`` and ``choose-thresholds --checkpoint suit_carry --write``
+    name shipped checkpoints; both read (and write) the file the name resolves to."""
+    import shutil
+
+    import suit_ros.checkpoint as ck
+    from suit_ros.checkpoint import update_metadata
+    single = SUITDetector(load_checkpoint('centerpoint_single')[1])
+    assert load_weights_into(single, 'centerpoint_single') == []
+    shipped = tmp_path / 'shipped'
+    shipped.mkdir()
+    shutil.copy(ck.default_checkpoint_path().parent / 'centerpoint_single.safetensors', shipped)
+    monkeypatch.setattr(ck, 'default_checkpoint_path',
+                        lambda: shipped / 'suit_default.safetensors')
+    monkeypatch.chdir(tmp_path)
+    assert update_metadata('centerpoint_single', note='x') == (
+        shipped / 'centerpoint_single.safetensors')
+    assert read_metadata('centerpoint_single')['note'] == 'x'
 
 
 def test_stage2_initialisation_from_single_frame(tmp_path):

@@ -72,3 +72,34 @@ def test_extrinsic_from_tf_static_and_warning_summary(bag, tmp_path, capsys):
     assert f'extrinsic from /tf_static: xyz {[round(v, 4) for v in xyz]}' in out
     assert '4 warnings' in out
     assert 'warning intensity_range: 4 frames, e.g. intensity up to' in out
+
+
+def test_what_a_user_gets_wrong_is_named_and_leaves_no_partial_bag(bag, tmp_path, capsys):
+    """Per-class thresholds as the help promises; a topic of another type, the same topic for
+    clouds and odometry, an output under a file, a checkpoint that fails after the output was
+    opened: each exits 1 with what to do (no traceback), and no half-written bag is left to
+    block the next try."""
+    from suit_ros.cli import main
+    ckpt = node_checkpoint(tmp_path)
+    assert main(['detect-bag', str(bag), str(tmp_path / 'per_class'), '--checkpoint', ckpt,
+                 '--score-threshold', '0.3', '0.3', '0.2', '0.2']) == 0
+    capsys.readouterr()
+    cases = [
+        (['--points-topic', '/tf_static'], 'carries tf2_msgs/msg/TFMessage, not '
+         'sensor_msgs/msg/PointCloud2'),
+        (['--points-topic', '/points', '--odom-topic', '/points'], 'are both /points'),
+        (['--score-threshold', '0.3', '0.3'], 'score_thresholds needs 1 or 4 values'),
+        (['--checkpoint', str(tmp_path / 'missing.safetensors')], 'does not exist'),
+    ]
+    for k, (flags, message) in enumerate(cases):
+        out = tmp_path / f'out{k}'
+        args = ['detect-bag', str(bag), str(out)] + (
+            [] if '--checkpoint' in flags else ['--checkpoint', ckpt]) + flags
+        assert main(args) == 1, flags
+        err = capsys.readouterr().err
+        assert message in err and 'Traceback' not in err, (flags, err)
+        assert not out.exists(), flags                      # nothing left behind
+    (tmp_path / 'file').write_text('x')
+    assert main(['detect-bag', str(bag), str(tmp_path / 'file' / 'out'), '--checkpoint',
+                 ckpt]) == 1
+    assert 'folder of the output bag' in capsys.readouterr().err

@@ -66,10 +66,31 @@ def test_invalid_values_are_named(change, match):
         replace(DetectorParams(), **change).validate(num_classes=4)
 
 
+def test_per_class_thresholds_pass_before_the_class_count_is_known(tmp_path):
+    """detect-bag validates its flags before it loads the checkpoint: one threshold per class
+    is taken then, and checked against the model's classes once they are known; a parameter
+    file that cannot be read or parsed is named, not a traceback."""
+    p = replace(DetectorParams(), score_thresholds=(0.3, 0.3, 0.2, 0.2))
+    assert p.validate() is p and p.validate(num_classes=4) is p
+    with pytest.raises(ConfigError, match='needs 1 or 3 values'):
+        p.validate(num_classes=3)
+    with pytest.raises(ConfigError, match='needs one or more values'):
+        replace(DetectorParams(), score_thresholds=()).validate()
+    with pytest.raises(ConfigError, match='cannot read the parameter file'):
+        DetectorParams.from_yaml(str(tmp_path / 'missing.yaml'))
+    with pytest.raises(ConfigError, match='cannot read the parameter file'):
+        DetectorParams.from_yaml(str(tmp_path))
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('detector: [unclosed\n', encoding='utf-8')
+    with pytest.raises(ConfigError, match='is not valid YAML'):
+        DetectorParams.from_yaml(str(bad))
+
+
 @pytest.mark.parametrize('values,match', [
     ({'max_detections': 2.5}, 'max_detections must be an integer'),
     ({'min_points': True}, 'min_points must be an integer'),
     ({'points_topic': 3}, 'points_topic must be a string'),
+    ({'max_detections': float('inf')}, 'max_detections must be an integer'),   # YAML .inf
     ({'min_range': 'near'}, 'min_range must be a number'),
 ])
 def test_wrong_types_are_refused(values, match):

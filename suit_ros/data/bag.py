@@ -81,6 +81,30 @@ def open_reader(path: str | os.PathLike[str]) -> Iterator[Any]:
         reader.close()
 
 
+POINTCLOUD2 = 'sensor_msgs/msg/PointCloud2'
+ODOMETRY = 'nav_msgs/msg/Odometry'
+
+
+def check_topic(reader: Any, topic: str, msgtype: str, required: bool = True,
+                hint: str = '') -> bool:
+    """Whether the bag has ``topic``, checking that it carries ``msgtype``.
+
+    :raises BagError: a required topic is missing, or the topic carries another type (a
+        mistyped topic name would otherwise fail deep inside, or be read as nothing).
+    """
+    types = {c.topic: c.msgtype for c in reader.connections}
+    if topic not in types:
+        if required:
+            raise BagError(f'the bag has no {topic} topic (topics: {sorted(types)})'
+                           + (f'; {hint}' if hint else ''))
+        return False
+    if types[topic] != msgtype:
+        raise BagError(f'{topic} carries {types[topic]}, not {msgtype}: name the topic of '
+                       f'the {msgtype.rsplit("/", 1)[-1]} messages'
+                       + (f'; {hint}' if hint else ''))
+    return True
+
+
 def messages(reader: Any, connections: Any = None) -> Iterator[tuple[Any, int, bytes]]:
     """``reader.messages()`` with storage errors (truncated, corrupt) raised as BagError."""
     from suit_ros.errors import SuitRosError
@@ -111,10 +135,9 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
     from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_to_ns
     from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
     with open_reader(path) as reader:
-        topics = {c.topic for c in reader.connections}
-        for needed in (points_topic, odom_topic):
-            if needed not in topics:
-                raise BagError(f'{path} has no {needed} topic (topics: {sorted(topics)})')
+        check_topic(reader, points_topic, POINTCLOUD2, hint=str(path))
+        check_topic(reader, odom_topic, ODOMETRY, hint=str(path))
+        check_topic(reader, gt_topic, POINTCLOUD2, required=False)
         buf = PoseBuffer(max_age_ns=10**12, tolerance_ns=150_000_000)
         extr = np.eye(4)
         gts: dict[int, dict[str, Any]] = {}

@@ -234,7 +234,10 @@ class ClipSampler:
         span = max(lengths)
         self.sequences = [s for s in sequences if len(s) >= span]
         if not self.sequences:
-            raise ValueError(f'no sequence has {span} frames (clips of {span} frames)')
+            from suit_ros.errors import DatasetError
+            raise DatasetError(f'no sequence has {span} frames (clips of {span} frames): '
+                               'single frames (a KITTI object layout) train only a '
+                               'single-frame model (temporal: none)')
         if not 0.0 <= outage_probability <= 1.0:
             raise ValueError(f'outage_probability must be in [0, 1], not {outage_probability}')
         if outage_probability and span < 3:

@@ -1,0 +1,45 @@
+"""The folders and files a command writes to, checked before it runs.
+
+A command that evaluates or trains for minutes, then fails to write its results, loses the run:
+:func:`output_dir` and :func:`output_file` create and probe the place first, and say what to do
+when it cannot be written (a path under a file, a read-only folder, a file where a folder is
+meant).
+"""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+import tempfile
+
+from suit_ros.errors import SuitRosError
+
+
+def output_dir(path: str | os.PathLike[str], what: str = 'output folder') -> Path:
+    """Create ``path`` (with its parents) and check that a file can be written in it.
+
+    :raises SuitRosError: it cannot be made or written.
+    """
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise SuitRosError(f'{what} {p} is a file: give a folder')
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=p):
+            pass
+    except OSError as exc:
+        raise SuitRosError(f'cannot write the {what} {p}: {exc.strerror or exc}; give a '
+                           'folder you can write to') from exc
+    return p
+
+
+def output_file(path: str | os.PathLike[str], what: str = 'output file') -> Path:
+    """Check that the file ``path`` can be written (its folder made now; the file itself is
+    written later).
+
+    :raises SuitRosError: it is a folder, or its folder cannot be made or written.
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise SuitRosError(f'{what} {p} is a folder: give a file name')
+    output_dir(p.parent if str(p.parent) else '.', f'folder of the {what}')
+    return p
