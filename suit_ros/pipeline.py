@@ -70,6 +70,11 @@ def load_detector(params: DetectorParams) -> tuple[StreamingDetector, Any, dict[
     return runner, cfg, meta
 
 
+# how a cloud is read into points: the buffered sweeps and the memory were made with them
+INPUT_SETTINGS = ('intensity_scale', 'intensity_field', 'min_range', 'max_range', 'deskew',
+                  'time_field', 'ego_box_min', 'ego_box_max')
+
+
 @dataclass
 class PipelineOutput:
     """What one cloud produced (messages are None when no classes were given)."""
@@ -134,8 +139,9 @@ class DetectionPipeline:
         """Apply a parameter set; every runtime-changeable setting takes effect here.
 
         Thresholds go to the model's decoder, the odometry buffer's age and tolerance are
-        updated in place (poses kept), a changed extrinsic resets the memory; the rest is read
-        per frame.
+        updated in place (poses kept), a changed extrinsic, ground or overhang mode resets the
+        memory, the sweeps and the tracks, a change of how the cloud is read
+        (:data:`INPUT_SETTINGS`) the memory and the sweeps; the rest is read per frame.
 
         :raises ConfigError: an invalid set (nothing is applied then).
         """
@@ -166,7 +172,18 @@ class DetectionPipeline:
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,
                                                       params.extrinsic_rpy):
             self.T_base_lidar = pose_from_xyz_rpy(params.extrinsic_xyz, params.extrinsic_rpy)
-            self.reset('extrinsic changed')
+            if self.last_stamp_ns is not None:      # (at start-up there is nothing to forget)
+                self.reset('extrinsic changed')
+        changed = [name for name in INPUT_SETTINGS if getattr(old, name) != getattr(params, name)]
+        if changed and self.last_stamp_ns is not None:
+            # the buffered sweeps and the memory were read with the old settings (another
+            # intensity scale, other ranges, not deskewed): the next input must not mix them
+            # with the new; the tracks (boxes in the odometry frame) go on
+            reason = 'input settings changed: ' + ', '.join(changed)
+            self.detector.reset(reason, sweeps=False)
+            self.detector.sweeps.clear()
+            self.last_reset_reason = reason
+            self.resets += 1
 
     # ------------------------------------------------------------------ inputs
     def add_odometry(self, msg: Any, now_ns: int | None = None) -> bool:
@@ -218,7 +235,9 @@ class DetectionPipeline:
         t0 = time.perf_counter()
         out = PipelineOutput(cloud.header, Detections.empty())
         points, stamp_ns, pose = self._prepare(cloud, out)
-        stale = self.detector.drop_stale_memory(stamp_ns, self.params.max_gap_s)
+        # (an unusable cloud's header is not trusted: it changes no state)
+        stale = (None if 'unusable_cloud' in out.warnings
+                 else self.detector.drop_stale_memory(stamp_ns, self.params.max_gap_s))
         if stale is not None:                          # the sweeps just before it stand
             self.last_reset_reason = out.reset_reason = stale
             self.resets += 1
@@ -268,14 +287,9 @@ class DetectionPipeline:
         """
         t0 = time.perf_counter()
         out = PipelineOutput(cloud.header, Detections.empty())
-        last_pose, last_pose_ns = self.last_pose, self.last_pose_ns
         # the sector-gap check reads the clouds the model runs on (a third of a buffered
         # 260k-point cloud's cost: docs/experiments/overload)
         points, stamp_ns, pose = self._prepare(cloud, out, coverage=False)
-        if pose is None and not out.reset_reason:
-            # not buffered, nothing reset: the next cloud's pose-jump check still compares
-            # with the last pose the memory and the sweeps were placed with
-            self.last_pose, self.last_pose_ns = last_pose, last_pose_ns
         if len(points):
             out.buffered = self.detector.add_sweep(points, stamp_ns, pose, self.T_base_lidar)
         out.timings = {'convert': time.perf_counter() - t0}
@@ -288,12 +302,18 @@ class DetectionPipeline:
         warnings, the pose's source and the reset reason go into ``out``.
 
         :param coverage: check the azimuth coverage (``sector_gap``) and add the cloud to its
-            norm (the clouds the model runs on; a skipped cloud need not pay for it).
+            norm: a cloud the model runs on (a skipped cloud need not pay for it, and without
+            a pose it is only not buffered, where the model's step forgets what it holds).
         """
         header = cloud.header
         stamp_ns = stamp_to_ns(header.stamp)
         frame_id = str(header.frame_id)
         points, times = self._points(cloud, stamp_ns, out, coverage)
+        if 'unusable_cloud' in out.warnings:
+            # a message that cannot be decoded: its header is no more to be trusted than its
+            # data (a bogus frame_id or stamp would reset everything twice); it changes nothing
+            out.pose_source = 'none: unusable cloud'
+            return points, stamp_ns, None
         reason = self._reset_reason(stamp_ns, frame_id)
         if self.last_frame_id is not None and frame_id != self.last_frame_id:
             self.coverage.reset()                    # another sensor: another norm
@@ -303,6 +323,11 @@ class DetectionPipeline:
         pose, out.pose_source, out.pose_age_s = self._pose(stamp_ns)
         if pose is None:
             out.single_frame = 'no_odometry' if self.poses.span() is None else 'outside_odometry'
+            if (coverage and reason is None and len(points)      # a cloud the model runs on
+                    and (self.detector.memory is not None or len(self.detector.sweeps))):
+                # the model cannot move what it holds without a pose: the step forgets it
+                # (StreamingDetector.step); said here, as every other reset is
+                reason = f'no pose for the cloud ({out.pose_source.removeprefix("none: ")})'
         if reason is None and pose is not None and self.last_pose is not None:
             jump = float(np.linalg.norm(pose[:3, 3] - self.last_pose[:3, 3]))
             gap_s = (stamp_ns - self.last_pose_ns) * 1e-9
@@ -315,7 +340,11 @@ class DetectionPipeline:
             self.reset(reason)
             out.reset_reason = reason
         self.last_stamp_ns, self.last_frame_id = stamp_ns, frame_id
-        self.last_pose, self.last_pose_ns = pose, stamp_ns
+        if reason is not None or (len(points) and (coverage or pose is not None)):
+            # the pose the memory and the sweeps are placed with from now; a cloud with no
+            # points, or a skipped one without a pose, places nothing, so the next one is
+            # checked against the last placed pose
+            self.last_pose, self.last_pose_ns = pose, stamp_ns
         if times is not None and len(points):
             points = self._deskew(points, times, stamp_ns, pose is not None, out)
         elif times is not None:

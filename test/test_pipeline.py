@@ -727,3 +727,57 @@ def test_deskew_says_why_not_for_an_odometry_jump_and_an_empty_cloud(model, clas
     out = step.process(timed_cloud(classes, T0, sweep)[0])
     assert out.deskew.startswith('off: odometry changed')
     assert 'a jump' in out.warnings['point_times'] and out.points_used == 3000
+
+
+def test_state_survives_what_should_not_touch_it(model, classes):
+    """From an audit of the state kept between frames: a cloud that cannot be decoded changes
+    nothing (its header is not trusted); an empty cloud outside the odometry does not switch
+    off the next frame's pose-jump check; a cloud without a pose says that the memory was
+    forgotten; tracking turned off and on goes on counting ids; a change of how clouds are
+    read empties the sweeps and the memory but keeps the tracks; a non-default extrinsic at
+    start-up is no reset."""
+    def odometry(start, end, x):
+        for t in range(start, end + 1, S // 50):
+            pipe.add_odometry(odom(t, x))
+
+    pipe = make_pipeline(model, classes, extrinsic_xyz=(0.9, 0.0, 1.8))
+    assert pipe.resets == 0 and pipe.last_reset_reason == 'start'
+    odometry(T0, T0 + 3 * S // 10, 0.0)
+    pipe.process(cloud(classes, T0))
+    pipe.process(cloud(classes, T0 + S // 10))
+    resets, sweeps = pipe.resets, len(pipe.detector.sweeps)
+    # undecodable, with a bogus frame and stamp: a warning, and nothing else
+    bad = cloud(classes, T0 + 50 * S, frame='')
+    bad.fields = [f for f in bad.fields if f.name != 'x']
+    out = pipe.process(bad)
+    assert set(out.warnings) == {'unusable_cloud'} and out.reset_reason == ''
+    assert pipe.resets == resets and len(pipe.detector.sweeps) == sweeps
+    assert pipe.last_frame_id == 'lidar' and pipe.last_stamp_ns == T0 + S // 10
+    out = pipe.process(cloud(classes, T0 + 2 * S // 10))
+    assert out.reset_reason == '' and out.used_memory
+    # an empty cloud past the odometry, then a cloud whose pose leapt 100 m: still a jump
+    out = pipe.process(cloud(classes, T0 + 5 * S // 10, n=0))
+    assert out.pose_source.startswith('none') and out.reset_reason == ''
+    odometry(T0 + 4 * S // 10, T0 + 8 * S // 10, 100.0)
+    assert 'pose jumped 100.0 m' in pipe.process(cloud(classes, T0 + 6 * S // 10)).reset_reason
+    # a cloud with points but no pose: the memory is forgotten, and said
+    pipe.process(cloud(classes, T0 + 7 * S // 10))
+    resets = pipe.resets
+    out = pipe.process(cloud(classes, T0 + 10 * S // 10))
+    assert out.reset_reason.startswith('no pose for the cloud') and pipe.resets == resets + 1
+    assert not out.used_memory
+    # tracking off and on: the ids go on
+    ids_before = pipe.detector.tracks.next_id
+    pipe.configure(replace(pipe.params, tracking=False))
+    pipe.configure(replace(pipe.params, tracking=True))
+    assert pipe.detector.tracks.next_id == ids_before
+    # reading the clouds another way: sweeps and memory go, the tracks stay
+    odometry(T0 + 10 * S // 10, T0 + 14 * S // 10, 100.0)
+    pipe.process(cloud(classes, T0 + 11 * S // 10))
+    pipe.process(cloud(classes, T0 + 12 * S // 10))
+    tracks = pipe.detector.tracks
+    assert len(pipe.detector.sweeps) >= 1
+    pipe.configure(replace(pipe.params, intensity_scale=1.0, max_range=60.0))
+    assert pipe.last_reset_reason == 'input settings changed: intensity_scale, max_range'
+    assert len(pipe.detector.sweeps) == 0 and pipe.detector.memory is None
+    assert pipe.detector.tracks is tracks

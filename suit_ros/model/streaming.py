@@ -180,12 +180,16 @@ class StreamingDetector:
 
     def set_tracker(self, config: TrackerConfig | None) -> None:
         """Turn the tracker on (with ``config``) or off (None). A tracker already on takes a
-        changed config in place: its tracks and their ids go on (a downstream stack must not
-        see an id used twice)."""
+        changed config in place: its tracks and their ids go on, and a tracker turned off and on
+        again goes on counting ids where the last one stopped (a downstream stack must not see
+        an id used twice)."""
         if config is None:
+            if self.tracks is not None:          # turned on again later, ids go on from here
+                self._next_track_id = self.tracks.next_id
             self.tracks = None
         elif self.tracks is None:
             self.tracks = Tracker(config, self.cfg.class_names)
+            self.tracks.next_id = getattr(self, '_next_track_id', 1)
         elif self.tracks.config != config:
             self.tracks.reconfigure(config)
 
