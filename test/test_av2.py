@@ -103,6 +103,10 @@ def test_reads_points_gt_classes_poses_and_velocities(tmp_path: Path) -> None:
     ped = f.gt.boxes[~car][0]
     np.testing.assert_allclose(ped[6], np.pi / 2, atol=1e-6)                # yaw from quat
     assert f.num_points is not None and f.num_points[car][0] >= 50
+    # each object keeps one id (its track) over the sweeps, as a tracking dataset's
+    ids = [dict(zip(g.gt.labels.tolist(), g.instance_ids.tolist())) for g in seq]
+    assert ids[0] == ids[1] == ids[2] and 0 not in ids[0].values()
+    assert len(set(ids[0].values())) == 2
 
 
 def test_an_object_annotated_twice_is_one_object(tmp_path: Path) -> None:
@@ -141,7 +145,7 @@ def test_velocity_in_the_egovehicle_frame_when_the_ego_turns(tmp_path: Path) -> 
     t['qz'] = [qz] * len(t['qz'])
     feather.write_feather(pa.table(t), str(path))
     (seq,) = av2_sequences(tmp_path)
-    gt, _ = seq.labelled(T0 + DT)
+    gt, _, _ = seq.labelled(T0 + DT)
     # the car moves +5 m/s along ego x relative to the ego, which moves along city +x (ego -y)
     # at 5 m/s: (5, 5) in the city, (5, -5) in the egovehicle frame
     np.testing.assert_allclose(gt.velocities[gt.labels == 0][0], [5.0, -5.0], atol=1e-6)

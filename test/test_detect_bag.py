@@ -103,3 +103,37 @@ def test_what_a_user_gets_wrong_is_named_and_leaves_no_partial_bag(bag, tmp_path
     assert main(['detect-bag', str(bag), str(tmp_path / 'file' / 'out'), '--checkpoint',
                  ckpt]) == 1
     assert 'folder of the output bag' in capsys.readouterr().err
+
+
+def test_bag_frames_take_the_lidar_extrinsic_and_every_pose_of_a_long_bag(bag, tmp_path):
+    """read_bag_frames (eval --bag, training on bags): the extrinsic is base_link -> the
+    clouds' frame even when /tf_static holds others after it (an IMU here), and a bag whose
+    odometry spans more than 1,000 s still places its first clouds (all poses are read
+    before any cloud; they used to age out of the buffer)."""
+    import copy
+
+    from suit_ros.data.bag import open_reader, open_writer, read_bag_frames
+    plain = list(read_bag_frames(bag))
+    longer = tmp_path / 'long'
+    with open_reader(bag) as r, open_writer(longer, 'sqlite3') as w:
+        last_odom = None
+        for c, t, raw in r.messages():
+            if c.topic == '/tf_static':
+                msg = r.deserialize(raw, c.msgtype)
+                imu = copy.deepcopy(msg.transforms[0])
+                imu.child_frame_id = 'imu'
+                imu.transform.translation.x = 5.0
+                w.write(c.topic, c.msgtype, t, type(msg)(transforms=[*msg.transforms, imu]))
+                continue
+            if c.topic == '/odom':
+                last_odom = (c, t, raw)
+            w.write(c.topic, c.msgtype, t, bytes(raw))
+        c, t, raw = last_odom
+        late = r.deserialize(raw, c.msgtype)
+        late.header.stamp.sec += 1200
+        w.write(c.topic, c.msgtype, t + 1200 * 10**9, late)
+    long_frames = list(read_bag_frames(longer))
+    assert len(long_frames) == len(plain)
+    for a, b in zip(plain, long_frames):
+        np.testing.assert_allclose(b.T_base_lidar, a.T_base_lidar)
+        np.testing.assert_allclose(b.pose, a.pose, atol=1e-9)

@@ -196,8 +196,9 @@ def test_num_points_classes_points_and_extrinsic(object_root):
     expected = np.eye(4)
     expected[2, 3] = 1.73
     np.testing.assert_array_equal(frame.T_base_lidar, expected)
-    assert [map_kitti_class(t) for t in ('Tram', 'Misc', 'DontCare', 'Person_sitting')] == [
-        None, None, None, 'pedestrian']
+    assert [map_kitti_class(t) for t in ('Tram', 'Misc', 'DontCare', 'Person_sitting',
+                                         'Person')] == [None, None, None, 'pedestrian',
+                                                        'pedestrian']
     # kitti_sequences: the same frames, optionally cropped to the camera's view for training
     cropped = kitti_sequences(object_root, fov_points_only=True, ids=['000000'])
     assert len(cropped) == 1

@@ -214,3 +214,35 @@ def test_eval_and_report_read_nuscenes_with_the_checkpoints_sweeps(dataset, tmp_
     assert (tmp_path / 'report' / 'report.json').is_file()
     assert main(['eval', '--nuscenes', str(dataset), '--version', VERSION,
                  '--sweeps', '0']) != 0
+
+
+def test_parked_bicycles_are_ignored_and_objects_keep_their_ids(dataset, tmp_path):
+    """A bicycle without a rider (``cycle.without_rider``) is neither a cyclist nor a false
+    positive (an ignore box, as the Argoverse 2 reader's parked bicycles); one with a rider
+    is a cyclist. A stroller is no pedestrian (the devkit's four pedestrian subclasses). Each
+    object keeps one instance id over its keyframes."""
+    import shutil
+    root = tmp_path / 'ns'
+    shutil.copytree(dataset, root)
+    tables = root / VERSION
+    anns = json.loads((tables / 'sample_annotation.json').read_text())
+    for a in anns:
+        if a['instance_token'] == 'inst0_4':
+            a['attribute_tokens'] = ['attr_rider']
+        if a['instance_token'] == 'inst1_4':
+            a['attribute_tokens'] = ['attr_parked']
+    (tables / 'sample_annotation.json').write_text(json.dumps(anns))
+    (tables / 'attribute.json').write_text(json.dumps([
+        {'token': 'attr_rider', 'name': 'cycle.with_rider', 'description': ''},
+        {'token': 'attr_parked', 'name': 'cycle.without_rider', 'description': ''}]))
+    reader = NuScenesReader(root, VERSION, sweeps=1)
+    cyclist = list(reader.class_names).index('cyclist')
+    scene0, scene1 = (list(reader.sequence(s)) for s in reader.scenes())
+    assert all((f.gt.labels == cyclist).sum() == 1 for f in scene0)
+    assert all((f.gt.labels == cyclist).sum() == 0 for f in scene1)
+    assert all(len(f.ignore_boxes) == 1 for f in scene1)
+    ids = [dict(zip(f.num_points.tolist(), f.instance_ids.tolist())) for f in scene0]
+    assert ids[0][10] == ids[1][10] == ids[2][10] != 0          # the car, over 3 keyframes
+    assert len(set(ids[0].values())) == len(ids[0])
+    assert map_category('human.pedestrian.stroller') is None
+    assert map_category('human.pedestrian.wheelchair') is None

@@ -189,7 +189,7 @@ class Av2Sequence(LazySequence):
             raise DatasetError(f'{self.log_dir / "sensors/lidar"} holds no sweep (.feather)')
         self.stamps_ns = [int(p.stem) for p in self.sweeps]
         poses = read_table(self.log_dir / 'city_SE3_egovehicle.feather', POSE_COLUMNS)
-        self.poses = PoseBuffer(max_age_ns=2 ** 62, tolerance_ns=50_000_000)
+        self.poses = PoseBuffer(max_age_ns=2 ** 62, tolerance_ns=50_000_000, rewind_ns=2 ** 62)
         for k in np.argsort(poses['timestamp_ns'], kind='stable'):
             T = np.eye(4)
             T[:3, :3] = quaternion_to_matrix(poses['qx'][k], poses['qy'][k], poses['qz'][k],
@@ -197,6 +197,9 @@ class Av2Sequence(LazySequence):
             T[:3, 3] = (poses['tx_m'][k], poses['ty_m'][k], poses['tz_m'][k])
             self.poses.add(int(poses['timestamp_ns'][k]), T)
         self.annotations = Av2Annotations.read(self.log_dir / 'annotations.feather')
+        # one id per object (its track_uuid) over the log, as the KITTI tracking reader's
+        self.track_ids = {u: i + 1 for i, u in
+                          enumerate(sorted({str(t) for t in self.annotations.track}))}
 
     def __len__(self) -> int:
         return len(self.sweeps)
@@ -210,9 +213,11 @@ class Av2Sequence(LazySequence):
             raise DatasetError(f'{self.log_dir / "city_SE3_egovehicle.feather"}: no pose for '
                                f'stamp {stamp_ns} ({exc})') from exc
 
-    def labelled(self, stamp_ns: int) -> tuple[Detections, NDArray[np.float64]]:
-        """GT (in the project's classes, with velocities) and the ignored boxes at a stamp
-        (none when the stamp has no annotation)."""
+    def labelled(self, stamp_ns: int
+                 ) -> tuple[Detections, NDArray[np.float64], NDArray[np.uint32]]:
+        """GT (in the project's classes, with velocities), the ignored boxes and the GT
+        boxes' object ids (one per track over the log) at a stamp (none when the stamp has no
+        annotation)."""
         ann = self.annotations
         rows = ann.rows.get(int(stamp_ns), np.zeros(0, np.int64))
         rows = rows[first_of_duplicates(ann.boxes[rows], [str(c) for c in ann.category[rows]])]
@@ -223,9 +228,10 @@ class Av2Sequence(LazySequence):
         labels = np.array([self.class_names.index(c) for c, k in zip(cls, keep) if k and c],
                           np.int64)
         velocities = self._velocities(int(stamp_ns), kept)
+        ids = np.array([self.track_ids[str(ann.track[r])] for r in kept], np.uint32)
         boxes = ann.boxes[kept]
         gt = Detections(boxes, velocities, np.ones(len(kept)), labels)
-        return gt, ann.boxes[rows[ignore]]
+        return gt, ann.boxes[rows[ignore]], ids
 
     def _velocities(self, stamp_ns: int, rows: NDArray[np.int64]) -> NDArray[np.float64]:
         ann = self.annotations
@@ -269,10 +275,10 @@ class Av2Sequence(LazySequence):
         pts[:, 3] /= np.float32(INTENSITY_MAX)
         pts = pts[np.isfinite(pts[:, :3]).all(1)]
         stamp = self.stamps_ns[k]
-        gt, ignore = self.labelled(stamp)
+        gt, ignore, ids = self.labelled(stamp)
         return Frame(pts, self.pose(stamp), stamp, FRAME_ID, gt,
-                     count_points_in_boxes(pts[:, :3], gt.boxes),
-                     np.arange(1, len(gt) + 1, dtype=np.uint32), self.sequence_id,
+                     count_points_in_boxes(pts[:, :3], gt.boxes), ids,
+                     self.sequence_id,
                      ego_mounting(), ignore_boxes=ignore.astype(np.float32))
 
 

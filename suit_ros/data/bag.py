@@ -138,10 +138,13 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
         check_topic(reader, points_topic, POINTCLOUD2, hint=str(path))
         check_topic(reader, odom_topic, ODOMETRY, hint=str(path))
         check_topic(reader, gt_topic, POINTCLOUD2, required=False)
-        buf = PoseBuffer(max_age_ns=10**12, tolerance_ns=150_000_000)
+        # every pose is read before any cloud: none may age out of the buffer (a bag longer
+        # than the buffer's age failed at its first cloud), and none is a time jump
+        buf = PoseBuffer(max_age_ns=2**62, tolerance_ns=150_000_000, rewind_ns=2**62)
         extr = np.eye(4)
         gts: dict[int, dict[str, Any]] = {}
         clouds = []
+        static: list[Any] = []
         conns = [c for c in reader.connections
                  if c.topic in (points_topic, odom_topic, gt_topic, '/tf_static')]
         for conn, _, raw in messages(reader, conns):
@@ -152,10 +155,15 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
             elif conn.topic == gt_topic:
                 gts[stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
             elif conn.topic == '/tf_static':
-                for tf in msg.transforms:
-                    extr = transform_to_matrix(tf.transform)
+                static.extend(msg.transforms)
             else:
                 clouds.append(msg)
+        if clouds:      # base_link -> the clouds' frame (a bag may hold IMU or camera ones)
+            lidar = str(clouds[0].header.frame_id).lstrip('/')
+            for tf in static:
+                if (str(tf.header.frame_id).lstrip('/'), str(tf.child_frame_id).lstrip('/')) \
+                        == ('base_link', lidar):
+                    extr = transform_to_matrix(tf.transform)
         for msg in clouds:
             stamp = stamp_to_ns(msg.header.stamp)
             cloud = pointcloud2_to_xyzi(msg, time_fields=TIME_FIELDS)

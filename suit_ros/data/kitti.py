@@ -45,7 +45,9 @@ from suit_ros.ops.geometry import count_points_in_boxes, transform_points, wrap_
 from suit_ros.structures import Detections, Frame
 
 CLASS_MAP = {'Car': 'car', 'Van': 'car', 'Truck': 'truck', 'Pedestrian': 'pedestrian',
-             'Person_sitting': 'pedestrian', 'Cyclist': 'cyclist'}
+             'Person_sitting': 'pedestrian', 'Person': 'pedestrian', 'Cyclist': 'cyclist'}
+# (``Person``: the tracking labels' name of a sitting person, the object labels'
+# ``Person_sitting``)
 KNOWN_TYPES = frozenset(CLASS_MAP) | {'Tram', 'Misc', 'DontCare'}
 LIDAR_HEIGHT_M = 1.73
 IMAGE_WIDTH_PX = 1242.0

@@ -5,7 +5,9 @@ keyframe's LiDAR points plus the previous sweeps moved into the keyframe's LiDAR
 each sweep's ego pose and calibration) with a time-lag channel, the pose ``T_global_lidar``, and
 GT boxes and velocities in the LiDAR frame. Velocities are computed as the devkit's
 ``box_velocity`` does (centre differences of the neighbouring annotations, at most 1.5 s apart);
-where the devkit says NaN (an isolated annotation) the reader stores 0.
+where the devkit says NaN (an isolated annotation) the reader stores 0. Bicycles and motorcycles
+without a rider (`cycle.without_rider`) are ignore boxes; pedestrians are the devkit's four
+subclasses; each object keeps its instance's id over the keyframes.
 """
 from __future__ import annotations
 
@@ -27,13 +29,19 @@ CLASS_MAP = {'vehicle.car': 'car', 'vehicle.truck': 'truck', 'vehicle.bus.bendy'
              'vehicle.bus.rigid': 'truck', 'vehicle.construction': 'truck',
              'vehicle.trailer': 'truck', 'vehicle.bicycle': 'cyclist',
              'vehicle.motorcycle': 'cyclist'}
+# the devkit's detection classes count these four as pedestrians (not a stroller, a wheelchair
+# or a personal mobility device)
+PEDESTRIANS = ('human.pedestrian.adult', 'human.pedestrian.child',
+               'human.pedestrian.construction_worker', 'human.pedestrian.police_officer')
+RIDERLESS = 'cycle.without_rider'      # a parked bicycle or motorcycle: not a cyclist
 TABLES = ('scene', 'sample', 'sample_data', 'ego_pose', 'calibrated_sensor', 'sensor',
           'sample_annotation', 'instance', 'category')
+OPTIONAL_TABLES = ('attribute',)       # without it, every bicycle and motorcycle is a cyclist
 
 
 def map_category(name: str) -> str | None:
     """nuScenes category -> this project's class (None: not a detection class)."""
-    if name.startswith('human.pedestrian'):
+    if name in PEDESTRIANS:
         return 'pedestrian'
     return CLASS_MAP.get(name)
 
@@ -68,12 +76,17 @@ class NuScenesReader:
             raise DatasetError(f'{table_dir} does not exist: expected the nuScenes tables of '
                                f'{version} under {self.root}')
         self.t: dict[str, dict[str, dict[str, Any]]] = {}
-        for name in TABLES:
+        for name in TABLES + OPTIONAL_TABLES:
             path = table_dir / f'{name}.json'
             if not path.is_file():
+                if name in OPTIONAL_TABLES:
+                    self.t[name] = {}
+                    continue
                 raise DatasetError(f'missing table {path}')
             with open(path, encoding='utf-8') as f:
                 self.t[name] = {r['token']: r for r in json.load(f)}
+        # one id per object over the whole dataset (the instance), as the other readers'
+        self.instance_ids = {tok: i + 1 for i, tok in enumerate(sorted(self.t['instance']))}
         self.lidar_keyframe: dict[str, dict[str, Any]] = {}
         for sd in self.t['sample_data'].values():
             channel = self.t['sensor'][self.t['calibrated_sensor'][sd['calibrated_sensor_token']]
@@ -141,6 +154,7 @@ class NuScenesReader:
         labels: list[int] = []
         nums: list[int] = []
         ids: list[int] = []
+        ignored: list[list[float]] = []
         for ann in self.anns.get(sample_token, []):
             inst = self.t['instance'][ann['instance_token']]
             cls = map_category(self.t['category'][inst['category_token']]['name'])
@@ -151,19 +165,26 @@ class NuScenesReader:
             c = T_ref_inv @ np.r_[ann['translation'], 1.0]
             heading = T_ref_inv[:3, :3] @ R[:, 0]
             w, length, h = ann['size']
-            boxes.append([c[0], c[1], c[2], length, w, h, np.arctan2(heading[1], heading[0])])
+            box = [c[0], c[1], c[2], length, w, h, np.arctan2(heading[1], heading[0])]
+            attributes = {self.t['attribute'].get(a, {}).get('name')
+                          for a in ann.get('attribute_tokens', [])}
+            if cls == 'cyclist' and RIDERLESS in attributes:
+                ignored.append(box)     # neither an object nor a false positive (as AV2's)
+                continue
+            boxes.append(box)
             v = self.box_velocity(ann)
             v_l = T_ref_inv[:3, :3] @ np.r_[np.nan_to_num(v), 0.0]
             vels.append(v_l[:2])
             labels.append(self.class_names.index(cls))
             nums.append(ann['num_lidar_pts'])
-            ids.append(len(ids))
+            ids.append(self.instance_ids[ann['instance_token']])
         gt = Detections(np.asarray(boxes).reshape(-1, 7), np.asarray(vels).reshape(-1, 2),
                         np.ones(len(boxes)), np.asarray(labels, np.int64))
         cal = self.t['calibrated_sensor'][ref['calibrated_sensor_token']]
         return Frame(points, T_ref, int(t_ref) * 1000, 'LIDAR_TOP', gt,
                      np.asarray(nums, np.uint32), np.asarray(ids, np.uint32), sequence_id,
-                     _pose(cal['translation'], cal['rotation']))
+                     _pose(cal['translation'], cal['rotation']),
+                     ignore_boxes=np.asarray(ignored, np.float32).reshape(-1, 7))
 
     def box_velocity(self, ann: dict[str, Any], max_time_diff: float = 1.5
                      ) -> NDArray[np.float64]:
