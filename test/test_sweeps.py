@@ -191,7 +191,8 @@ def test_clip_sampler_takes_consecutive_frames(tmp_path):
         assert np.diff([f.stamp_ns for f in clip]).tolist() == [period] * 2
         lags = np.unique(np.round(clip[-1].points[:, 4], 3))
         np.testing.assert_allclose(lags, [0.0, period * 1e-9], atol=1e-3)
-    with pytest.raises(ValueError, match='7 frames'):
+    from suit_ros.errors import DatasetError
+    with pytest.raises(DatasetError, match='7 frames'):       # a message, not a traceback
         ClipSampler([seq[:6]], [7], 0)
 
 
