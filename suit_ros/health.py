@@ -128,7 +128,7 @@ def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
         'held_boxes': str(int((last.num_points == 0).sum())),
         'memory_samples': str(last.memory_samples), 'memory_bytes': str(last.memory_bytes),
         'used_memory': str(last.used_memory),
-        'tracks': 'off' if last.track_ids is None else str(last.tracks),
+        'tracks': 'off' if last.tracks is None else str(last.tracks),
         'pose_source': last.pose_source, 'pose_age_s': f'{last.pose_age_s:.3f}',
         'deskew': last.deskew,
         # the last model input's sweeps and the oldest one's lag: an overloaded node still

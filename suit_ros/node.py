@@ -49,6 +49,8 @@ POINTS_READER_DEPTH = 10
 QOS_OVERLAP_S = 3.0          # a replaced points subscription lives on this long
 
 
+DIAGNOSTIC_TASK = 'suit_ros detector'   # the status name: '<node's full name>: <this>'
+
 class DetectorNode(Node):
     """See the module docstring."""
 
@@ -170,8 +172,11 @@ class DetectorNode(Node):
                                      'ignored_parameters': ', '.join(self.ignored_parameters)
                                      or 'none'})
         level, message, values = health_report(snap)
+        # one status per node and sensor: two detectors (one per LiDAR, or in namespaces)
+        # must not share a name, or a diagnostics aggregator merges them
         return DiagnosticStatus(
-            name='suit_ros: detector', hardware_id='suit_ros', message=message,
+            name=f'{self.get_fully_qualified_name()}: {DIAGNOSTIC_TASK}',
+            hardware_id=self._points_topic, message=message,
             level=(DiagnosticStatus.OK, DiagnosticStatus.WARN, DiagnosticStatus.ERROR)[level],
             values=[KeyValue(key=k, value=v) for k, v in values.items()])
 

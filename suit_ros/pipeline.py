@@ -90,11 +90,15 @@ class PipelineOutput:
     pose_source: str = 'none'
     single_frame: SingleFrameReason | None = None          # None: the frame had a pose
     pose_age_s: float = float('nan')
-    track_ids: NDArray[np.int64] | None = None          # None: the tracker is off
+    # each box's track id (0: not tracked; all 0 with the tracker off, so the message keeps
+    # one layout whether the tracker runs or not)
+    track_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     num_points: NDArray[np.uint32] = field(                # current returns in each box
         default_factory=lambda: np.zeros(0, np.uint32))
-    tracks: int = 0                                      # the tracker's live tracks
-    velocity_std: NDArray[np.float32] | None = None     # None: the tracker is off
+    tracks: int | None = None            # the tracker's live tracks (None: the tracker is off)
+    # each velocity's standard deviation (m/s): the filter's, or with the tracker off the
+    # head's measurement noise, widened by a fraction of the speed (TrackerConfig)
+    velocity_std: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
     used_memory: bool = False
     memory_samples: int = 0
     memory_bytes: int = 0
@@ -255,10 +259,13 @@ class DetectionPipeline:
         else:   # nothing to detect in: publish an empty result, keep the memory as it is
             out.memory_bytes = self.detector.memory_bytes
         if self.detector.tracks is not None:
-            out.track_ids = result.track_ids if len(points) else np.zeros(0, np.int64)
-            out.velocity_std = (result.velocity_std if len(points)
-                                else np.zeros(0, np.float32))
+            if len(points):
+                out.track_ids, out.velocity_std = result.track_ids, result.velocity_std
             out.tracks = len(self.detector.tracks)
+        else:       # the same fields, so that a consumer sees one layout (ids 0: not tracked)
+            d, head = out.detections, TrackerConfig()
+            out.track_ids = np.zeros(len(d), np.int64)
+            out.velocity_std = head.published_std(head.vel_sigma, d.velocities)
         t2 = time.perf_counter()
         if self.classes is not None:
             d = out.detections

@@ -31,7 +31,7 @@ def running_node(checkpoint: str, make_probe: Callable[[], Any], *params: str
 def diag_values(msg: Any) -> dict[str, str]:
     """KeyValues of the detector's DiagnosticStatus."""
     for st in msg.status:
-        if st.name == 'suit_ros: detector':
+        if st.name.endswith(': suit_ros detector'):
             return {kv.key: kv.value for kv in st.values}
     return {}
 

@@ -33,7 +33,7 @@ class Watcher:
 
         def on_diag(m):
             for st in m.status:
-                if st.name == 'suit_ros: detector':
+                if st.name.endswith(': suit_ros detector'):
                     self.diags.append((int.from_bytes(st.level, 'little')
                                        if isinstance(st.level, bytes) else int(st.level),
                                        st.message, diag_values(m), time.monotonic()))

@@ -299,6 +299,10 @@ def test_a_renamed_parameter_stops_the_node_with_its_new_name(make_node):
             make_node(device='cuda')
     node = make_node(coast_s=0.3)
     assert node.params.coast_s == 0.3
+    # the diagnostics status is named for this node and its sensor's topic, so that two
+    # detectors (one per LiDAR) are two statuses for an aggregator
+    status = node.diagnostic_status()
+    assert (status.name, status.hardware_id) == ('/detector: suit_ros detector', '/points')
     assert node.pipeline.detector.tracks.config.coast_s == 0.3
     assert node.ignored_parameters == []
 

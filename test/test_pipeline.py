@@ -235,8 +235,16 @@ def test_tracks_and_can_be_turned_off(model, classes, scene):
     assert last.tracks == len(pipe.detector.tracks) >= len(sure)
     pipe.configure(replace(pipe.params, tracking=False))
     off = pipe.process(cloud(classes, T0 + 3 * S // 10, scene))
-    assert pipe.detector.tracks is None and off.track_ids is None and off.velocity_std is None
-    assert not {'track_id', 'vel_std'} & set(pointcloud2_to_detections(off.detections_msg))
+    # off: the message keeps its layout (a consumer that parses by field name goes on): ids
+    # 0 (not tracked), the head's own measurement noise for the velocities
+    assert pipe.detector.tracks is None and off.tracks is None
+    msg_off = pointcloud2_to_detections(off.detections_msg)
+    assert off.detections_msg.point_step == last.detections_msg.point_step
+    assert len(off.detections) and (msg_off['track_id'] == 0).all()
+    speed = np.hypot(*off.detections.velocities.T)
+    np.testing.assert_allclose(msg_off['vel_std'], np.hypot(vel_sigma,
+                                                             cfg.speed_std_fraction * speed),
+                               rtol=1e-5)
     # the filter's gap is the pipeline's one staleness threshold
     pipe.configure(replace(pipe.params, tracking=True, max_gap_s=2.0))
     assert pipe.detector.tracks is not None and pipe.detector.tracks.config.max_gap_s == 2.0
