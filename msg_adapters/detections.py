@@ -33,6 +33,8 @@ ARROW, CUBE, LINE_LIST, TEXT_VIEW_FACING = 0, 1, 5, 9
 ADD, DELETEALL = 0, 3
 
 
+MARKER_LIFETIME_S = 1.0     # a marker's life when no later array deletes it (s)
+
 def detection_dtype(with_gt: bool, with_track: bool = False, with_points: bool = False,
                     with_vel_std: bool = False) -> np.dtype[Any]:
     """Structured dtype of the detections cloud (4-byte aligned): GT fields (or
@@ -189,7 +191,8 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
                               classes: MessageClasses, min_arrow_speed: float = 0.2,
                               factory: MessageFactory | None = None,
                               line_width: float = 0.08,
-                              track_ids: NDArray[Any] | None = None) -> Any:
+                              track_ids: NDArray[Any] | None = None,
+                              lifetime_s: float = MARKER_LIFETIME_S) -> Any:
     """A MarkerArray: DELETEALL, one LINE_LIST per class, one TEXT label per box.
 
     The LINE_LIST of a class (namespace ``<class>/boxes``, id 0, coloured by class from
@@ -199,7 +202,9 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
     the box's top face to where it will be in one second. The text (namespace
     ``<class>/labels``, id the box index) reads ``'<class> <score:.2f>'`` above the box, and
     ``' #<track id>'`` after it for a tracked box (``track_ids`` given, id > 0).
-    ``lifetime`` 0 (the next array's DELETEALL clears them); every marker carries ``header``.
+    The next array's DELETEALL clears them, and each lives ``lifetime_s`` (1 s: ten frames at
+    10 Hz), so that boxes do not stay in a viewer when no array follows (the input stopped, a
+    frame failed, the node ended); every marker carries ``header``.
 
     Sub-messages equal between markers (the header, the lifetime, colours, the identity pose)
     are shared objects: treat the result as read-only.
@@ -213,7 +218,10 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
     C = classes
     f = factory or message_factory(classes)
     b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
-    lifetime = C.Duration(sec=0, nanosec=0)
+    if not lifetime_s >= 0:
+        raise ValueError(f'lifetime_s must be >= 0 (0: until deleted), got {lifetime_s}')
+    sec = int(lifetime_s)
+    lifetime = C.Duration(sec=sec, nanosec=int(round((lifetime_s - sec) * 1e9)))
     ident = f.pose(f.point(0.0, 0.0, 0.0), f.quaternion(0.0, 0.0, 0.0, 1.0))
     markers = [f.marker(header, '', 0, LINE_LIST, DELETEALL, ident, f.vector3(0.0, 0.0, 0.0),
                         f.color(0.0, 0.0, 0.0, 0.0), lifetime)]

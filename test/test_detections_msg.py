@@ -203,7 +203,14 @@ def test_markers(C):
     assert m[0].action == DELETEALL
     assert all(x.header.frame_id == 'lidar' and x.header.stamp.sec == 123
                and x.header.stamp.nanosec == 456 for x in m)
-    assert all(x.lifetime.sec == 0 and x.lifetime.nanosec == 0 for x in m)
+    # the next array's DELETEALL clears them; if none comes (input stopped, node ended), a
+    # second later they are gone from a viewer
+    assert all(x.lifetime.sec == 1 and x.lifetime.nanosec == 0 for x in m)
+    short = detections_to_markerarray(boxes, vel, scores, labels, header, NAMES, C,
+                                      lifetime_s=0.25).markers
+    assert all(x.lifetime.sec == 0 and x.lifetime.nanosec == 250_000_000 for x in short)
+    with pytest.raises(ValueError, match='lifetime_s'):
+        detections_to_markerarray(boxes, vel, scores, labels, header, NAMES, C, lifetime_s=-1)
     lines = [x for x in m[1:] if x.type == LINE_LIST]
     texts = [x for x in m[1:] if x.type == TEXT_VIEW_FACING]
     present = sorted(set(labels.tolist()))
