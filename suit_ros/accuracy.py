@@ -148,15 +148,12 @@ def bucket_metrics(run: ModelRun, class_names: Sequence[str], frames: Sequence[i
 MotionFrame = tuple[list[float], list[float], list[float], list[float], list[float]]
 
 
-def car_motion_frame(g: Detections, d: Detections, car: int, min_score: float = 0.3,
-                     max_dist: float = 2.0) -> MotionFrame:
-    """One frame's matched cars: heading errors, moving-car velocity errors, speed ratios, GT
-    speeds and predicted along-track speeds."""
-    head: list[float] = []
-    vel_moving: list[float] = []
-    speed: list[float] = []
-    gt_speed: list[float] = []
-    along: list[float] = []
+def matched_cars(g: Detections, d: Detections, car: int, min_score: float = 0.3,
+                 max_dist: float = 2.0) -> list[tuple[int, int]]:
+    """``(detection, GT)`` index pairs of one frame's cars: detections scoring at least
+    ``min_score``, surest first, each taking the nearest GT car not yet taken within
+    ``max_dist`` m (BEV centre distance)."""
+    pairs: list[tuple[int, int]] = []
     gm = np.nonzero(g.labels == car)[0]
     dm = np.nonzero((d.labels == car) & (d.scores >= min_score))[0]
     dm = dm[np.argsort(-d.scores[dm], kind='stable')]
@@ -170,9 +167,23 @@ def car_motion_frame(g: Detections, d: Detections, car: int, min_score: float = 
         if dist[k] >= max_dist:
             continue
         taken[k] = True
-        err = (d.boxes[j, 6] - g.boxes[gm[k], 6] + np.pi) % (2 * np.pi) - np.pi
+        pairs.append((int(j), int(gm[k])))
+    return pairs
+
+
+def car_motion_frame(g: Detections, d: Detections, car: int, min_score: float = 0.3,
+                     max_dist: float = 2.0) -> MotionFrame:
+    """One frame's matched cars (:func:`matched_cars`): heading errors, moving-car velocity
+    errors, speed ratios, GT speeds and predicted along-track speeds."""
+    head: list[float] = []
+    vel_moving: list[float] = []
+    speed: list[float] = []
+    gt_speed: list[float] = []
+    along: list[float] = []
+    for j, gk in matched_cars(g, d, car, min_score, max_dist):
+        err = (d.boxes[j, 6] - g.boxes[gk, 6] + np.pi) % (2 * np.pi) - np.pi
         head.append(float(abs(err)))
-        v = g.velocities[gm[k]]
+        v = g.velocities[gk]
         s = float(np.hypot(*v))
         if s > MOVING_SPEED:
             vel_moving.append(float(np.hypot(*(d.velocities[j] - v))))

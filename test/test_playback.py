@@ -35,6 +35,21 @@ def read(path, topic):
     return out
 
 
+def feed_paced(probe, pubs, types, recorded, live):
+    """Publish the recorded ``(topic, raw)`` messages in order, each cloud once the node has
+    answered the one before (``len(live)`` grows per answer), so that none is replaced in its
+    mailbox however loaded the machine; then wait for the last answer."""
+    from rclpy.serialization import deserialize_message
+    sent = 0
+    for topic, raw in recorded + [('/points', b'')]:
+        if topic == '/points':    # the previous cloud answered first
+            assert probe.spin_until(lambda n=sent: len(live) >= n, 60.0), (sent, len(live))
+            if not raw:
+                break
+            sent += 1
+        pubs[topic].publish(deserialize_message(raw, types[topic]))
+
+
 def test_detect_bag_matches_live_node(bag, checkpoint, tmp_path):
     from suit_ros.cli import main
     assert main(['detect-bag', str(bag), str(tmp_path / 'out'), '--checkpoint', checkpoint,
@@ -55,7 +70,6 @@ def test_detect_bag_matches_live_node(bag, checkpoint, tmp_path):
     # published the one before (so none is replaced in its mailbox, however loaded the
     # machine), publishes the same detections
     from nav_msgs.msg import Odometry
-    from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import PointCloud2
 
     from suit_ros.data.bag import open_reader
@@ -75,14 +89,7 @@ def test_detect_bag_matches_live_node(bag, checkpoint, tmp_path):
         assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values())
                                 and node.poll() is None, 60.0), stop(node)[-3000:]
         probe.spin_for(2.5)           # the node's points QoS follows the publisher (1 s checks)
-        sent = 0
-        for topic, raw in recorded + [('/points', b'')]:
-            if topic == '/points':    # the previous cloud published first
-                assert probe.spin_until(lambda n=sent: len(live) >= n, 60.0), (sent, len(live))
-                if not raw:
-                    break
-                sent += 1
-            pubs[topic].publish(deserialize_message(raw, types[topic]))
+        feed_paced(probe, pubs, types, recorded, live)
     finally:
         probe.close()
         stop(node)
@@ -105,7 +112,6 @@ def test_a_bag_played_in_a_loop_gives_the_same_detections_each_time(bag, checkpo
     its odometry stays within the pose buffer's rewind limit; a long loop's odometry is
     test_worker's.)"""
     from nav_msgs.msg import Odometry
-    from rclpy.serialization import deserialize_message
     from sensor_msgs.msg import PointCloud2
 
     from suit_ros.data.bag import open_reader
@@ -125,14 +131,7 @@ def test_a_bag_played_in_a_loop_gives_the_same_detections_each_time(bag, checkpo
         assert probe.spin_until(lambda: all(p.get_subscription_count() for p in pubs.values())
                                 and node.poll() is None, 60.0), stop(node)[-3000:]
         probe.spin_for(2.5)
-        sent = 0
-        for topic, raw in recorded + recorded + [('/points', b'')]:
-            if topic == '/points':
-                assert probe.spin_until(lambda n=sent: len(live) >= n, 60.0), (sent, len(live))
-                if not raw:
-                    break
-                sent += 1
-            pubs[topic].publish(deserialize_message(raw, types[topic]))
+        feed_paced(probe, pubs, types, recorded + recorded, live)
     finally:
         probe.close()
         log = stop(node)

@@ -29,7 +29,7 @@ def main() -> int:
     args = parser.parse_args()
     import torch
     torch.set_num_threads(2)
-    from suit_ros.accuracy import car_motion_frame
+    from suit_ros.accuracy import car_motion_frame, matched_cars
     from suit_ros.checkpoint import load_checkpoint, published_thresholds
     from suit_ros.data.sequences import synthetic_split
     from suit_ros.evaluate import run_model
@@ -62,25 +62,13 @@ def main() -> int:
     rows = []
     for i in np.flatnonzero(frame_no >= 3):
         g, d = run.gt[i], run.det[i]
-        gm = np.flatnonzero(g.labels == car)
-        dm = np.flatnonzero((d.labels == car) & (d.scores >= cut))
-        dm = dm[np.argsort(-d.scores[dm], kind='stable')]
-        taken = np.zeros(len(gm), bool)
-        for j in dm:
-            if len(gm) == 0:
-                break
-            dist = np.hypot(g.boxes[gm, 0] - d.boxes[j, 0], g.boxes[gm, 1] - d.boxes[j, 1])
-            dist[taken] = np.inf
-            k = int(np.argmin(dist))
-            if dist[k] >= 2.0:
-                continue
-            taken[k] = True
-            v = g.velocities[gm[k]].astype(np.float64)
+        for j, k in matched_cars(g, d, car, cut):
+            v = g.velocities[k].astype(np.float64)
             s = float(np.hypot(*v))
             if s > 1.0:
                 dv = d.velocities[j] - v
                 rows.append((float(np.hypot(*dv)), s, float(dv @ v) / s,
-                             float(np.hypot(*g.boxes[gm[k], :2]))))
+                             float(np.hypot(*g.boxes[k, :2]))))
     r = np.asarray(rows)
     err, speed, along, rng_m = r.T
     tail = err > 3.0
