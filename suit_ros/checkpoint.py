@@ -75,7 +75,8 @@ def save_checkpoint(path: str | os.PathLike[str], model: torch.nn.Module, config
     }
     tmp = path.with_suffix(path.suffix + '.tmp')
     save_file(state, str(tmp), metadata={'suit_ros': json.dumps(meta)})
-    os.replace(tmp, path)
+    from suit_ros.outputs import durable_replace
+    durable_replace(tmp, path)
     return path
 
 
@@ -161,7 +162,8 @@ def update_metadata(path: str | os.PathLike[str], **changes: Any) -> Path:
     state = load_file(str(path), device='cpu')
     tmp = path.with_suffix(path.suffix + '.tmp')
     save_file(state, str(tmp), metadata={'suit_ros': json.dumps(meta)})
-    os.replace(tmp, path)
+    from suit_ros.outputs import durable_replace
+    durable_replace(tmp, path)
     return path
 
 

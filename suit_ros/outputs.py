@@ -43,3 +43,22 @@ def output_file(path: str | os.PathLike[str], what: str = 'output file') -> Path
         raise SuitRosError(f'{what} {p} is a folder: give a file name')
     output_dir(p.parent if str(p.parent) else '.', f'folder of the {what}')
     return p
+
+
+def durable_replace(tmp: str | os.PathLike[str], path: str | os.PathLike[str]) -> None:
+    """Move the finished file ``tmp`` over ``path`` so that a crash or power loss leaves
+    either the old file or the new one whole: ``tmp``'s data on disk first, then the rename,
+    then the folder's entry."""
+    with open(tmp, 'rb') as f:
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+    try:
+        fd = os.open(Path(path).parent, os.O_RDONLY)
+    except OSError:              # a folder that cannot be opened (some filesystems): done
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)

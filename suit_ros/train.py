@@ -264,14 +264,25 @@ def training_sequences(tc: TrainConfig, class_names: tuple[str, ...], sweeps: in
 
 
 class _LossLog:
-    """``log.csv``: one row per step (appended on resume)."""
+    """``log.csv``: one row per step. A resumed run keeps the rows up to the step it resumes
+    from (rows written after its last snapshot, and a row cut short by a kill, are dropped:
+    those steps run again); a new run starts the file afresh."""
 
-    def __init__(self, path: Path) -> None:
-        self.file = open(path, 'a', newline='', encoding='utf-8')
+    HEADER = ['step', 'time_s', 'lr', 'loss', 'hm_loss', 'loc_loss', 'geo_loss',
+              'distill_loss']
+
+    def __init__(self, path: Path, resumed_step: int | None = None) -> None:
+        kept: list[list[str]] = []
+        if resumed_step is not None and path.is_file():
+            with open(path, newline='', encoding='utf-8') as f:
+                for row in list(csv.reader(f))[1:]:
+                    if len(row) == len(self.HEADER) and row[0].isdigit() \
+                            and int(row[0]) <= resumed_step:
+                        kept.append(row)
+        self.file = open(path, 'w', newline='', encoding='utf-8')
         self.writer = csv.writer(self.file)
-        if path.stat().st_size == 0:
-            self.writer.writerow(['step', 'time_s', 'lr', 'loss', 'hm_loss', 'loc_loss',
-                                  'geo_loss', 'distill_loss'])
+        self.writer.writerow(self.HEADER)
+        self.writer.writerows(kept)
 
     def row(self, step: int, time_s: float, lr: float, vals: dict[str, float]) -> None:
         """Log one step."""
@@ -376,11 +387,47 @@ def _optimise(model: Any, module: Any, opt: Any, clips: Any, grad_clip: float,
     return {k: float(v.detach()) for k, v in losses.items()}
 
 
-def _resume(last: Path, module: Any, opt: Any) -> tuple[int, float]:
+# what a resumed run may change: its budget (to train on longer), where it started from (the
+# weights come from last.pt), how often it saves, whether it evaluates at the end
+RESUMABLE_CHANGES = ('steps', 'max_minutes', 'init_from', 'checkpoint_every', 'eval_at_end')
+
+
+def _config_dict(tc: TrainConfig) -> dict[str, Any]:
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in tc.__dict__.items()}
+
+
+def _resume(last: Path, module: Any, opt: Any, tc: TrainConfig, mcfg: Any
+            ) -> tuple[int, float]:
     """Load a run's ``last.pt`` (weights only, no pickled code); :return: its step and the
-    wall time it had used."""
+    wall time it had used.
+
+    :raises ConfigError: the file cannot be read, or the run was made with another model or
+        training config than ``tc`` (but for :data:`RESUMABLE_CHANGES`)."""
     import torch
-    state = torch.load(last, map_location='cpu', weights_only=True)
+    try:
+        state = torch.load(last, map_location='cpu', weights_only=True)
+    except Exception as exc:  # torch raises several types for truncated or foreign files
+        raise ConfigError(f'cannot resume from {last}: {type(exc).__name__}: {exc}; the file '
+                          'may be truncated (a run killed while saving it before this '
+                          'release): train into a new --out, init_from its '
+                          'snapshot.safetensors') from exc
+    before = state.get('model_config')
+    if before is not None and before != mcfg.to_dict():
+        diff = sorted(k for k in set(before) | set(mcfg.to_dict())
+                      if before.get(k) != mcfg.to_dict().get(k))
+        raise ConfigError(f'{last} was trained with another model config ({", ".join(diff)} '
+                          "differ): resume with the run's own, or train into a new --out")
+    before_tc = state.get('train_config')
+    if before_tc is not None:
+        now = _config_dict(tc)
+        diff = sorted(k for k in set(before_tc) | set(now) if k not in RESUMABLE_CHANGES
+                      and before_tc.get(k) != now.get(k))
+        if diff:
+            raise ConfigError(
+                f'{last} was trained with other settings: '
+                + '; '.join(f'{k} {before_tc.get(k)!r} -> {now.get(k)!r}' for k in diff)
+                + f'. A resumed run may change only {", ".join(RESUMABLE_CHANGES)}; '
+                'train into a new --out (init_from its model) to change the rest')
     module.load_state_dict(state['model'])
     opt.load_state_dict(state['optimizer'])
     torch.set_rng_state(state['torch_rng'])
@@ -389,14 +436,20 @@ def _resume(last: Path, module: Any, opt: Any) -> tuple[int, float]:
     return step, float(state.get('elapsed_s', 0.0))
 
 
-def _snapshot(out: Path, module: Any, opt: Any, mcfg: Any, step: int, elapsed_s: float
-              ) -> None:
-    """``last.pt`` (to resume) and ``snapshot.safetensors`` (to evaluate mid-run)."""
+def _snapshot(out: Path, module: Any, opt: Any, mcfg: Any, tc: TrainConfig, step: int,
+              elapsed_s: float) -> None:
+    """``last.pt`` (to resume; with the configs it was made with) and
+    ``snapshot.safetensors`` (to evaluate mid-run), each replaced whole (a kill or a power
+    loss while saving leaves the previous one)."""
     import torch
 
     from suit_ros.checkpoint import save_checkpoint
+    from suit_ros.outputs import durable_replace
+    tmp = out / 'last.pt.tmp'
     torch.save({'model': module.state_dict(), 'optimizer': opt.state_dict(), 'step': step,
-                'elapsed_s': elapsed_s, 'torch_rng': torch.get_rng_state()}, out / 'last.pt')
+                'elapsed_s': elapsed_s, 'torch_rng': torch.get_rng_state(),
+                'model_config': mcfg.to_dict(), 'train_config': _config_dict(tc)}, tmp)
+    durable_replace(tmp, out / 'last.pt')
     save_checkpoint(out / 'snapshot.safetensors', module, mcfg, {'steps': step},
                     {'snapshot': True})
 
@@ -420,8 +473,7 @@ def _write_model(tc: TrainConfig, out: Path, module: Any, mcfg: Any, metrics: di
     cannot lose the model), then with its figures."""
     from suit_ros.checkpoint import save_checkpoint
     from suit_ros.data.sequences import synthetic_split
-    extra = {'train_config': {k: (list(v) if isinstance(v, tuple) else v)
-                              for k, v in tc.__dict__.items()}}
+    extra = {'train_config': _config_dict(tc)}
     save_checkpoint(out / 'model.safetensors', module, mcfg, metrics, extra)
     if tc.eval_at_end:
         from suit_ros.evaluate import evaluate_model
@@ -465,6 +517,10 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     from suit_ros.model.detector import SUITDetector
 
     rank, world = _dist_info()
+    if not resume and (out / 'last.pt').is_file():
+        raise ConfigError(f'{out} holds a training run (last.pt): --resume to go on with it, or '
+                          'give a new --out (a new run there would overwrite its snapshot and '
+                          'its log)')
     dev = _device(device, threads, rank, world)
     torch.manual_seed(tc.seed + rank)
     mcfg = load_model_config(tc.model_config)
@@ -498,17 +554,26 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     opt = _optimizer(module, tc)
     step, done_s = 0, 0.0            # done_s: wall time of earlier runs of a resumed training
     last = out / 'last.pt'
-    if resume and last.is_file():
-        step, done_s = _resume(last, module, opt)
+    resumed = resume and last.is_file()
+    if resumed:
+        step, done_s = _resume(last, module, opt, tc, mcfg)
         sampler.rng = np.random.default_rng([tc.seed, step, rank])
         aug_rng = np.random.default_rng([tc.seed, step, rank, 1])
-    log = _LossLog(out / 'log.csv') if rank == 0 else None
+    elif resume and rank == 0:
+        print(f'[train] nothing to resume in {out} (no last.pt): starting at step 0')
     start = time.monotonic() - done_s
 
     def progress() -> float:
         by_time = ((time.monotonic() - start) / (tc.max_minutes * 60) if tc.max_minutes
                    else 0.0)
         return max(step / tc.steps, by_time)
+    if resumed and progress() >= 1.0 and (out / 'model.safetensors').is_file():
+        # a run that had finished (a recipe resumed as a whole): its model stands as written
+        from suit_ros.checkpoint import read_metadata
+        if rank == 0:
+            print(f'[train] {out} finished at step {step} within this budget: nothing to do')
+        return dict(read_metadata(out / 'model.safetensors').get('metrics', {}))
+    log = _LossLog(out / 'log.csv', step if resumed else None) if rank == 0 else None
     bar = tqdm(total=tc.steps, initial=step, disable=rank != 0, dynamic_ncols=True,
                desc=f'train[{mcfg.temporal}]')
     _train_mode(model, module, frozen, tc.frozen_batchnorm)
@@ -526,7 +591,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         bar.update(1)
         finished = progress() >= 1.0
         if rank == 0 and (step % tc.checkpoint_every == 0 or finished):
-            _snapshot(out, module, opt, mcfg, step, time.monotonic() - start)
+            _snapshot(out, module, opt, mcfg, tc, step, time.monotonic() - start)
             if log:
                 log.flush()
         if finished:

@@ -174,13 +174,33 @@ def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monk
     model, cfg, meta = load_checkpoint(tmp_path / 'run' / 'model.safetensors')
     assert cfg.temporal == 'suit' and meta['metrics']['steps'] == 1
     state = torch.load(tmp_path / 'run' / 'last.pt', weights_only=True)
-    assert state['step'] == 1
+    assert state['step'] == 1 and state['train_config']['max_minutes'] == 1e-6
+    from suit_ros.errors import ConfigError
+    # a new run into it would overwrite its snapshot: refused; so is a resume that changes
+    # more than the budget
+    with pytest.raises(ConfigError, match='holds a training run'):
+        train(tiny(tmp_path, temporal='suit'), tmp_path / 'run')
+    with pytest.raises(ConfigError, match=r'other settings: lr 0.002 -> 0.01\. A resumed'):
+        train(tiny(tmp_path, temporal='suit', lr=0.01), tmp_path / 'run', resume=True)
+    # rows logged after the last snapshot (a kill), one cut short: dropped on resume
+    with open(tmp_path / 'run' / 'log.csv', 'a', encoding='utf-8') as f:
+        f.write('2,0.5,0.001,1.0,1.0,1.0,0.0,0.0\n3,0.7,0.0')
     # ... resumes where it stopped
     metrics = train(tiny(tmp_path, temporal='suit', steps=4), tmp_path / 'run', resume=True)
     assert metrics['steps'] == 4
     rows = (tmp_path / 'run' / 'log.csv').read_text().strip().splitlines()
     assert rows[0].startswith('step') and [r.split(',')[0] for r in rows[1:]] == \
         ['1', '2', '3', '4']
+    # resumed again (a recipe resumed as a whole): finished, its model left as it is
+    written = (tmp_path / 'run' / 'model.safetensors').stat().st_mtime_ns
+    again = train(tiny(tmp_path, temporal='suit', steps=4), tmp_path / 'run', resume=True)
+    assert again['steps'] == 4
+    assert (tmp_path / 'run' / 'model.safetensors').stat().st_mtime_ns == written
+    # a last.pt cut short (killed while saving, before saves were atomic) is named
+    data = (tmp_path / 'run' / 'last.pt').read_bytes()
+    (tmp_path / 'run' / 'last.pt').write_bytes(data[:len(data) // 3])
+    with pytest.raises(ConfigError, match='cannot resume from'):
+        train(tiny(tmp_path, temporal='suit', steps=8), tmp_path / 'run', resume=True)
 
 
 def _free_port() -> int:
