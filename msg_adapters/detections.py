@@ -220,8 +220,8 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
     b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
     if not lifetime_s >= 0:
         raise ValueError(f'lifetime_s must be >= 0 (0: until deleted), got {lifetime_s}')
-    sec = int(lifetime_s)
-    lifetime = C.Duration(sec=sec, nanosec=int(round((lifetime_s - sec) * 1e9)))
+    sec, nanosec = divmod(int(round(lifetime_s * 1e9)), 1_000_000_000)
+    lifetime = C.Duration(sec=sec, nanosec=nanosec)
     ident = f.pose(f.point(0.0, 0.0, 0.0), f.quaternion(0.0, 0.0, 0.0, 1.0))
     markers = [f.marker(header, '', 0, LINE_LIST, DELETEALL, ident, f.vector3(0.0, 0.0, 0.0),
                         f.color(0.0, 0.0, 0.0, 0.0), lifetime)]

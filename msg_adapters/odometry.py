@@ -88,16 +88,40 @@ def slerp(q0: NDArray[np.float64], q1: NDArray[np.float64], f: float) -> NDArray
     return np.asarray(q / np.linalg.norm(q), np.float64)
 
 
+class TimeLine:
+    """Whether stamps went back: two in a row more than ``rewind_ns`` before the newest, and
+    within ``rewind_ns`` of each other (one alone is a late message). :attr:`first` is the
+    first stamp of the new time line once it went back."""
+
+    def __init__(self, rewind_ns: int = 1_000_000_000) -> None:
+        self.rewind_ns = int(rewind_ns)
+        self.pending: int | None = None     # a stamp far behind, waiting for a second one
+        self.first = 0
+
+    def went_back(self, stamp_ns: int, newest_ns: int) -> bool:
+        """Observe ``stamp_ns`` against the newest so far; True once time went back."""
+        if stamp_ns >= newest_ns - self.rewind_ns:
+            self.pending = None
+            return False
+        if self.pending is not None and abs(stamp_ns - self.pending) <= self.rewind_ns:
+            self.first = min(self.pending, stamp_ns)
+            self.pending = None
+            return True
+        self.pending = stamp_ns
+        return False
+
+
 class PoseBuffer:
     """Recent poses by stamp; interpolates (linear position, slerp rotation) at any stamp.
 
     Out-of-order arrivals are inserted in place, a duplicate stamp replaces the old pose, poses
-    older than ``max_age_ns`` before the newest are dropped. A pose stamped more than
-    ``rewind_ns`` before the newest means that time went back (a looped bag, a simulator
-    reset, a clock reset): the buffer is emptied first (counted in :attr:`rewinds`), since
-    its poses are from another time line, and a lookup at the new stamps must not interpolate
-    between the two. A lookup within ``tolerance_ns`` outside the buffered span returns the
-    edge pose; further out raises PoseLookupError.
+    older than ``max_age_ns`` before the newest are dropped. Two poses in a row stamped more
+    than ``rewind_ns`` before the newest (and within ``rewind_ns`` of each other) mean that
+    time went back (a looped bag, a simulator reset, a clock reset): the buffer starts again
+    from them (counted in :attr:`rewinds`), since its poses are from another time line and a
+    lookup at the new stamps must not interpolate between the two. One such pose alone is a
+    late message, inserted in place (:class:`TimeLine`). A lookup within ``tolerance_ns``
+    outside the buffered span returns the edge pose; further out raises PoseLookupError.
     """
 
     def __init__(self, max_age_ns: int = 10_000_000_000, tolerance_ns: int = 100_000_000,
@@ -106,6 +130,8 @@ class PoseBuffer:
         self.tolerance_ns = int(tolerance_ns)
         self.rewind_ns = int(rewind_ns)
         self.rewinds = 0
+        self._line = TimeLine(rewind_ns)
+        self._aside: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
         self._stamps: list[int] = []
         self._t: list[NDArray[np.float64]] = []
         self._q: list[NDArray[np.float64]] = []
@@ -128,11 +154,18 @@ class PoseBuffer:
         T = np.asarray(T, np.float64)
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise MessageError('pose must be a finite 4x4 matrix')
-        if self._stamps and stamp_ns < self._stamps[-1] - self.rewind_ns:
-            self.clear()
-            self.rewinds += 1
-        i = bisect.bisect_left(self._stamps, stamp_ns)
         q = matrix_to_quaternion(T[:3, :3])
+        if self._stamps and self._line.went_back(int(stamp_ns), self._stamps[-1]):
+            aside = self._aside
+            self.clear()                   # the new time line, from its first pose on
+            if aside is not None:
+                self._stamps.append(aside[0])
+                self._t.append(aside[1])
+                self._q.append(aside[2])
+            self.rewinds += 1
+        elif self._line.pending == stamp_ns:   # far behind: late, or a new time line's first
+            self._aside = (int(stamp_ns), T[:3, 3].copy(), q)
+        i = bisect.bisect_left(self._stamps, stamp_ns)
         if i < len(self._stamps) and self._stamps[i] == stamp_ns:
             self._t[i], self._q[i] = T[:3, 3].copy(), q
         else:

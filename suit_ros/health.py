@@ -160,7 +160,7 @@ def health_report(s: HealthSnapshot) -> tuple[int, str, dict[str, str]]:
     values['odometry_delay_ms_p50'] = _ms(s.odom_delays, 'p50')
     values['odometry_delay_ms_max'] = _ms(s.odom_delays, 'max')
     _timing(s, period, levels, values)
-    # the reasons seen lately, also before any frame got through (refused odometry, failures)
+    # the held reasons seen lately, also before any frame got through (a failed frame)
     levels.extend((WARN, text) for text in s.held_warnings)
     _last_frame(s, levels, values)
     for key, count in s.single_reasons:

@@ -9,8 +9,9 @@
 - :class:`OdometryGate`: odometry queued by its callback and drained by the worker, and the
   worker's wait (up to a timeout) for odometry that reaches a cloud's stamp, as a tf2 message
   filter would. A stamp further ahead of the clock than the skew tolerance does not end a
-  wait (the pipeline refuses that message when it is drained); a stamp more than
-  :data:`REWIND_NS` before the newest means time went back, and the newest is that stamp.
+  wait (the pipeline refuses that message when it is drained); when time goes back (two
+  stamps in a row more than :data:`REWIND_NS` before the newest: ``TimeLine``), the newest is
+  the new time line's.
 
 Both are thread-safe; :meth:`close` wakes every waiter for shutdown.
 """
@@ -21,6 +22,8 @@ from collections.abc import Callable, Hashable
 import threading
 import time
 from typing import Any, Generic, TypeVar
+
+from suit_ros.msg_adapters.odometry import TimeLine
 
 T = TypeVar('T')
 
@@ -129,6 +132,7 @@ class OdometryGate(Generic[T]):
         self._cv = threading.Condition()
         self._queue: collections.deque[T] = collections.deque(maxlen=capacity)
         self.latest_ns = -1         # newest usable stamp (not from beyond the clock)
+        self._line = TimeLine(REWIND_NS)
         self.waits = 0
         self.delays: collections.deque[float] = collections.deque(maxlen=500)
         self.closed = False
@@ -140,7 +144,7 @@ class OdometryGate(Generic[T]):
             self.delays.append(delay)
             self._queue.append(msg)
             if not now_ns or -delay <= max_ahead_s:
-                self.latest_ns = (stamp_ns if stamp_ns < self.latest_ns - REWIND_NS
+                self.latest_ns = (stamp_ns if self._line.went_back(stamp_ns, self.latest_ns)
                                   else max(self.latest_ns, stamp_ns))
             self._cv.notify_all()
 
@@ -151,24 +155,31 @@ class OdometryGate(Generic[T]):
             self._queue.clear()
         return batch
 
+    def _reached(self, stamp_ns: int) -> bool:
+        # reached, and not from another time line: odometry far ahead of the cloud (more than
+        # REWIND_NS) is what a cloud sees first after time went back, before the new line's
+        # odometry comes (a very late cloud waits odom_wait_s, then runs with the poses
+        # buffered for it)
+        return stamp_ns <= self.latest_ns <= stamp_ns + REWIND_NS
+
     def covers(self, stamp_ns: int) -> bool:
-        """Whether odometry reached ``stamp_ns``."""
+        """Whether odometry reached ``stamp_ns`` (on the cloud's time line)."""
         with self._cv:
-            return self.latest_ns >= stamp_ns
+            return self._reached(stamp_ns)
 
     def wait_for(self, stamp_ns: int, timeout: float) -> bool:
         """Wait up to ``timeout`` s for odometry that reaches ``stamp_ns``; True if it did."""
         deadline = time.monotonic() + timeout
         with self._cv:
-            if self.latest_ns >= stamp_ns:
+            if self._reached(stamp_ns):
                 return True
             self.waits += 1
-            while self.latest_ns < stamp_ns and not self.closed:
+            while not self._reached(stamp_ns) and not self.closed:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
                 self._cv.wait(left)
-            return self.latest_ns >= stamp_ns
+            return self._reached(stamp_ns)
 
     def close(self) -> None:
         """Wake a waiting worker for shutdown."""

@@ -136,6 +136,7 @@ class DetectionPipeline:
         self.resets = 0
         self.odom_rejected = 0
         self.last_odom_error = ''
+        self.last_odom_refused = False          # whether the last odometry message was refused
         self.coverage = SectorCoverage()
         self.configure(params or DetectorParams())
 
@@ -202,15 +203,18 @@ class DetectionPipeline:
             T, stamp = odometry_to_pose(msg)
         except MessageError as exc:
             self.odom_rejected += 1
+            self.last_odom_refused = True
             self.last_odom_error = str(exc)
             return False
         ahead = (stamp - now_ns) * 1e-9 if now_ns else 0.0
         if ahead > self.params.max_stamp_skew_s:
             self.odom_rejected += 1
+            self.last_odom_refused = True
             self.last_odom_error = (f'odometry stamped {ahead:.2f} s ahead of the clock (more '
                                     f'than max_stamp_skew_s {self.params.max_stamp_skew_s:g})')
             return False
         self.poses.add(stamp, T)
+        self.last_odom_refused = False
         return True
 
     @property
@@ -338,10 +342,15 @@ class DetectionPipeline:
         if reason is None and pose is not None and self.last_pose is not None:
             jump = float(np.linalg.norm(pose[:3, 3] - self.last_pose[:3, 3]))
             gap_s = (stamp_ns - self.last_pose_ns) * 1e-9
+            if gap_s > self.params.max_gap_s:
+                # clouds with nothing to place in between (empty, no pose): what the model
+                # holds is as old as that, whatever the pose did meanwhile
+                reason = (f'no cloud placed for {gap_s:.2f} s (empty or without a pose), more '
+                          f'than max_gap_s')
             # per 0.1 s of the gap: a dropped cloud at highway speed is no jump (the gap read
             # at most as max_gap_s: clouds that could not be placed do not widen it further)
             steps = min(gap_s, self.params.max_gap_s) / POSE_JUMP_PERIOD_S
-            if jump > self.params.max_pose_jump_m * max(1.0, steps):
+            if reason is None and jump > self.params.max_pose_jump_m * max(1.0, steps):
                 reason = f'pose jumped {jump:.1f} m in {gap_s:.2f} s between frames'
         if reason is not None:
             self.reset(reason)
@@ -486,7 +495,7 @@ class DetectionPipeline:
     def _pose(self, stamp_ns: int) -> tuple[NDArray[np.float64] | None, str, float]:
         span = self.poses.span()
         if span is None:
-            if self.odom_rejected:           # odometry comes, but none of it is usable
+            if self.last_odom_refused:       # odometry comes, but none of it is usable
                 return None, f'none: odometry rejected: {self.last_odom_error}', float('nan')
             return None, 'none: no odometry received', float('nan')
         age = (stamp_ns - span[1]) * 1e-9

@@ -11,6 +11,7 @@ import collections
 from collections.abc import Callable
 from dataclasses import dataclass
 import os
+import re
 import threading
 import time
 from typing import Any, Generic, Protocol, TypeVar
@@ -23,6 +24,7 @@ from suit_ros.params import DetectorParams
 # the odometry and cloud callbacks before more inference
 WORKER_NICENESS = 5
 RATE_WINDOW_S = 5.0          # the input rate counts this window (it decays when input stops)
+RESET_LOG_PERIOD_S = 30.0    # a kind of memory reset is logged at most this often
 
 M = TypeVar('M')
 
@@ -93,6 +95,8 @@ class FrameWorker:
         self.started = time.monotonic()
         self.frames_out = self.frames_single = 0
         self.frames_failed = 0      # clouds whose step raised (logged, counted, held)
+        self.reset_counts: collections.Counter[str] = collections.Counter()
+        self.reset_logged: dict[str, float] = {}
         self.single_reasons: collections.Counter[str] = collections.Counter()
         self.stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
         self.last: Any = None
@@ -162,11 +166,10 @@ class FrameWorker:
                 self.reasons.report({'odometry_rejected': 'odometry rejected: '
                                      f'{self.pipeline.last_odom_error}'}, time.monotonic(),
                                     hold=False)
-        if self.pipeline.odom_rewinds != rewinds:
+        if self.pipeline.odom_rewinds != rewinds:       # (Reasons logs it)
             message = ('odometry went back in time (a looped bag, a simulator or clock reset): '
                        'the poses before it were dropped')
             self.reasons.report({'odometry_rewound': message}, time.monotonic(), hold=False)
-            self.log.info(message)
 
     def _in_order(self, skipped: list[Received[Any]], newest: Received[Any]
                   ) -> list[Received[Any]]:
@@ -191,7 +194,7 @@ class FrameWorker:
             self.frames_sweeps_only += int(out.buffered)
             self.reasons.report(out.warnings, received.monotonic)
         if out.reset_reason:
-            self.log.info(f'memory reset: {out.reset_reason}')
+            self._log_reset(out.reset_reason)
 
     def process(self, received: Received[Any], buffer_s: float = 0.0) -> None:
         """Run one cloud through the pipeline, publish, count.
@@ -215,7 +218,20 @@ class FrameWorker:
             # counted with the frame, so a diagnostic never shows a frame without its reasons
             self.reasons.report(out.warnings, received.monotonic)
         if out.reset_reason:
-            self.log.info(f'memory reset: {out.reset_reason}')
+            self._log_reset(out.reset_reason)
+
+    def _log_reset(self, reason: str) -> None:
+        """Log a memory reset: the first of a kind, then at most every
+        :data:`RESET_LOG_PERIOD_S` with the count (a publisher that repeats one stamp resets
+        every frame; the counter and diagnostics count them all)."""
+        kind = re.sub(r'[-+]?\d[\d.]*', 'N', reason)         # 'pose jumped N m in N s ...'
+        now = time.monotonic()
+        self.reset_counts[kind] += 1
+        last = self.reset_logged.get(kind)
+        if last is None or now - last >= RESET_LOG_PERIOD_S:
+            self.reset_logged[kind] = now
+            count = self.reset_counts[kind]
+            self.log.info(f'memory reset: {reason}' + (f' [{count} so far]' if count > 1 else ''))
 
     def snapshot(self, facts: dict[str, str]) -> HealthSnapshot:
         """The counters now, for :func:`~suit_ros.health.health_report`."""

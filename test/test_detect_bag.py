@@ -137,3 +137,22 @@ def test_bag_frames_take_the_lidar_extrinsic_and_every_pose_of_a_long_bag(bag, t
     for a, b in zip(plain, long_frames):
         np.testing.assert_allclose(b.T_base_lidar, a.T_base_lidar)
         np.testing.assert_allclose(b.pose, a.pose, atol=1e-9)
+
+
+def test_the_lidar_extrinsic_is_the_transform_into_the_clouds_frame(capsys):
+    from types import SimpleNamespace as Ns
+
+    from suit_ros.data.bag import lidar_extrinsic
+
+    def tf(parent, child, x):
+        return Ns(header=Ns(frame_id=parent), child_frame_id=child,
+                  transform=Ns(translation=Ns(x=x, y=0.0, z=0.0),
+                               rotation=Ns(x=0.0, y=0.0, z=0.0, w=1.0)))
+    imu = tf('base_link', 'imu', 5.0)
+    assert lidar_extrinsic([tf('base_link', 'lidar', 1.0), imu], 'lidar', 'b')[0, 3] == 1.0
+    # another vehicle frame: taken, and said
+    assert lidar_extrinsic([imu, tf('base_footprint', '/lidar', 2.0)], '/lidar', 'b')[0, 3] == 2
+    assert 'the LiDAR extrinsic is base_footprint -> lidar' in capsys.readouterr().err
+    # none into the clouds' frame: the vehicle frame, said
+    assert (lidar_extrinsic([imu], 'lidar', 'b') == np.eye(4)).all()
+    assert 'no /tf_static transform into lidar' in capsys.readouterr().err

@@ -108,7 +108,28 @@ def test_the_odometry_gate_follows_time_back():
     gate: OdometryGate[str] = OdometryGate()
     gate.put('a', 1000 * S, 0, 1.0)
     assert gate.covers(999 * S)
-    gate.put('b', 5 * S, 0, 1.0)                       # 995 s back: time went back
-    assert gate.latest_ns == 5 * S and not gate.covers(6 * S)
-    gate.put('c', 5 * S - S // 2, 0, 1.0)              # a little late: the newest stays
-    assert gate.latest_ns == 5 * S
+    gate.put('b', 5 * S, 0, 1.0)                       # 995 s back: late, or a new line?
+    assert gate.latest_ns == 1000 * S
+    gate.put('c', 5 * S + S // 50, 0, 1.0)             # a second one: time went back
+    assert gate.latest_ns == 5 * S + S // 50 and not gate.covers(6 * S)
+    gate.put('d', 5 * S - S // 2, 0, 1.0)              # a little late: the newest stays
+    assert gate.latest_ns == 5 * S + S // 50
+
+
+def test_odometry_far_ahead_of_a_cloud_is_not_its_odometry():
+    """After time went back the first cloud of the new time line can come before its
+    odometry: the odometry of the old line, 60 s ahead, does not cover it, so the worker
+    waits (odom_wait_s) for the new line's; odometry a little ahead (a busy node) does."""
+    gate: OdometryGate[str] = OdometryGate()
+    gate.put('a', 1000 * S, 0, 1.0)
+    assert gate.covers(1000 * S - S // 2) and not gate.covers(940 * S)
+    t0 = time.monotonic()
+    assert not gate.wait_for(940 * S, 0.05) and time.monotonic() - t0 >= 0.04
+    waiter = threading.Thread(target=lambda: got.append(gate.wait_for(940 * S, 5.0)))
+    got: list[bool] = []
+    waiter.start()
+    for t in (939 * S, 939 * S + S // 2, 940 * S):       # the new line's odometry comes
+        time.sleep(0.02)
+        gate.put('b', t, 0, 1.0)
+    waiter.join(2.0)
+    assert got == [True]

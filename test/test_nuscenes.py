@@ -232,6 +232,16 @@ def test_parked_bicycles_are_ignored_and_objects_keep_their_ids(dataset, tmp_pat
         if a['instance_token'] == 'inst1_4':
             a['attribute_tokens'] = ['attr_parked']
     (tables / 'sample_annotation.json').write_text(json.dumps(anns))
+    # scene 1's adult is a stroller there: an ignore box too
+    cats = json.loads((tables / 'category.json').read_text())
+    cats.append({'token': 'cat_stroller', 'name': 'human.pedestrian.stroller',
+                 'description': ''})
+    (tables / 'category.json').write_text(json.dumps(cats))
+    insts = json.loads((tables / 'instance.json').read_text())
+    for i in insts:
+        if i['token'] == 'inst1_1':
+            i['category_token'] = 'cat_stroller'
+    (tables / 'instance.json').write_text(json.dumps(insts))
     (tables / 'attribute.json').write_text(json.dumps([
         {'token': 'attr_rider', 'name': 'cycle.with_rider', 'description': ''},
         {'token': 'attr_parked', 'name': 'cycle.without_rider', 'description': ''}]))
@@ -239,8 +249,10 @@ def test_parked_bicycles_are_ignored_and_objects_keep_their_ids(dataset, tmp_pat
     cyclist = list(reader.class_names).index('cyclist')
     scene0, scene1 = (list(reader.sequence(s)) for s in reader.scenes())
     assert all((f.gt.labels == cyclist).sum() == 1 for f in scene0)
+    pedestrian = list(reader.class_names).index('pedestrian')
     assert all((f.gt.labels == cyclist).sum() == 0 for f in scene1)
-    assert all(len(f.ignore_boxes) == 1 for f in scene1)
+    assert [len(f.ignore_boxes) for f in scene1] == [2, 1, 1]      # the stroller: frame 0
+    assert not any((f.gt.labels == pedestrian).any() for f in scene1)
     ids = [dict(zip(f.num_points.tolist(), f.instance_ids.tolist())) for f in scene0]
     assert ids[0][10] == ids[1][10] == ids[2][10] != 0          # the car, over 3 keyframes
     assert len(set(ids[0].values())) == len(ids[0])

@@ -159,14 +159,18 @@ def test_duplicates_replace_and_old_poses_evicted():
 
 
 def test_time_going_back_empties_the_buffer():
-    """A looped bag or a simulator reset: poses more than rewind_ns before the newest are
-    another time line. The buffer starts again from them (nothing of the old one is
-    interpolated with them), and counts it; a pose a little late is inserted in place."""
+    """A looped bag or a simulator reset: poses more than rewind_ns before the newest, two in
+    a row, are another time line. The buffer starts again from them (nothing of the old one
+    is interpolated with them), and counts it; one late pose alone, or a pose a little late,
+    is inserted in place."""
     buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0, rewind_ns=10**9)
     for k in range(50):                                   # 1000.0 .. 1004.9 s
         buf.add(1000 * 10**9 + k * 10**8, make_pose([100 + k, 0, 0], 0))
     buf.add(1004 * 10**9 + 5 * 10**7, make_pose([0, 0, 0], 0))   # 0.85 s late: in place
     assert buf.rewinds == 0 and len(buf) == 51
+    buf.add(1001 * 10**9 + 5 * 10**7, make_pose([0, 0, 0], 0))   # one 3.85 s late: in place
+    buf.add(1005 * 10**9, make_pose([150, 0, 0], 0))              # and on as before
+    assert buf.rewinds == 0 and len(buf) == 53
     for k in range(20):                                   # the bag again: 5.0 .. 6.9 s
         buf.add(5 * 10**9 + k * 10**8, make_pose([k, 0, 0], 0))
     assert buf.rewinds == 1 and buf.span() == (5 * 10**9, 6_900_000_000) and len(buf) == 20

@@ -784,8 +784,18 @@ def test_state_survives_what_should_not_touch_it(model, classes):
     pipe.process(cloud(classes, T0 + 11 * S // 10))
     pipe.process(cloud(classes, T0 + 12 * S // 10))
     tracks = pipe.detector.tracks
-    assert len(pipe.detector.sweeps) >= 1
+    ids, live = tracks.ids.copy(), len(tracks)
+    assert len(pipe.detector.sweeps) >= 1 and live >= 1
     pipe.configure(replace(pipe.params, intensity_scale=1.0, max_range=60.0))
     assert pipe.last_reset_reason == 'input settings changed: intensity_scale, max_range'
     assert len(pipe.detector.sweeps) == 0 and pipe.detector.memory is None
-    assert pipe.detector.tracks is tracks
+    assert pipe.detector.tracks is tracks and len(tracks) == live
+    assert np.array_equal(tracks.ids, ids)
+    # clouds with nothing to place for longer than max_gap_s while the vehicle drove on: said
+    # as such, not as a pose jump
+    pipe.process(cloud(classes, T0 + 13 * S // 10))
+    for k in range(14, 20):
+        pipe.process(cloud(classes, T0 + k * S // 10, n=0))
+    odometry(T0 + 14 * S // 10, T0 + 21 * S // 10, 130.0)
+    out = pipe.process(cloud(classes, T0 + 20 * S // 10))
+    assert out.reset_reason.startswith('no cloud placed for 0.70 s'), out.reset_reason

@@ -143,6 +143,10 @@ def test_a_bag_played_in_a_loop_gives_the_same_detections_each_time(bag, checkpo
         np.testing.assert_allclose(b['boxes'], a['boxes'], atol=1e-4)
         np.testing.assert_array_equal(b['labels'], a['labels'])
         np.testing.assert_allclose(b['scores'], a['scores'], atol=1e-5)
+    # the tracks started again, with new ids: none of the first pass's comes back
+    ids_first = {int(i) for _, a in first for i in a['track_id'] if i}
+    ids_second = {int(i) for _, b in second for i in b['track_id'] if i}
+    assert ids_first and ids_second and not ids_first & ids_second
     assert 'memory reset: time went backwards' in log
 
 

@@ -1,10 +1,11 @@
 """rosbag2 reading and writing with rosbags (sqlite3 and mcap), shared by every bag command."""
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 import os
 from pathlib import Path
+import sys
 from typing import Any
 
 import numpy as np
@@ -158,12 +159,8 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
                 static.extend(msg.transforms)
             else:
                 clouds.append(msg)
-        if clouds:      # base_link -> the clouds' frame (a bag may hold IMU or camera ones)
-            lidar = str(clouds[0].header.frame_id).lstrip('/')
-            for tf in static:
-                if (str(tf.header.frame_id).lstrip('/'), str(tf.child_frame_id).lstrip('/')) \
-                        == ('base_link', lidar):
-                    extr = transform_to_matrix(tf.transform)
+        if clouds:
+            extr = lidar_extrinsic(static, str(clouds[0].header.frame_id), str(path))
         for msg in clouds:
             stamp = stamp_to_ns(msg.header.stamp)
             cloud = pointcloud2_to_xyzi(msg, time_fields=TIME_FIELDS)
@@ -180,6 +177,26 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
             yield Frame(pts, buf.lookup(stamp) @ extr, stamp, str(msg.header.frame_id), gt,
                         g.get('num_points') if g else None, g.get('instance_id') if g else None,
                         str(path), extr.copy(), times=times)
+
+
+def lidar_extrinsic(static: Sequence[Any], lidar_frame: str, where: str) -> NDArray[np.float64]:
+    """The vehicle -> LiDAR transform among a bag's ``/tf_static`` ones (a bag may hold IMU
+    or camera ones too): the one into the clouds' frame, from ``base_link`` if there is one
+    (another parent, such as ``base_footprint``, is said on stderr); identity, said too, when
+    none leads into the clouds' frame."""
+    lidar = lidar_frame.lstrip('/')
+    into = [tf for tf in static if str(tf.child_frame_id).lstrip('/') == lidar]
+    from_base = [tf for tf in into if str(tf.header.frame_id).lstrip('/') == 'base_link']
+    if from_base or into:
+        tf = (from_base or into)[0]
+        if not from_base:
+            print(f'{where}: the LiDAR extrinsic is {tf.header.frame_id} -> {lidar} (no '
+                  'base_link one)', file=sys.stderr)
+        return transform_to_matrix(tf.transform)
+    if static:
+        print(f'{where}: no /tf_static transform into {lidar}: the clouds are taken as in the '
+              'vehicle frame', file=sys.stderr)
+    return np.eye(4)
 
 
 def transform_to_matrix(tr: Any) -> NDArray[np.float64]:

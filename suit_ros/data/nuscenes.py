@@ -7,7 +7,8 @@ GT boxes and velocities in the LiDAR frame. Velocities are computed as the devki
 ``box_velocity`` does (centre differences of the neighbouring annotations, at most 1.5 s apart);
 where the devkit says NaN (an isolated annotation) the reader stores 0. Bicycles and motorcycles
 without a rider (`cycle.without_rider`) are ignore boxes; pedestrians are the devkit's four
-subclasses; each object keeps its instance's id over the keyframes.
+subclasses, the other ``human.pedestrian`` ones (strollers, wheelchairs, personal mobility)
+ignore boxes; each object keeps its instance's id over the keyframes.
 """
 from __future__ import annotations
 
@@ -157,8 +158,13 @@ class NuScenesReader:
         ignored: list[list[float]] = []
         for ann in self.anns.get(sample_token, []):
             inst = self.t['instance'][ann['instance_token']]
-            cls = map_category(self.t['category'][inst['category_token']]['name'])
-            if cls is None or cls not in self.class_names:
+            category = self.t['category'][inst['category_token']]['name']
+            cls = map_category(category)
+            # a stroller, a wheelchair, a personal mobility device: not a pedestrian to find,
+            # and a pedestrian box on one (its rider) no false positive
+            other_person = category.startswith('human.pedestrian') and cls is None
+            if (cls is None or cls not in self.class_names) and not (
+                    other_person and 'pedestrian' in self.class_names):
                 continue
             R = quaternion_to_matrix(ann['rotation'][1], ann['rotation'][2], ann['rotation'][3],
                                      ann['rotation'][0])
@@ -168,7 +174,7 @@ class NuScenesReader:
             box = [c[0], c[1], c[2], length, w, h, np.arctan2(heading[1], heading[0])]
             attributes = {self.t['attribute'].get(a, {}).get('name')
                           for a in ann.get('attribute_tokens', [])}
-            if cls == 'cyclist' and RIDERLESS in attributes:
+            if other_person or (cls == 'cyclist' and RIDERLESS in attributes):
                 ignored.append(box)     # neither an object nor a false positive (as AV2's)
                 continue
             boxes.append(box)
