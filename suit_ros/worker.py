@@ -128,9 +128,9 @@ class FrameWorker:
             with self.lock:
                 reset, self.reset_request = self.reset_request, None
                 pending, self.pending = self.pending, None
+            if pending is not None:
+                self._configure(pending)
             try:
-                if pending is not None:
-                    self.pipeline.configure(pending)
                 if reset:
                     self.pipeline.reset(reset)
                 self._wait_for_odometry(stamp_ns(received.msg))
@@ -148,6 +148,19 @@ class FrameWorker:
                 # held: the diagnostics warn while frames fail, not only the log
                 self.reasons.report({'frame_failed': f'frame failed: {type(exc).__name__}: '
                                      f'{exc}'}, time.monotonic())
+
+    def _configure(self, params: DetectorParams) -> None:
+        """Apply a parameter set the node accepted; if the pipeline cannot (a failure past
+        validation), the frame still runs with the settings before, and the diagnostics hold
+        why (the node's parameters then say more than the pipeline does)."""
+        try:
+            self.pipeline.configure(params)
+        except Exception as exc:  # the node goes on with what it had
+            if self.stopping:
+                return
+            self.log.error(f'parameters not applied: {type(exc).__name__}: {exc}')
+            self.reasons.report({'params_not_applied': 'parameters not applied: '
+                                 f'{type(exc).__name__}: {exc}'}, time.monotonic())
 
     def _wait_for_odometry(self, stamp: int) -> None:
         """Wait up to ``odom_wait_s`` for odometry at or after ``stamp``; no wait while

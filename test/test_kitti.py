@@ -187,6 +187,11 @@ def test_num_points_classes_points_and_extrinsic(object_root):
     kept = [o for o in OBJECTS if map_kitti_class(o[0]) is not None]
     assert frame.num_points.tolist() == [o[6] for o in kept]
     assert frame.gt.labels.tolist() == EXPECTED_LABELS
+    # the tram and the misc object: labelled, not a class here: ignore boxes (a box on one is
+    # no false positive), in the Velodyne frame (x forward: the camera's z)
+    assert frame.ignore_boxes is not None and len(frame.ignore_boxes) == 2
+    np.testing.assert_allclose(frame.ignore_boxes[:, 3], [15.0, 1.0])      # their lengths
+    assert frame.ignore_boxes[0, 0] > 30.0 and frame.ignore_boxes[1, 0] > 20.0
     assert (frame.gt.velocities == 0).all() and (frame.gt.scores == 1).all()
     raw = np.fromfile(object_root / 'training/velodyne/000000.bin', np.float32).reshape(-1, 4)
     assert frame.points.shape == (len(raw), 5) and frame.points.dtype == np.float32

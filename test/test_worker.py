@@ -225,3 +225,21 @@ def test_resets_of_one_kind_are_logged_once_in_a_while(worker):
     assert w.pipeline.resets == 4
     lines = [line for kind, line in log.lines if 'memory reset: duplicate stamp' in line]
     assert len(lines) == 1
+
+
+def test_settings_the_pipeline_cannot_apply_leave_the_frame_running(worker):
+    """A parameter set that fails past validation (here the pipeline made to fail on it):
+    the frame runs with the settings before, and the diagnostics hold why."""
+    from dataclasses import replace
+    w, mc, published, log, clock = worker
+
+    def refuse(params):
+        raise RuntimeError('cannot load the new thresholds')
+
+    w.pipeline.configure = refuse
+    w.request(params=replace(DetectorParams(), max_detections=1))
+    put_cloud(w, mc, T0)
+    assert until(lambda: w.frames_out == 1)
+    assert w.frames_failed == 0
+    level, message, _ = health_report(w.snapshot({}))
+    assert level >= 1 and 'parameters not applied: RuntimeError' in message

@@ -49,6 +49,9 @@ CLASS_MAP = {'Car': 'car', 'Van': 'car', 'Truck': 'truck', 'Pedestrian': 'pedest
 # (``Person``: the tracking labels' name of a sitting person, the object labels'
 # ``Person_sitting``)
 KNOWN_TYPES = frozenset(CLASS_MAP) | {'Tram', 'Misc', 'DontCare'}
+# labelled objects that are not a class here: a box on one is no false positive (ignore boxes,
+# as the Argoverse 2 reader's parked bicycles); DontCare regions are 2D only
+IGNORED_TYPES = frozenset({'Tram', 'Misc'})
 LIDAR_HEIGHT_M = 1.73
 IMAGE_WIDTH_PX = 1242.0
 FRAME_PERIOD_NS = 100_000_000          # the tracking sequences are recorded at 10 Hz
@@ -360,7 +363,11 @@ class KittiSequence(LazySequence):
         self.boxes: list[NDArray[np.float64]] = []
         self.labels: list[NDArray[np.int64]] = []
         self.track_ids: list[NDArray[np.int64]] = []
+        self.ignored: list[NDArray[np.float64]] = []
         for lab in labels:
+            other = np.array([t in IGNORED_TYPES for t in lab.types], bool).reshape(-1)
+            self.ignored.append(camera_boxes_to_lidar(lab.hwl[other], lab.location[other],
+                                                      lab.rotation_y[other], calib))
             cls = [map_kitti_class(t) for t in lab.types]
             keep = np.array([c is not None and c in names for c in cls], bool).reshape(-1)
             self.boxes.append(camera_boxes_to_lidar(lab.hwl[keep], lab.location[keep],
@@ -383,7 +390,8 @@ class KittiSequence(LazySequence):
                         np.ones(len(boxes), np.float32), self.labels[k].copy())
         return Frame(points, self.poses[k].copy(), self.stamps_ns[k], FRAME_ID, gt,
                      count_points_in_boxes(points[:, :3], boxes), self._instance_ids(k),
-                     self.sequence_id, lidar_mounting())
+                     self.sequence_id, lidar_mounting(),
+                     ignore_boxes=self.ignored[k].astype(np.float32).reshape(-1, 7))
 
     def _instance_ids(self, k: int) -> NDArray[np.uint32]:
         ids = self.track_ids[k]
