@@ -19,8 +19,9 @@ Conventions (what the :class:`~suit_ros.structures.Frame` s hold):
   inv(R0_rect)``; the heading ``(cos ry, 0, -sin ry)`` is rotated likewise, which gives
   ``yaw = -ry - pi / 2`` for KITTI's nominal axes. ``l w h`` become ``length`` (along the
   heading), ``width``, ``height``;
-- classes: Car and Van -> car, Truck -> truck, Pedestrian and Person_sitting -> pedestrian,
-  Cyclist -> cyclist; Tram, Misc and DontCare are left out;
+- classes: Car and Van -> car, Truck -> truck, Pedestrian, Person_sitting (tracking labels:
+  Person) -> pedestrian, Cyclist -> cyclist; Tram and Misc are ignore boxes (neither objects
+  nor false positives); DontCare (2D regions only) is left out;
 - labels exist only where the front camera (P2) sees: :func:`in_camera_fov` says which points or
   box centres are in front of the camera and inside the image width, and
   :func:`camera_fov_run` restricts an evaluation to that region;
