@@ -89,9 +89,9 @@ def slerp(q0: NDArray[np.float64], q1: NDArray[np.float64], f: float) -> NDArray
 
 
 class TimeLine:
-    """Whether stamps went back: two in a row more than ``rewind_ns`` before the newest, and
-    within ``rewind_ns`` of each other (one alone is a late message). :attr:`first` is the
-    first stamp of the new time line once it went back."""
+    """Whether stamps went back: two in a row more than ``rewind_ns`` before the newest (one
+    alone is a late message; at any message rate). :attr:`first` is the first stamp of the
+    new time line once it went back."""
 
     def __init__(self, rewind_ns: int = 1_000_000_000) -> None:
         self.rewind_ns = int(rewind_ns)
@@ -103,7 +103,7 @@ class TimeLine:
         if stamp_ns >= newest_ns - self.rewind_ns:
             self.pending = None
             return False
-        if self.pending is not None and abs(stamp_ns - self.pending) <= self.rewind_ns:
+        if self.pending is not None:
             self.first = min(self.pending, stamp_ns)
             self.pending = None
             return True
@@ -116,10 +116,10 @@ class PoseBuffer:
 
     Out-of-order arrivals are inserted in place, a duplicate stamp replaces the old pose, poses
     older than ``max_age_ns`` before the newest are dropped. Two poses in a row stamped more
-    than ``rewind_ns`` before the newest (and within ``rewind_ns`` of each other) mean that
-    time went back (a looped bag, a simulator reset, a clock reset): the buffer starts again
-    from them (counted in :attr:`rewinds`), since its poses are from another time line and a
-    lookup at the new stamps must not interpolate between the two. One such pose alone is a
+    than ``rewind_ns`` before the newest mean that time went back (a looped bag, a simulator
+    reset, a clock reset): the buffer starts again from them (counted in :attr:`rewinds`),
+    since its poses are from another time line and a lookup at the new stamps must not
+    interpolate between the two. One such pose alone is a
     late message, inserted in place (:class:`TimeLine`). A lookup within ``tolerance_ns``
     outside the buffered span returns the edge pose; further out raises PoseLookupError.
     """

@@ -155,31 +155,32 @@ class OdometryGate(Generic[T]):
             self._queue.clear()
         return batch
 
-    def _reached(self, stamp_ns: int) -> bool:
-        # reached, and not from another time line: odometry far ahead of the cloud (more than
-        # REWIND_NS) is what a cloud sees first after time went back, before the new line's
-        # odometry comes (a very late cloud waits odom_wait_s, then runs with the poses
-        # buffered for it)
-        return stamp_ns <= self.latest_ns <= stamp_ns + REWIND_NS
+    def _reached(self, stamp_ns: int, went_back: bool) -> bool:
+        # a cloud whose stamp went back (a loop, a reset) comes before its time line's
+        # odometry: the old line's, far ahead of it, is not its own
+        return stamp_ns <= self.latest_ns and (not went_back
+                                               or self.latest_ns <= stamp_ns + REWIND_NS)
 
-    def covers(self, stamp_ns: int) -> bool:
-        """Whether odometry reached ``stamp_ns`` (on the cloud's time line)."""
+    def covers(self, stamp_ns: int, went_back: bool = False) -> bool:
+        """Whether odometry reached ``stamp_ns`` (for a cloud whose stamp ``went_back``
+        before the last one: odometry of its own time line, within REWIND_NS after it)."""
         with self._cv:
-            return self._reached(stamp_ns)
+            return self._reached(stamp_ns, went_back)
 
-    def wait_for(self, stamp_ns: int, timeout: float) -> bool:
-        """Wait up to ``timeout`` s for odometry that reaches ``stamp_ns``; True if it did."""
+    def wait_for(self, stamp_ns: int, timeout: float, went_back: bool = False) -> bool:
+        """Wait up to ``timeout`` s for odometry that reaches ``stamp_ns`` (see
+        :meth:`covers`); True if it did."""
         deadline = time.monotonic() + timeout
         with self._cv:
-            if self._reached(stamp_ns):
+            if self._reached(stamp_ns, went_back):
                 return True
             self.waits += 1
-            while not self._reached(stamp_ns) and not self.closed:
+            while not self._reached(stamp_ns, went_back) and not self.closed:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
                 self._cv.wait(left)
-            return self._reached(stamp_ns)
+            return self._reached(stamp_ns, went_back)
 
     def close(self) -> None:
         """Wake a waiting worker for shutdown."""

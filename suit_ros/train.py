@@ -392,6 +392,19 @@ def _optimise(model: Any, module: Any, opt: Any, clips: Any, grad_clip: float,
 RESUMABLE_CHANGES = ('steps', 'max_minutes', 'init_from', 'checkpoint_every', 'eval_at_end')
 
 
+def _differences(before: dict[str, Any], now: dict[str, Any], prefix: str = '') -> list[str]:
+    """The settings (dotted) whose values differ, over the keys both have: a setting a later
+    release added is no difference (a run saved before it resumes)."""
+    out: list[str] = []
+    for k in sorted(set(before) & set(now)):
+        a, b = before[k], now[k]
+        if isinstance(a, dict) and isinstance(b, dict):
+            out += _differences(a, b, f'{prefix}{k}.')
+        elif a != b:
+            out.append(f'{prefix}{k}')
+    return out
+
+
 def _config_dict(tc: TrainConfig) -> dict[str, Any]:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in tc.__dict__.items()}
 
@@ -412,16 +425,15 @@ def _resume(last: Path, module: Any, opt: Any, tc: TrainConfig, mcfg: Any
                           'release): train into a new --out, init_from its '
                           'snapshot.safetensors') from exc
     before = state.get('model_config')
-    if before is not None and before != mcfg.to_dict():
-        diff = sorted(k for k in set(before) | set(mcfg.to_dict())
-                      if before.get(k) != mcfg.to_dict().get(k))
+    diff = [] if before is None else _differences(before, mcfg.to_dict())
+    if diff:
         raise ConfigError(f'{last} was trained with another model config ({", ".join(diff)} '
                           "differ): resume with the run's own, or train into a new --out")
     before_tc = state.get('train_config')
     if before_tc is not None:
         now = _config_dict(tc)
-        diff = sorted(k for k in set(before_tc) | set(now) if k not in RESUMABLE_CHANGES
-                      and before_tc.get(k) != now.get(k))
+        diff = sorted(k for k in set(before_tc) & set(now) if k not in RESUMABLE_CHANGES
+                      and before_tc[k] != now[k])
         if diff:
             raise ConfigError(
                 f'{last} was trained with other settings: '
@@ -568,11 +580,16 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
                    else 0.0)
         return max(step / tc.steps, by_time)
     if resumed and progress() >= 1.0 and (out / 'model.safetensors').is_file():
-        # a run that had finished (a recipe resumed as a whole): its model stands as written
+        # a run that had finished (a recipe resumed as a whole): its model stands as written,
+        # unless it was killed while evaluating (then it is evaluated and written again)
         from suit_ros.checkpoint import read_metadata
-        if rank == 0:
-            print(f'[train] {out} finished at step {step} within this budget: nothing to do')
-        return dict(read_metadata(out / 'model.safetensors').get('metrics', {}))
+        written = dict(read_metadata(out / 'model.safetensors').get('metrics', {}))
+        if written.get('steps') == step and (not tc.eval_at_end or 'mAP' in written):
+            if rank == 0:
+                print(f'[train] {out} finished at step {step} within this budget: nothing to '
+                      'do')
+            return written
+        return _finish(tc, out, module, mcfg, dev, step, done_s, rank, world)
     log = _LossLog(out / 'log.csv', step if resumed else None) if rank == 0 else None
     bar = tqdm(total=tc.steps, initial=step, disable=rank != 0, dynamic_ncols=True,
                desc=f'train[{mcfg.temporal}]')

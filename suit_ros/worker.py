@@ -48,6 +48,7 @@ class Pipeline(Protocol):
 
     last_odom_error: str
     last_reset_reason: str
+    params: DetectorParams
     last_stamp_ns: int | None
     resets: int
     odom_rejected: int
@@ -151,13 +152,19 @@ class FrameWorker:
 
     def _configure(self, params: DetectorParams) -> None:
         """Apply a parameter set the node accepted; if the pipeline cannot (a failure past
-        validation), the frame still runs with the settings before, and the diagnostics hold
-        why (the node's parameters then say more than the pipeline does)."""
+        validation, after part of it may have been applied), the settings before are applied
+        again and the frame runs with them, and the diagnostics hold why (the node's
+        parameters then say more than the pipeline does)."""
+        before = self.pipeline.params
         try:
             self.pipeline.configure(params)
         except Exception as exc:  # the node goes on with what it had
             if self.stopping:
                 return
+            try:
+                self.pipeline.configure(before)
+            except Exception as again:  # noqa: BLE001 - said, and the frame still runs
+                self.log.error(f'settings before not restored either: {again}')
             self.log.error(f'parameters not applied: {type(exc).__name__}: {exc}')
             self.reasons.report({'params_not_applied': 'parameters not applied: '
                                  f'{type(exc).__name__}: {exc}'}, time.monotonic())
@@ -166,10 +173,12 @@ class FrameWorker:
         """Wait up to ``odom_wait_s`` for odometry at or after ``stamp``; no wait while
         nobody publishes odometry."""
         wait = self.params().odom_wait_s
-        if self.odometry.covers(stamp) or wait <= 0.0 or (
+        last = self.pipeline.last_stamp_ns
+        back = last is not None and stamp < last          # a loop, a reset: its own odometry
+        if self.odometry.covers(stamp, back) or wait <= 0.0 or (
                 self.odometry.latest_ns < 0 and not self.odometry_published()):
             return
-        self.odometry.wait_for(stamp, wait)
+        self.odometry.wait_for(stamp, wait, back)
 
     def _drain_odometry(self) -> None:
         now = self.clock_ns()

@@ -114,18 +114,26 @@ def test_the_odometry_gate_follows_time_back():
     assert gate.latest_ns == 5 * S + S // 50 and not gate.covers(6 * S)
     gate.put('d', 5 * S - S // 2, 0, 1.0)              # a little late: the newest stays
     assert gate.latest_ns == 5 * S + S // 50
+    slow: OdometryGate[str] = OdometryGate()           # 1 Hz odometry (GNSS only) loops too
+    for t in (100, 101, 102, 3, 4):
+        slow.put('o', t * S, 0, 1.0)
+    assert slow.latest_ns == 4 * S
 
 
 def test_odometry_far_ahead_of_a_cloud_is_not_its_odometry():
-    """After time went back the first cloud of the new time line can come before its
-    odometry: the odometry of the old line, 60 s ahead, does not cover it, so the worker
-    waits (odom_wait_s) for the new line's; odometry a little ahead (a busy node) does."""
+    """After time went back the first cloud of the new time line (its stamp before the last
+    cloud's) can come before its odometry: the old line's, 60 s ahead, does not cover it, so
+    the worker waits (odom_wait_s) for the new line's. A cloud that is only late (a busy node,
+    a bag played fast) is covered by the odometry ahead of it, and does not wait."""
     gate: OdometryGate[str] = OdometryGate()
     gate.put('a', 1000 * S, 0, 1.0)
-    assert gate.covers(1000 * S - S // 2) and not gate.covers(940 * S)
+    assert gate.covers(1000 * S - S // 2) and gate.covers(995 * S)       # late: covered
+    assert gate.covers(1000 * S - S // 2, went_back=True)
+    assert not gate.covers(940 * S, went_back=True)
     t0 = time.monotonic()
-    assert not gate.wait_for(940 * S, 0.05) and time.monotonic() - t0 >= 0.04
-    waiter = threading.Thread(target=lambda: got.append(gate.wait_for(940 * S, 5.0)))
+    assert not gate.wait_for(940 * S, 0.05, went_back=True) and time.monotonic() - t0 >= 0.04
+    assert gate.wait_for(995 * S, 0.05) and gate.waits == 1          # the late one: no wait
+    waiter = threading.Thread(target=lambda: got.append(gate.wait_for(940 * S, 5.0, True)))
     got: list[bool] = []
     waiter.start()
     for t in (939 * S, 939 * S + S // 2, 940 * S):       # the new line's odometry comes

@@ -304,3 +304,16 @@ def test_frozen_base_and_distillation_train_only_the_temporal_part():
     assert all(p.grad is None for m in frozen for p in m.parameters())
     assert any(p.grad is not None for p in model.head.parameters())
     assert float(losses['distill_loss']) > 0
+
+
+def test_a_resume_compares_the_settings_both_runs_have():
+    """A setting a later release adds is no difference (a run saved before it resumes); a
+    changed one is named, dotted inside the model config."""
+    from suit_ros.train import _differences
+    before = {'lr': 1e-3, 'pillars': {'ground': 'local', 'size': 0.4}}
+    now = {'lr': 1e-3, 'new_option': 0.0, 'pillars': {'ground': 'local', 'size': 0.4,
+                                                      'added': True}}
+    assert _differences(before, now) == []
+    now['pillars']['ground'] = 'as_given'
+    now['lr'] = 2e-3
+    assert _differences(before, now) == ['lr', 'pillars.ground']

@@ -233,13 +233,18 @@ def test_settings_the_pipeline_cannot_apply_leave_the_frame_running(worker):
     from dataclasses import replace
     w, mc, published, log, clock = worker
 
+    real = w.pipeline.configure
+    before = w.pipeline.params
+
     def refuse(params):
-        raise RuntimeError('cannot load the new thresholds')
+        real(params)                         # applied in part, then it fails
+        if params.max_detections == 1:
+            raise RuntimeError('cannot load the new thresholds')
 
     w.pipeline.configure = refuse
     w.request(params=replace(DetectorParams(), max_detections=1))
     put_cloud(w, mc, T0)
     assert until(lambda: w.frames_out == 1)
-    assert w.frames_failed == 0
+    assert w.frames_failed == 0 and w.pipeline.params == before      # the settings before
     level, message, _ = health_report(w.snapshot({}))
     assert level >= 1 and 'parameters not applied: RuntimeError' in message
