@@ -88,15 +88,16 @@ def slerp(q0: NDArray[np.float64], q1: NDArray[np.float64], f: float) -> NDArray
     return np.asarray(q / np.linalg.norm(q), np.float64)
 
 
+REWIND_NS = 1_000_000_000   # a stamp this far before the newest: late, or time went back
+
+
 class TimeLine:
     """Whether stamps went back: two in a row more than ``rewind_ns`` before the newest (one
-    alone is a late message; at any message rate). :attr:`first` is the first stamp of the
-    new time line once it went back."""
+    alone is a late message; at any message rate)."""
 
-    def __init__(self, rewind_ns: int = 1_000_000_000) -> None:
+    def __init__(self, rewind_ns: int = REWIND_NS) -> None:
         self.rewind_ns = int(rewind_ns)
         self.pending: int | None = None     # a stamp far behind, waiting for a second one
-        self.first = 0
 
     def went_back(self, stamp_ns: int, newest_ns: int) -> bool:
         """Observe ``stamp_ns`` against the newest so far; True once time went back."""
@@ -104,7 +105,6 @@ class TimeLine:
             self.pending = None
             return False
         if self.pending is not None:
-            self.first = min(self.pending, stamp_ns)
             self.pending = None
             return True
         self.pending = stamp_ns
@@ -125,10 +125,9 @@ class PoseBuffer:
     """
 
     def __init__(self, max_age_ns: int = 10_000_000_000, tolerance_ns: int = 100_000_000,
-                 rewind_ns: int = 1_000_000_000) -> None:
+                 rewind_ns: int = REWIND_NS) -> None:
         self.max_age_ns = int(max_age_ns)
         self.tolerance_ns = int(tolerance_ns)
-        self.rewind_ns = int(rewind_ns)
         self.rewinds = 0
         self._line = TimeLine(rewind_ns)
         self._aside: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None

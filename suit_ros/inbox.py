@@ -23,11 +23,9 @@ import threading
 import time
 from typing import Any, Generic, TypeVar
 
-from suit_ros.msg_adapters.odometry import TimeLine
+from suit_ros.msg_adapters.odometry import REWIND_NS, TimeLine
 
 T = TypeVar('T')
-
-REWIND_NS = 1_000_000_000   # a stamp this far before the newest: time went back (as PoseBuffer)
 
 
 class CloudMailbox(Generic[T]):

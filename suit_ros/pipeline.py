@@ -184,11 +184,7 @@ class DetectionPipeline:
             # the buffered sweeps and the memory were read with the old settings (another
             # intensity scale, other ranges, not deskewed): the next input must not mix them
             # with the new; the tracks (boxes in the odometry frame) go on
-            reason = 'input settings changed: ' + ', '.join(changed)
-            self.detector.reset(reason, sweeps=False)
-            self.detector.sweeps.clear()
-            self.last_reset_reason = reason
-            self.resets += 1
+            self.reset('input settings changed: ' + ', '.join(changed), tracks=False)
 
     # ------------------------------------------------------------------ inputs
     def add_odometry(self, msg: Any, now_ns: int | None = None) -> bool:
@@ -222,9 +218,10 @@ class DetectionPipeline:
         """How often odometry went back in time (the pose buffer emptied: PoseBuffer)."""
         return self.poses.rewinds
 
-    def reset(self, reason: str) -> None:
-        """Forget the temporal memory."""
-        self.detector.reset(reason)
+    def reset(self, reason: str, tracks: bool = True) -> None:
+        """Forget the temporal memory: the feature memory, the sweeps and (with ``tracks``)
+        the tracks."""
+        self.detector.reset(reason, tracks=tracks)
         self.last_reset_reason = reason
         self.resets += 1
         self.last_pose = None

@@ -107,6 +107,7 @@ class StreamingDetector:
         self.set_box_fit(box_fit)
         self.tracks = (None if tracker is None
                        else Tracker(tracker, self.cfg.class_names))
+        self._next_track_id = 1        # a tracker turned on again goes on from here
         self.last_reset_reason = 'start'
         # the checkpoint's published thresholds (set by whoever loaded it; None: not known),
         # and those of the boxes its carry branch holds where the cloud shows nothing
@@ -189,18 +190,20 @@ class StreamingDetector:
             self.tracks = None
         elif self.tracks is None:
             self.tracks = Tracker(config, self.cfg.class_names)
-            self.tracks.next_id = getattr(self, '_next_track_id', 1)
+            self.tracks.next_id = self._next_track_id
         elif self.tracks.config != config:
             self.tracks.reconfigure(config)
 
-    def reset(self, reason: str = 'reset', sweeps: bool = True) -> None:
+    def reset(self, reason: str = 'reset', sweeps: bool = True,
+              tracks: bool | None = None) -> None:
         """Forget the feature memory and (unless ``sweeps`` is False) the buffered sweeps and
-        the tracker's tracks: the next frame runs single-frame."""
+        the tracker's tracks (``tracks``: whether the tracks go too; None: with the sweeps):
+        the next frame runs single-frame."""
         self._memory = None
         if sweeps:
             self.sweeps.clear()
-            if self.tracks is not None:
-                self.tracks.reset()
+        if (sweeps if tracks is None else tracks) and self.tracks is not None:
+            self.tracks.reset()
         self.last_reset_reason = reason
 
     def warm_up(self, points: int = 130_000) -> None:
