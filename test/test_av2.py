@@ -151,6 +151,27 @@ def test_velocity_in_the_egovehicle_frame_when_the_ego_turns(tmp_path: Path) -> 
     np.testing.assert_allclose(gt.velocities[gt.labels == 0][0], [5.0, -5.0], atol=1e-6)
 
 
+def test_an_object_annotated_once_has_an_unknown_velocity(tmp_path: Path) -> None:
+    """A track annotated at one stamp only has no velocity (NaN, as the nuScenes devkit says),
+    not 0: a standing target would teach the velocity head, and score its error, as if the
+    object stood still."""
+    write_log(tmp_path)
+    path = tmp_path / 'sensor/val/0000-test-log/annotations.feather'
+    t = feather.read_table(str(path)).to_pydict()
+    i = next(i for i, (c, s) in enumerate(zip(t['category'], t['timestamp_ns']))
+             if c == 'REGULAR_VEHICLE' and s == T0 + DT)
+    for k in t:                            # a second car, seen at this one stamp
+        t[k].append('car-once' if k == 'track_uuid' else
+                    t[k][i] + 10.0 if k == 'ty_m' else t[k][i])
+    feather.write_feather(pa.table(t), str(path))
+    (seq,) = av2_sequences(tmp_path)
+    gt, _, _ = seq.labelled(T0 + DT)
+    cars = gt.velocities[gt.labels == 0]
+    assert len(cars) == 2
+    np.testing.assert_allclose(cars[0], [10.0, 0.0], atol=1e-6)
+    assert np.isnan(cars[1]).all()
+
+
 def test_find_logs_accepts_dataset_split_and_log_folders(tmp_path: Path) -> None:
     log = write_log(tmp_path)
     for root in (tmp_path, tmp_path / 'sensor', tmp_path / 'sensor' / 'val', log):

@@ -42,3 +42,27 @@ def test_optimisation_reduces_every_loss():
         assert last[k] < first[k], (k, first[k], last[k])
     assert math.isfinite(last['loss'])
 
+
+
+def test_unknown_gt_velocities_train_without_nan():
+    """Real datasets' isolated annotations have no velocity (NaN): a training step stays
+    finite, and GeoNet's loss leaves out the samples on such a box instead of teaching them
+    zero motion."""
+    from suit_ros.model.detector import assign_velocities
+    from suit_ros.structures import Detections
+    torch.manual_seed(0)
+    model = SUITDetector(small_config('suit'))
+    frames = [frame(t) for t in range(3)]
+    for f in frames:
+        assert f.gt is not None
+        vel = f.gt.velocities.copy()
+        vel[0] = float('nan')                  # the moving car's motion is unknown
+        f.gt = Detections(f.gt.boxes, vel, f.gt.scores, f.gt.labels)
+    losses = model.forward_sequence([frames])
+    assert all(torch.isfinite(v) for v in losses.values()), losses
+    losses['loss'].backward()
+    assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
+    centres = torch.tensor([[5.0, 3.0], [-8.0, -6.0], [20.0, 20.0]])
+    vel, valid = assign_velocities(centres, torch.zeros(3, dtype=torch.long), frames[:1])
+    assert valid.tolist() == [True, True, False]
+    assert torch.isnan(vel[0]).all() and vel[1:].tolist() == [[0.0, 0.0], [0.0, 0.0]]

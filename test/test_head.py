@@ -114,3 +114,42 @@ def test_the_head_at_cells_equals_the_head_where_it_is_read(copy):
         assert (g[~needed] == 7.0).all()
     nothing = head.forward_at(x, torch.zeros_like(needed), elsewhere)
     assert all(torch.equal(nothing[k], elsewhere[k]) for k in elsewhere)
+
+
+def test_an_unknown_velocity_is_no_target():
+    """A GT box whose velocity is NaN (a real dataset's isolated annotation) is found and sized
+    as any other, but its velocity is left out of the loss: not taught as standing still, and
+    no NaN reaches the loss or the gradients."""
+    head = CenterHead(8, 4, GRID)
+    boxes = torch.tensor([[3.3, -7.1, -0.9, 4.5, 1.9, 1.6, 0.7],
+                          [-10.2, 4.4, -0.8, 4.5, 1.9, 1.6, -2.5]])
+    labels = torch.tensor([0, 0])
+    known = head.build_targets([boxes], [torch.tensor([[5.0, -1.0], [3.0, 3.0]])], [labels])
+    unknown = head.build_targets([boxes], [torch.tensor([[5.0, -1.0], [math.nan, math.nan]])],
+                                 [labels])
+    assert known['vel_known'][0, :2].tolist() == [True, True]
+    assert unknown['vel_known'][0, :2].tolist() == [True, False]
+    assert torch.isfinite(unknown['reg']).all()
+    torch.manual_seed(0)
+    preds = {'heatmap': torch.randn(1, 4, GRID.H, GRID.W, requires_grad=True)}
+    reg = torch.randn(1, 10, GRID.H, GRID.W, requires_grad=True)
+    from suit_ros.model.head import REG_SLICES
+    for name, (a, b) in REG_SLICES.items():
+        preds[name] = reg[:, a:b]
+    loss_known, loss_unknown = head.loss(preds, known), head.loss(preds, unknown)
+    assert torch.isfinite(loss_unknown['loss'])
+    # the velocity term is the mean over the known velocity alone; the rest is unchanged
+    w = head.code_weights
+    def term(tgt, k, ch):
+        idx = tgt['index'][0, k]
+        at = reg.detach()[0, ch, idx // GRID.W, idx % GRID.W]
+        return float((at - tgt['reg'][0, k, ch]).abs())
+    vel_known = sum(float(w[c]) * (term(known, 0, c) + term(known, 1, c)) / 2 for c in (8, 9))
+    vel_unknown = sum(float(w[c]) * term(unknown, 0, c) for c in (8, 9))
+    assert float((loss_known['loc_loss'] - loss_unknown['loc_loss']).detach()) == pytest.approx(
+        vel_known - vel_unknown, rel=1e-4, abs=1e-5)
+    loss_unknown['loss'].backward()
+    assert reg.grad is not None and torch.isfinite(reg.grad).all()
+    idx = unknown['index'][0, 1]
+    cell = reg.grad[0, :, idx // GRID.W, idx % GRID.W]
+    assert (cell[8:10] == 0).all() and (cell[:8] != 0).any()

@@ -134,7 +134,7 @@ def test_reader_agrees_with_devkit(dataset):
                            nusc.get('sample_data', sd_tok)['calibrated_sensor_token'])
             from pyquaternion import Quaternion
             v_l = Quaternion(cal['rotation']).inverse.rotate(
-                Quaternion(ego['rotation']).inverse.rotate(np.nan_to_num(v)))
+                Quaternion(ego['rotation']).inverse.rotate(v))     # NaN (unknown) stays NaN
             yaw = b.orientation.yaw_pitch_roll[0]
             ours[ann['num_lidar_pts']] = (b.center, b.wlh, yaw, v_l[:2])
         assert len(ours) == len(f.gt)

@@ -38,7 +38,8 @@ Conventions (what the :class:`~suit_ros.structures.Frame` s hold):
   out (:func:`first_of_duplicates`), so one box cannot find both nor miss one of them;
 - GT velocities from the same ``track_uuid`` at the neighbouring annotated stamps (centre
   differences in the city frame, at most 1.5 s apart, as nuScenes' ``box_velocity``), in the
-  egovehicle frame, absolute.
+  egovehicle frame, absolute; NaN (unknown) for an annotation without a neighbour: evaluation
+  skips it in the velocity error and training in the velocity loss.
 """
 from __future__ import annotations
 
@@ -236,7 +237,7 @@ class Av2Sequence(LazySequence):
     def _velocities(self, stamp_ns: int, rows: NDArray[np.int64]) -> NDArray[np.float64]:
         ann = self.annotations
         i = int(np.searchsorted(ann.stamps, stamp_ns))
-        out = np.zeros((len(rows), 2))
+        out = np.full((len(rows), 2), np.nan)        # unknown without a neighbour
         neighbours = []
         for j in (i - 1, i + 1):
             if 0 <= j < len(ann.stamps) and abs(int(ann.stamps[j]) - stamp_ns) * 1e-9 \

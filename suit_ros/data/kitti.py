@@ -316,7 +316,7 @@ def _velocities(boxes: list[NDArray[np.float64]], ids: list[NDArray[np.int64]],
                 poses: NDArray[np.float64], stamps_ns: list[int]) -> list[NDArray[np.float64]]:
     """Per-frame ``(N, 2)`` velocities (LiDAR frame) from the same track id in the neighbouring
     labelled frames, by centre differences in the odometry frame as nuScenes' ``box_velocity``
-    (neighbours at most 1.5 s away; 0 for an isolated box or a negative id)."""
+    (neighbours at most 1.5 s away; NaN, unknown, for an isolated box or a negative id)."""
     t = np.asarray(stamps_ns, np.int64) * 1e-9
     tracks: dict[int, dict[int, NDArray[np.float64]]] = {}
     for k, (b, tid) in enumerate(zip(boxes, ids)):
@@ -326,7 +326,7 @@ def _velocities(boxes: list[NDArray[np.float64]], ids: list[NDArray[np.int64]],
                 tracks.setdefault(i, {})[k] = c
     out = []
     for k, tid in enumerate(ids):
-        v = np.zeros((len(tid), 3))
+        v = np.full((len(tid), 3), np.nan)
         for j, i in enumerate(tid.tolist()):
             seen = tracks.get(i, {})
             prev = max((f for f in seen if f < k and t[k] - t[f] <= MAX_VELOCITY_GAP_S),

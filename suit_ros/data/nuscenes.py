@@ -5,7 +5,8 @@ keyframe's LiDAR points plus the previous sweeps moved into the keyframe's LiDAR
 each sweep's ego pose and calibration) with a time-lag channel, the pose ``T_global_lidar``, and
 GT boxes and velocities in the LiDAR frame. Velocities are computed as the devkit's
 ``box_velocity`` does (centre differences of the neighbouring annotations, at most 1.5 s apart);
-where the devkit says NaN (an isolated annotation) the reader stores 0. Bicycles and motorcycles
+where the devkit says NaN (an isolated annotation) the reader keeps NaN: unknown, skipped by
+the velocity error and the velocity loss. Bicycles and motorcycles
 without a rider (`cycle.without_rider`) are ignore boxes; pedestrians are the devkit's four
 subclasses, the other ``human.pedestrian`` ones (strollers, wheelchairs, personal mobility)
 ignore boxes; each object keeps its instance's id over the keyframes.
@@ -179,7 +180,7 @@ class NuScenesReader:
                 continue
             boxes.append(box)
             v = self.box_velocity(ann)
-            v_l = T_ref_inv[:3, :3] @ np.r_[np.nan_to_num(v), 0.0]
+            v_l = T_ref_inv[:3, :3] @ np.r_[v, 0.0]     # NaN stays NaN: unknown, not standing
             vels.append(v_l[:2])
             labels.append(self.class_names.index(cls))
             nums.append(ann['num_lidar_pts'])

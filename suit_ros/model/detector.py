@@ -391,10 +391,12 @@ class SUITDetector(nn.Module):
         bi = memory.batch_index[sel]
         centres = memory.cell_xy[sel][:, memory.cell_xy.shape[1] // 2]          # (M, 2)
         vel, valid = assign_velocities(centres, bi, prev)
-        vel = rotate_velocities(vel, bi, aux['T_now_prev'].numpy())
+        # a sample on an object whose motion is unknown (NaN) teaches nothing either way
+        keep = ~(valid & ~torch.isfinite(vel).all(dim=1))
+        vel = rotate_velocities(vel[keep], bi[keep], aux['T_now_prev'].numpy())
         if self.geonet is None:
             raise RuntimeError('geo_loss needs the suit variant (GeoNet)')
-        return self.geonet.loss(aux['geo_logits'], vel, valid)
+        return self.geonet.loss(aux['geo_logits'][keep], vel, valid[keep])
 
 
 def gate_past(past: Tensor | PastTerm, observed: Tensor) -> Tensor | PastTerm:
@@ -432,7 +434,8 @@ def assign_velocities(centres: Tensor, batch_index: Tensor, frames: Sequence[Fra
     """GT velocity of the box (enlarged by ``margin`` m) containing each sample centre.
 
     Among several containing boxes the nearest centre wins. :return: velocities ``(M, 2)``
-    (zeros when unassigned) and a validity mask ``(M,)``.
+    (zeros when unassigned; NaN where the box's velocity is unknown) and a validity mask
+    ``(M,)`` (inside a box).
     """
     M = centres.shape[0]
     vel = centres.new_zeros(M, 2)

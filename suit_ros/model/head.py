@@ -141,8 +141,12 @@ class CenterHead(nn.Module):
                       labels: list[Tensor]) -> dict[str, Tensor]:
         """CenterPoint targets for a batch of per-sample GT ``(M_i, 7)``, ``(M_i, 2)``, ``(M_i,)``.
 
+        A velocity that is not finite (NaN: a real dataset's isolated annotation, whose motion
+        is unknown) is no target: its object is still found and sized, and ``vel_known`` leaves
+        it out of the velocity loss (0 would teach the object to stand still).
+
         :return: ``heatmap (B, K, H, W)``, ``index (B, O)`` flat cell index, ``mask (B, O)``,
-            ``reg (B, O, 10)`` with O = ``max_objects``.
+            ``vel_known (B, O)``, ``reg (B, O, 10)`` with O = ``max_objects``.
         """
         g = self.grid
         B, O = len(boxes), self.max_objects
@@ -150,6 +154,7 @@ class CenterHead(nn.Module):
         heat = torch.zeros(B, self.num_classes, g.H, g.W, device=device)
         index = torch.zeros(B, O, dtype=torch.long, device=device)
         mask = torch.zeros(B, O, dtype=torch.bool, device=device)
+        vel_known = torch.zeros(B, O, dtype=torch.bool, device=device)
         reg = torch.zeros(B, O, 10, device=device)
         for b in range(B):
             bx = boxes[b].float().cpu()
@@ -167,26 +172,35 @@ class CenterHead(nn.Module):
                 draw_gaussian(heat[b, int(lab[i])], col, row, radius)
                 index[b, k] = row * g.W + col
                 mask[b, k] = True
+                known = bool(torch.isfinite(vel[i]).all())
+                vel_known[b, k] = known
+                vx, vy = (float(vel[i, 0]), float(vel[i, 1])) if known else (0.0, 0.0)
                 reg[b, k] = torch.tensor([
                     float(cr[i, 0]) - col, float(cr[i, 1]) - row, float(bx[i, 2]),
                     math.log(max(float(bx[i, 3]), 1e-3)), math.log(max(float(bx[i, 4]), 1e-3)),
                     math.log(max(float(bx[i, 5]), 1e-3)),
                     math.sin(float(bx[i, 6])), math.cos(float(bx[i, 6])),
-                    float(vel[i, 0]), float(vel[i, 1])])
+                    vx, vy])
                 k += 1
-        return {'heatmap': heat, 'index': index, 'mask': mask, 'reg': reg}
+        return {'heatmap': heat, 'index': index, 'mask': mask, 'vel_known': vel_known,
+                'reg': reg}
 
     def loss(self, preds: dict[str, Tensor], targets: dict[str, Tensor]) -> dict[str, Tensor]:
-        """Focal heatmap loss + weighted L1 regression loss at the GT centres."""
+        """Focal heatmap loss + weighted L1 regression loss at the GT centres (the velocity
+        channels over the objects whose velocity is known, ``vel_known``)."""
         hm_loss = focal_loss(preds['heatmap'], targets['heatmap'])
         reg_map = torch.cat([preds[n] for n in REG_SLICES], dim=1)       # (B, 10, H, W)
         B, C = reg_map.shape[:2]
         flat = reg_map.reshape(B, C, -1).permute(0, 2, 1)                   # (B, HW, 10)
         idx = targets['index'].unsqueeze(-1).expand(-1, -1, C)
         pred = torch.gather(flat, 1, idx)                                # (B, O, 10)
-        mask = targets['mask'].unsqueeze(-1).to(pred.dtype)
-        l1 = (torch.abs(pred - targets['reg']) * mask).sum(dim=(0, 1))   # (10,)
-        num = mask.sum().clamp(min=1.0)
+        known = targets['mask'] & targets.get('vel_known', targets['mask'])
+        v0, v1 = REG_SLICES['vel']
+        mask = targets['mask'].unsqueeze(-1).expand(-1, -1, C).clone()
+        mask[..., v0:v1] = known.unsqueeze(-1)
+        mask_f = mask.to(pred.dtype)
+        l1 = (torch.abs(pred - targets['reg']) * mask_f).sum(dim=(0, 1))  # (10,)
+        num = mask_f.sum(dim=(0, 1)).clamp(min=1.0)                       # (10,) per channel
         code_weights = typing.cast(Tensor, self.code_weights)
         loc_loss = (l1 / num * code_weights).sum()
         return {'hm_loss': hm_loss, 'loc_loss': loc_loss,
