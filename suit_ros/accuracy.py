@@ -83,7 +83,7 @@ class RunMetrics:
                  ranges: dict[str, float] | None = None) -> None:
         self.class_names = tuple(class_names)
         self.num_frames = len(run.gt)
-        gts, dets, npts = filter_frames(run.gt, run.det, class_names, ranges,
+        gts, dets, npts = filter_frames(run.gt, run.scored_detections(), class_names, ranges,
                                         num_points=run.num_points)
         labels = range(len(class_names))
         self.flat: dict[tuple[Bucket, int, float], _Flat] = {}
@@ -94,7 +94,8 @@ class RunMetrics:
                     self.flat[bucket, label, th] = _Flat(
                         [match_frame(g, d, label, th) for g, d in views])
         car = self.class_names.index('car') if 'car' in self.class_names else 0
-        self.motion = [car_motion_frame(g, d, car) for g, d in zip(run.gt, run.det)]
+        # the scored frames (range, returns, ignore boxes), as the report's headings
+        self.motion = [car_motion_frame(g, d, car) for g, d in zip(gts, dets)]
 
     def __call__(self, frames: Sequence[int] | None = None) -> dict[str, float]:
         """mAP, NDS, the mTP errors, AP per class, mAP per bucket and the car motion figures

@@ -154,8 +154,12 @@ def _filter(det: Detections, ranges: NDArray[np.float64], num_points: NDArray[np
 
 
 def _cummean(x: NDArray[np.float64]) -> NDArray[np.float64]:
+    """The running mean of ``x``, NaN skipped; all NaN (no error defined: every matched GT's
+    velocity unknown) is 1, the worst score, as the nuScenes devkit's ``cummean``."""
     if len(x) == 0:
         return x
+    if np.isnan(x).all():
+        return np.ones(len(x))
     nan = np.isnan(x)
     sums = np.nancumsum(x.astype(np.float64))
     counts = np.cumsum(~nan)
@@ -329,18 +333,24 @@ def evaluate(gt: Sequence[Detections], det: Sequence[Detections],
 
 
 def drop_ignored(det: Detections, gt: Detections, ignore: NDArray[np.floating[Any]],
-                 radius: float = TP_DIST) -> Detections:
+                 radius: float = TP_DIST, num_points: NDArray[np.uint32] | None = None
+                 ) -> Detections:
     """``det`` without the detections on ignored things (real datasets: parked bicycles):
-    a detection whose BEV centre lies within ``radius`` of an ignored box's centre and not
-    within ``radius`` of any GT box counts as neither a true nor a false positive."""
+    a detection whose BEV centre lies within ``radius`` of an ignored box's centre counts as
+    neither a true nor a false positive, unless it lies within ``radius`` of a GT box of its
+    own class that is scored (with returns, when ``num_points`` is given): a box of another
+    class, or one evaluation leaves out, vouches for nothing."""
     ig = np.asarray(ignore, np.float64).reshape(-1, 7)
     if len(ig) == 0 or len(det) == 0:
         return det
     xy = det.boxes[:, None, :2].astype(np.float64)
     near_ignored = (np.hypot(*(xy - ig[None, :, :2]).transpose(2, 0, 1)) < radius).any(1)
-    if len(gt):
-        g = gt.boxes[None, :, :2].astype(np.float64)
-        near_ignored &= ~(np.hypot(*(xy - g).transpose(2, 0, 1)) < radius).any(1)
+    scored = np.ones(len(gt), bool) if num_points is None else np.asarray(num_points) > 0
+    if scored.any():
+        g = gt.boxes[None, scored, :2].astype(np.float64)
+        near = np.hypot(*(xy - g).transpose(2, 0, 1)) < radius
+        near &= det.labels[:, None] == gt.labels[None, scored]
+        near_ignored &= ~near.any(1)
     return det.select(~near_ignored)
 
 
@@ -387,8 +397,9 @@ class ModelRun:
         """The detections, less those on ignored things (:func:`drop_ignored`)."""
         if not self.ignore:
             return self.det
-        return [d if ig is None else drop_ignored(d, g, ig)
-                for d, g, ig in zip(self.det, self.gt, self.ignore)]
+        num = self.num_points or [None] * len(self.det)
+        return [d if ig is None else drop_ignored(d, g, ig, num_points=n)
+                for d, g, ig, n in zip(self.det, self.gt, self.ignore, num)]
 
     def evaluate(self, class_names: Sequence[str],
                  ranges: dict[str, float] | None = None) -> EvalResult:

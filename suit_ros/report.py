@@ -176,7 +176,10 @@ class Report:
             if self.baseline:
                 out['baseline'] = {
                     'checkpoint': self.baseline,
-                    'classes': {c: {'ap': _r(iv.ap[c][1]), 'difference': _r(iv.difference[c][0]),
+                    # both APs over the same places (a box goes with its nearest object
+                    # there), so the difference is the one of the two columns
+                    'classes': {c: {'ap_this': _r(iv.ap[c][0]), 'ap': _r(iv.ap[c][1]),
+                                    'difference': _r(iv.difference[c][0]),
                                     'interval': [_r(v) for v in iv.difference[c][1]]}
                                 for c in self.class_names if self.counts[c].npos}}
         return out
@@ -209,11 +212,13 @@ class Report:
         if 'baseline' in j:
             lines += ['', f'## Against the baseline ({j["baseline"]["checkpoint"]})', '',
                       'Paired: the same place resamples score both; the difference is this '
-                      'checkpoint minus the baseline.', '',
+                      'checkpoint minus the baseline. Both APs are over the places (a box goes '
+                      'with the nearest labelled object), so they can differ a little from the '
+                      'table above.', '',
                       '| class | AP | baseline AP | difference [95% interval] |',
                       '|---|---|---|---|']
             for c, b in j['baseline']['classes'].items():
-                lines.append(f'| {c} | {_f(j["classes"][c]["ap"])} | {_f(b["ap"])} | '
+                lines.append(f'| {c} | {_f(b["ap_this"])} | {_f(b["ap"])} | '
                              f'{b["difference"]:+.3f} [{b["interval"][0]:+.3f}, '
                              f'{b["interval"][1]:+.3f}] |')
         if 'car_heading' in j:

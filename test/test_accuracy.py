@@ -174,3 +174,23 @@ def test_cached_matches_equal_a_fresh_evaluation_on_any_selection():
         assert got['mAP'] == pytest.approx(fresh.mean_ap, abs=1e-12)
         assert got['NDS'] == pytest.approx(fresh.nds, abs=1e-12)
         assert got['mATE'] == pytest.approx(fresh.mean_tp['mATE'], abs=1e-12)
+
+
+def test_run_metrics_score_what_evaluation_scores():
+    """RunMetrics (compare, outage, the report's intervals) scores the frames as `eval` does:
+    detections on ignored things are neither true nor false positives, and the car heading
+    figures leave out cars that are not scored (no returns, out of range)."""
+    from suit_ros.accuracy import RunMetrics
+    gt = dets([[10, 0, 0, 4, 2, 1.5, 0], [80, 0, 0, 4, 2, 1.5, 0], [-20, 0, 0, 4, 2, 1.5, 0]])
+    det = dets([[10.2, 0, 0, 4, 2, 1.5, 0],
+                [80.1, 0, 0, 4, 2, 1.5, np.pi],      # beyond 50 m, turned round
+                [-20.1, 0, 0, 4, 2, 1.5, np.pi],     # turned round on a car with no returns
+                [0, 15, 0, 4, 2, 1.5, 0]],           # on a parked bicycle (ignored)
+               scores=np.array([0.9, 0.8, 0.7, 0.95]))
+    run = ModelRun([gt], [det], [np.array([30, 30, 0], np.uint32)], [0.1], [0], {}, [0],
+                   [np.array([[0, 15, 0, 1.7, 0.6, 1.0, 0]], np.float32)])
+    got = RunMetrics(run, NAMES)()
+    assert got['mAP'] == pytest.approx(run.evaluate(NAMES).mean_ap, abs=1e-12)
+    no_ignore = ModelRun([gt], [det], run.num_points, [0.1], [0], {}, [0])
+    assert got['AP car'] > RunMetrics(no_ignore, NAMES)()['AP car']   # the bicycle's box
+    assert got['car flipped %'] == 0.0

@@ -208,6 +208,13 @@ def test_drop_ignored_keeps_detections_near_real_objects() -> None:
                      np.zeros((3, 2)), np.array([0.9, 0.8, 0.7]), np.array([2, 2, 2]))
     kept = drop_ignored(det, gt, ignore)
     np.testing.assert_allclose(kept.boxes[:, 0], [10.2, 20.0])
+    # only a scored object of the box's own class vouches for it: a cyclist box on the
+    # bicycle beside the pedestrian is on an ignored thing (it counted as a false positive),
+    # and so is a pedestrian box there when the pedestrian has no returns (not scored)
+    cyclist = Detections(det.boxes[1:2], np.zeros((1, 2)), np.array([0.8]), np.array([1]))
+    assert len(drop_ignored(cyclist, gt, ignore)) == 0
+    assert len(drop_ignored(det, gt, ignore, num_points=np.array([0], np.uint32))) == 1
+    assert len(drop_ignored(det, gt, ignore, num_points=np.array([5], np.uint32))) == 2
 
 
 @pytest.mark.slow

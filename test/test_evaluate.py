@@ -75,6 +75,27 @@ def test_matches_nuscenes_devkit(seed):
                     assert ours.tp[c][k] == pytest.approx(ref, abs=1e-6), (c, k)
 
 
+@pytest.mark.parametrize('seed', [0, 1])
+def test_unknown_gt_velocities_score_as_the_devkit(seed):
+    """GT velocities unknown (NaN: isolated annotations) are skipped by the velocity error;
+    a class whose every matched velocity is unknown scores the worst error, 1, as the devkit
+    (not 0, which read as perfect)."""
+    from nuscenes.eval.common.utils import center_distance
+    from nuscenes.eval.detection.algo import accumulate, calc_tp
+    rng = np.random.default_rng(seed)
+    gts, dets = scene(rng)
+    for g in gts:
+        unknown = (rng.random(len(g)) < 0.3) | (g.labels == 1)      # trucks: all unknown
+        g.velocities[unknown] = np.nan
+    ours = evaluate(gts, dets, NAMES, ranges=dict.fromkeys(NAMES, 1000000000.0))
+    gt_boxes, pred_boxes = to_devkit(gts, True), to_devkit(dets, False)
+    for c in NAMES:
+        md = accumulate(gt_boxes, pred_boxes, DEVKIT_NAMES[c], center_distance, 2.0)
+        ref = calc_tp(md, 0.1, 'vel_err')
+        assert ours.tp[c]['vel_err'] == pytest.approx(ref, abs=1e-6), c
+    assert ours.tp['truck']['vel_err'] == 1.0
+
+
 def test_perfect_and_empty():
     rng = np.random.default_rng(9)
     gts, _ = scene(rng, 6)

@@ -89,7 +89,7 @@ class TemporalFusion(nn.Module):
         w = conv.weight.detach().float()[:, :, 0, 0]
         bias = conv.bias
         self.identity_current = bool(
-            w.shape[0] == w.shape[1] and torch.equal(w, torch.eye(w.shape[0]))
+            w.shape[0] == w.shape[1] and torch.equal(w, torch.eye(w.shape[0], device=w.device))
             and (bias is None or not bias.detach().any()))
         self.zero_past = not bool(self.past.weight.detach().any())
         return self.identity_current
