@@ -307,6 +307,20 @@ def _schedule(opt: Any, progress: float, max_lr: float) -> float:
     return lr
 
 
+def agreed(progress: float, world: int, device: Any = None) -> float:
+    """The furthest ``progress`` over the ranks of a distributed run (``progress`` itself in
+    one process). Each rank reads its own clock: with a time budget one rank would end a step
+    before the others (which then wait in their next gradient exchange for good), and each
+    would set its own learning rate (the ranks' weights would drift apart)."""
+    if world <= 1:
+        return progress
+    import torch
+    import torch.distributed as dist
+    t = torch.tensor([progress], dtype=torch.float64, device=device)
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return float(t.item())
+
+
 def _device(device: str, threads: int, rank: int, world: int) -> Any:
     """The torch device of this process (joining the process group when distributed)."""
     import torch
@@ -410,9 +424,10 @@ def _config_dict(tc: TrainConfig) -> dict[str, Any]:
 
 
 def _resume(last: Path, module: Any, opt: Any, tc: TrainConfig, mcfg: Any
-            ) -> tuple[int, float]:
-    """Load a run's ``last.pt`` (weights only, no pickled code); :return: its step and the
-    wall time it had used.
+            ) -> tuple[int, float, dict[str, Any]]:
+    """Load a run's ``last.pt`` (weights only, no pickled code); :return: its step, the
+    wall time it had used, and the states of its data and augmentation generators (empty for
+    a run saved before they were kept).
 
     :raises ConfigError: the file cannot be read, or the run was made with another model or
         training config than ``tc`` (but for :data:`RESUMABLE_CHANGES`)."""
@@ -445,12 +460,14 @@ def _resume(last: Path, module: Any, opt: Any, tc: TrainConfig, mcfg: Any
     torch.set_rng_state(state['torch_rng'])
     step = int(state['step'])
     print(f'[train] resumed from {last} at step {step}')
-    return step, float(state.get('elapsed_s', 0.0))
+    return step, float(state.get('elapsed_s', 0.0)), dict(state.get('generators', {}))
 
 
 def _snapshot(out: Path, module: Any, opt: Any, mcfg: Any, tc: TrainConfig, step: int,
-              elapsed_s: float) -> None:
-    """``last.pt`` (to resume; with the configs it was made with) and
+              elapsed_s: float, generators: dict[str, Any]) -> None:
+    """``last.pt`` (to resume; with the configs it was made with, and ``generators``: the
+    states of the numpy generators that draw the clips and their augmentation, so that a
+    resumed run draws what the run would have drawn) and
     ``snapshot.safetensors`` (to evaluate mid-run), each replaced whole (a kill or a power
     loss while saving leaves the previous one)."""
     import torch
@@ -460,6 +477,7 @@ def _snapshot(out: Path, module: Any, opt: Any, mcfg: Any, tc: TrainConfig, step
     tmp = out / 'last.pt.tmp'
     torch.save({'model': module.state_dict(), 'optimizer': opt.state_dict(), 'step': step,
                 'elapsed_s': elapsed_s, 'torch_rng': torch.get_rng_state(),
+                'generators': generators,
                 'model_config': mcfg.to_dict(), 'train_config': _config_dict(tc)}, tmp)
     durable_replace(tmp, out / 'last.pt')
     save_checkpoint(out / 'snapshot.safetensors', module, mcfg, {'steps': step},
@@ -568,9 +586,15 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     last = out / 'last.pt'
     resumed = resume and last.is_file()
     if resumed:
-        step, done_s = _resume(last, module, opt, tc, mcfg)
-        sampler.rng = np.random.default_rng([tc.seed, step, rank])
-        aug_rng = np.random.default_rng([tc.seed, step, rank, 1])
+        step, done_s, generators = _resume(last, module, opt, tc, mcfg)
+        if rank == 0 and {'sampler', 'augment'} <= set(generators):
+            # the draws the run would have made next (rank 0 saves; the other ranks of a
+            # distributed run, and runs saved before, draw afresh from the step)
+            sampler.rng.bit_generator.state = generators['sampler']
+            aug_rng.bit_generator.state = generators['augment']
+        else:
+            sampler.rng = np.random.default_rng([tc.seed, step, rank])
+            aug_rng = np.random.default_rng([tc.seed, step, rank, 1])
     elif resume and rank == 0:
         print(f'[train] nothing to resume in {out} (no last.pt): starting at step 0')
     start = time.monotonic() - done_s
@@ -578,8 +602,9 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     def progress() -> float:
         by_time = ((time.monotonic() - start) / (tc.max_minutes * 60) if tc.max_minutes
                    else 0.0)
-        return max(step / tc.steps, by_time)
-    if resumed and progress() >= 1.0 and (out / 'model.safetensors').is_file():
+        return agreed(max(step / tc.steps, by_time), world, dev)
+    done = progress()                # each step's lr and the decision to stop: one for all
+    if resumed and done >= 1.0 and (out / 'model.safetensors').is_file():
         # a run that had finished (a recipe resumed as a whole): its model stands as written,
         # unless it was killed while evaluating (then it is evaluated and written again)
         from suit_ros.checkpoint import read_metadata
@@ -595,7 +620,7 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
                desc=f'train[{mcfg.temporal}]')
     _train_mode(model, module, frozen, tc.frozen_batchnorm)
     while True:                      # at least one step per call, then until the budget is spent
-        lr = _schedule(opt, progress(), tc.lr)
+        lr = _schedule(opt, done, tc.lr)
         clips, lost = sampler.batch_with_outages(batch)
         clips = _augmented(clips, tc, aug_rng, ground)
         vals = _optimise(model, module, opt, clips, tc.grad_clip, lost, distiller)
@@ -606,9 +631,12 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
             log.row(step, time.monotonic() - start, lr, vals)
         bar.set_postfix({k.replace('_loss', ''): f'{v:.3f}' for k, v in vals.items()})
         bar.update(1)
-        finished = progress() >= 1.0
+        done = progress()
+        finished = done >= 1.0
         if rank == 0 and (step % tc.checkpoint_every == 0 or finished):
-            _snapshot(out, module, opt, mcfg, tc, step, time.monotonic() - start)
+            _snapshot(out, module, opt, mcfg, tc, step, time.monotonic() - start,
+                      {'sampler': sampler.rng.bit_generator.state,
+                       'augment': aug_rng.bit_generator.state})
             if log:
                 log.flush()
         if finished:

@@ -5,6 +5,7 @@ from dataclasses import replace
 import os
 from pathlib import Path
 import socket
+import time
 
 import numpy as np
 import pytest
@@ -203,6 +204,44 @@ def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monk
         train(tiny(tmp_path, temporal='suit', steps=8), tmp_path / 'run', resume=True)
 
 
+@pytest.mark.slow
+def test_a_resumed_run_trains_what_the_run_would_have(tmp_path, monkeypatch):
+    """Killed after its snapshot at step 2 and resumed, a run draws the clips and the
+    augmentation it would have drawn, and ends with the same weights as one run through
+    (it drew afresh from the step before)."""
+    from safetensors.torch import load_file
+
+    import suit_ros.data.sequences as seqs
+    import suit_ros.train as train_mod
+    orig = seqs.synthetic_sequence
+    monkeypatch.setattr(seqs, 'synthetic_sequence',
+                        lambda name, seed, frames, cache_dir=None, sensor='sim32',
+                        points_dtype=np.float32, rate_hz=None:
+                        orig('test', seed, frames, cache_dir, points_dtype=points_dtype,
+                             rate_hz=rate_hz))
+    torch.set_num_threads(1)               # one thread: the same sums in the same order
+    cfg = tiny(tmp_path, temporal='suit', eval_at_end=False, train_frames=8,
+               clip_lengths=(2, 3))
+    train_mod.train(cfg, tmp_path / 'whole')
+    optimise, calls = train_mod._optimise, []
+
+    def killed_at_step_3(*args, **kw):
+        calls.append(1)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return optimise(*args, **kw)
+    monkeypatch.setattr(train_mod, '_optimise', killed_at_step_3)
+    with pytest.raises(KeyboardInterrupt):
+        train_mod.train(cfg, tmp_path / 'cut')
+    monkeypatch.setattr(train_mod, '_optimise', optimise)
+    assert torch.load(tmp_path / 'cut' / 'last.pt', weights_only=True)['step'] == 2
+    train_mod.train(cfg, tmp_path / 'cut', resume=True)
+    whole = load_file(tmp_path / 'whole' / 'model.safetensors')
+    cut = load_file(tmp_path / 'cut' / 'model.safetensors')
+    assert whole.keys() == cut.keys()
+    assert all(torch.equal(whole[k], cut[k]) for k in whole)
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(('127.0.0.1', 0))
@@ -245,6 +284,55 @@ def test_distributed_gradients_agree_across_ranks(tmp_path):
     r1 = torch.load(tmp_path / 'rank1.pt', weights_only=True)
     assert not torch.equal(r0['loss'], r1['loss'])           # different data per rank
     torch.testing.assert_close(r0['grads'], r1['grads'])     # all-reduced gradients agree
+
+
+def _small_world(seqs):
+    orig = seqs.synthetic_sequence
+    return (lambda name, seed, frames, cache_dir=None, sensor='sim32',
+            points_dtype=np.float32, rate_hz=None:
+            orig('test', seed, frames, cache_dir, points_dtype=points_dtype, rate_hz=rate_hz))
+
+
+def _budget_worker(rank, world, port, tmp_path, cfg):
+    import time
+
+    import suit_ros.data.sequences as seqs
+    import suit_ros.train as train_mod
+    os.environ.update(MASTER_ADDR='127.0.0.1', MASTER_PORT=str(port), RANK=str(rank),
+                      WORLD_SIZE=str(world))
+    seqs.synthetic_sequence = _small_world(seqs)
+    if rank == 1:                          # this rank's clock runs at half speed
+        real = time.monotonic
+        time.monotonic = lambda: real() * 0.5
+    metrics = train_mod.train(cfg, tmp_path / 'run', device='cpu', threads=1)
+    (tmp_path / f'rank{rank}.json').write_text(str(metrics['steps']))
+
+
+@pytest.mark.slow
+def test_distributed_ranks_agree_when_the_time_budget_ends(tmp_path, monkeypatch):
+    """With ``max_minutes`` each rank used to read its own clock: the first to reach the budget
+    stopped while the others began another step and waited in its gradient exchange for good
+    (and each set its own learning rate). The ranks now take the furthest progress of all:
+    they stop after the same step."""
+    import torch.multiprocessing as mp
+
+    import suit_ros.data.sequences as seqs
+    from suit_ros.train import training_sequences
+    monkeypatch.setattr(seqs, 'synthetic_sequence', _small_world(seqs))
+    cfg = tiny(tmp_path, temporal='suit', steps=10_000, max_minutes=0.05, eval_at_end=False,
+               checkpoint_every=10_000)
+    from suit_ros.config import load_model_config
+    training_sequences(cfg, load_model_config(cfg.model_config).class_names)  # cache once
+    ctx = mp.spawn(_budget_worker, args=(2, _free_port(), tmp_path, cfg), nprocs=2,
+                   join=False)
+    deadline = time.monotonic() + 240
+    while not ctx.join(timeout=5):
+        if time.monotonic() > deadline:
+            for p in ctx.processes:
+                p.kill()
+            pytest.fail('the ranks did not finish: one waits for the other')
+    steps = [int((tmp_path / f'rank{r}.json').read_text()) for r in range(2)]
+    assert steps[0] == steps[1] >= 2
 
 
 @pytest.mark.slow
