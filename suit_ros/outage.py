@@ -17,11 +17,16 @@ per outage frame 1..N the report gives:
 Frames 1-2 are carried by the previous sweeps in the input (3 sweeps); from frame 3 on only a
 memory can hold an object.
 
-On the drives as the sensor saw them (natural occlusion: objects behind others), recall by
-frames since an object was last visible, and the **occlusion mAP**: mAP over the frames with
-an object occluded for 1-10 frames, whose GT keeps those objects (they are still there;
+A lost object is one in the sector that had returns before the outage and has none now (one
+across the sector's edge that is still seen is not counted).
+
+On the drives as the sensor saw them (natural occlusion: objects behind others), recall
+through **occlusion events** (an object hidden 0.3-1.0 s between frames where it has returns:
+:func:`occlusion_events`) by frame of the event, and the **occlusion mAP**: mAP over the
+frames with an object inside an event, whose GT keeps those objects (they are still there;
 :func:`occlusion_run`); each model also runs with its memory dropped before every frame, and
-the paired difference is what the memory is worth there.
+the paired difference is what the memory is worth there. The first model's recall minus each
+other's (outage and occlusion) comes with a paired per-drive interval.
 """
 from __future__ import annotations
 
@@ -138,6 +143,8 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
                 in_sector = o.contains(f.gt.boxes[:, :2]) & np.isin(
                     f.instance_ids, list(seen_before))
                 in_sector &= np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
+                if f.num_points is not None:    # lost: no returns left (one across the
+                    in_sector &= f.num_points == 0   # sector's edge is still seen)
                 gt = f.gt.select(in_sector)
                 pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
                 pub_in = pub.select(o.contains(pub.boxes[:, :2])) if len(pub) else pub
@@ -162,6 +169,100 @@ def frames_since_seen(frames: Sequence[Frame]
         yield f, np.array([k - last_seen[i] if c == 0 and i in last_seen else 0
                            for i, c in zip(ids, counts)], np.int64)
         last_seen.update({i: k for i, c in zip(ids, counts) if c > 0})
+
+
+EVENT_S = (0.3, 1.0)            # the occlusion events scored: hidden for 0.3 to 1.0 s
+
+
+def occlusion_events(frames: Sequence[Frame], min_s: float = EVENT_S[0],
+                     max_s: float = EVENT_S[1]) -> list[NDArray[np.int64] | None]:
+    """Per frame of a drive, per GT object, its frame within an occlusion event (1-based; 0:
+    in none); None for a frame without GT ids and point counts.
+
+    An event is a run of frames in which an object, labelled in each, has no returns, between
+    a frame where it had returns and one where it has them again, lasting ``min_s`` to
+    ``max_s`` (from its first frame without returns to its first frame with them again: 3 to
+    10 frames at 10 Hz). An object that never comes back, or leaves the labels, makes no
+    event: nothing could tell a memory that holds it from one that keeps ghosts.
+    """
+    out: list[NDArray[np.int64] | None] = []
+    seen: dict[int, list[tuple[int, int, bool]]] = {}     # id -> (frame, row, has returns)
+    for k, f in enumerate(frames):
+        if f.gt is None or f.instance_ids is None or f.num_points is None:
+            out.append(None)
+            continue
+        out.append(np.zeros(len(f.gt), np.int64))
+        for row, (i, c) in enumerate(zip(f.instance_ids.tolist(), f.num_points.tolist())):
+            seen.setdefault(int(i), []).append((k, row, c > 0))
+    tol = 1_000_000                                    # 1 ms of stamp jitter
+    lo, hi = int(min_s * 1e9) - tol, int(max_s * 1e9) + tol
+    for track in seen.values():
+        n = 0
+        while n < len(track):
+            k, _, visible = track[n]
+            if visible or n == 0 or not track[n - 1][2] or track[n - 1][0] != k - 1:
+                n += 1
+                continue
+            m = n                    # hidden from track[n]; it had returns the frame before
+            while m + 1 < len(track) and track[m + 1][0] == track[m][0] + 1 \
+                    and not track[m + 1][2]:
+                m += 1
+            back = m + 1
+            if back < len(track) and track[back][0] == track[m][0] + 1:   # seen again
+                duration = frames[track[back][0]].stamp_ns - frames[k].stamp_ns
+                if lo <= duration <= hi:
+                    for pos, (kk, row, _) in enumerate(track[n:back], start=1):
+                        events = out[kk]
+                        assert events is not None
+                        events[row] = pos
+            n = back
+    return out
+
+
+def count_events(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence[Detections]],
+                 thresholds: Sequence[float], max_len: int = 10) -> OutageCounts:
+    """Recall of objects through their occlusion events (:func:`occlusion_events`), by frame of
+    the event (1..``max_len``): an object counts at each frame of its event within 50 m;
+    found: matched by a published box of its class within 2 m. The boxes columns stay 0."""
+    from suit_ros.evaluate import match_frame
+    n = len(gt_seqs)
+    objects = np.zeros((n, max_len), np.int64)
+    found = np.zeros((n, max_len), np.int64)
+    thr = np.asarray(thresholds, np.float64)
+    for d, (frames, dets) in enumerate(zip(gt_seqs, det_seqs)):
+        for f, pos, det in zip(frames, occlusion_events(frames), dets):
+            if pos is None or f.gt is None:
+                continue
+            near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
+            pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
+            for p in np.unique(pos[near & (pos > 0) & (pos <= max_len)]):
+                gt = f.gt.select(near & (pos == p))
+                objects[d, p - 1] += len(gt)
+                for c in range(len(thresholds)):
+                    found[d, p - 1] += int(match_frame(gt, pub, c, MATCH_DIST).tp.sum())
+    zeros = np.zeros_like(objects)
+    return OutageCounts(objects, found, zeros, zeros.copy())
+
+
+def recall_difference(a: OutageCounts, b: OutageCounts, resamples: int = 200, seed: int = 0
+                      ) -> dict[str, list[float]]:
+    """Recall of ``a`` minus ``b`` (two models on the same drives), over every counted frame
+    and from frame 3 on, ``[value, low, high]`` with a paired per-drive bootstrap: each
+    resample draws the same drives for both."""
+    if a.objects.shape != b.objects.shape or not np.array_equal(a.objects, b.objects):
+        raise ValueError('recall_difference: the counts are not over the same objects')
+
+    def recall(c: OutageCounts, pick: NDArray[np.int64], first: int) -> float:
+        return float(c.found[pick, first:].sum() / max(c.objects[pick, first:].sum(), 1))
+    rng = np.random.default_rng(seed)
+    n = len(a.objects)
+    every = np.arange(n)
+    picks = [rng.integers(0, n, n) for _ in range(resamples)]
+    out = {}
+    for key, first in (('recall', 0), ('recall_from_frame_3', 2)):
+        out[key] = _interval(recall(a, every, first) - recall(b, every, first),
+                             [recall(a, p, first) - recall(b, p, first) for p in picks])
+    return out
 
 
 def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
@@ -194,36 +295,35 @@ def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
     return OutageCounts(objects, found, zeros, zeros.copy())
 
 
-def occlusion_run(run: ModelRun, drives: Sequence[Sequence[Frame]], max_gap: int = 10
-                  ) -> ModelRun:
+def occlusion_run(run: ModelRun, drives: Sequence[Sequence[Frame]]) -> ModelRun:
     """``run`` (over ``drives``, in order) on its occlusion frames: the frames with an object
-    within 50 m that has no returns now and had returns 1..``max_gap`` frames before; their
-    GT is every object with returns plus those occluded ones (still there); an object unseen
-    for longer, or never seen, is ignored (a detection on it is neither true nor false)."""
+    within 50 m inside an occlusion event (:func:`occlusion_events`); their GT is every object
+    with returns plus those occluded ones (still there); another object without returns (one
+    that never comes back, or hidden longer) is ignored, as are the frame's own ignore boxes
+    (a detection on them is neither true nor false)."""
     keep_frames: list[int] = []
     gt: list[Detections] = []
     ignore: list[NDArray[np.float32] | None] = []
     num: list[Any] = []
     i = 0
     for frames in drives:
-        for f, gap in frames_since_seen(frames):
-            if gap is None or f.gt is None or f.num_points is None:
+        for f, pos in zip(frames, occlusion_events(frames)):
+            if pos is None or f.gt is None or f.num_points is None:
                 raise ValueError('occlusion_run needs GT with instance ids and point counts')
             near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
-            occluded = (gap > 0) & (gap <= max_gap)
+            occluded = pos > 0
             if (occluded & near).any():
                 kept = (f.num_points > 0) | occluded
                 keep_frames.append(i)
                 gt.append(f.gt.select(kept))
-                ignore.append(f.gt.boxes[~kept].astype(np.float32))
+                own = np.zeros((0, 7), np.float32) if f.ignore_boxes is None else \
+                    np.asarray(f.ignore_boxes, np.float32).reshape(-1, 7)
+                ignore.append(np.concatenate([own, f.gt.boxes[~kept].astype(np.float32)]))
                 num.append(np.maximum(f.num_points[kept], 1))
             i += 1
     if i != len(run.det):
         raise ValueError(f'the run has {len(run.det)} frames, the drives {i}')
-    return replace(run, gt=gt, det=[run.det[j] for j in keep_frames], num_points=num,
-                   ignore=ignore, latency_s=[run.latency_s[j] for j in keep_frames],
-                   memory_bytes=[run.memory_bytes[j] for j in keep_frames],
-                   drive=[run.drive[j] for j in keep_frames])
+    return replace(run.select_frames(keep_frames), gt=gt, num_points=num, ignore=ignore)
 
 
 def occlusion_ap(model: Any, drives: Sequence[Sequence[Frame]], plain: ModelRun,
@@ -330,7 +430,9 @@ def run(args: argparse.Namespace) -> int:
     seqs = [with_outages(seq, o) for seq, o in zip(plain, outs)]
     result: dict[str, Any] = {'drives': args.drives, 'frames': args.frames,
                               'width_deg': args.width, 'length': args.length, 'runs': {},
-                              'occlusion': {}, 'occlusion_ap': {}, 'deskew': args.deskew}
+                              'occlusion': {}, 'occlusion_ap': {}, 'deskew': args.deskew,
+                              'outage_difference': {}, 'occlusion_difference': {}}
+    counted: dict[str, dict[str, OutageCounts]] = {'outage': {}, 'occlusion': {}}
     tracker = TrackerConfig()
     if args.coast_s is not None:
         try:
@@ -347,6 +449,7 @@ def run(args: argparse.Namespace) -> int:
             runs = _run(model, seqs, tracker if tracked else None, args.deskew == 'on')
             counts = count_outage(seqs, published_by_drive(runs, thr, carry), outs, zero,
                                   args.length)
+            counted['outage'][key] = counts
             result['runs'][key] = r = intervals(counts)
             print(f'{key:<24} recall by outage frame ' + ' '.join(f'{v[0]:.2f}' for v in
                                                                    r['recall'])
@@ -354,11 +457,12 @@ def run(args: argparse.Namespace) -> int:
                   + ' '.join(f'{v[0]:.2f}' for v in r['sector_precision']), flush=True)
             if args.occlusion:
                 run_ = _run(model, plain, tracker if tracked else None, args.deskew == 'on')
-                occ = count_occlusion(plain, published_by_drive(run_, thr, carry), zero)
+                occ = count_events(plain, published_by_drive(run_, thr, carry), zero)
+                counted['occlusion'][key] = occ
                 result['occlusion'][key] = o = intervals(occ)
-                print(f'{key:<24} occluded objects, recall by frames since last seen '
+                print(f'{key:<24} occlusion events, recall by frame of the event '
                       + ' '.join(f'{v[0]:.2f}' for v in o['recall'])
-                      + f' | 3-10 frames: {_band(o["recall_from_frame_3"])}', flush=True)
+                      + f' | frames 3+: {_band(o["recall_from_frame_3"])}', flush=True)
                 if not tracked:
                     result['occlusion_ap'][name] = a = occlusion_ap(
                         model, plain, run_, cfg.class_names, args.deskew == 'on')
@@ -366,6 +470,16 @@ def run(args: argparse.Namespace) -> int:
                           + (f' | memory dropped {_band(a["memory dropped"])} | difference '
                              f'{_band(a["difference"])}' if 'difference' in a else ''),
                           flush=True)
+    names = list(models)
+    for what, counts_by in counted.items():      # paired: the first model against the others
+        for other in names[1:]:
+            for suffix in ('', ', tracker'):
+                a, b = names[0] + suffix, other + suffix
+                if a in counts_by and b in counts_by:
+                    d = recall_difference(counts_by[a], counts_by[b])
+                    result[f'{what}_difference'][f'{a} - {b}'] = d
+                    print(f'{what}: {a} - {b}: recall {_band(d["recall"])}, frames 3+ '
+                          f'{_band(d["recall_from_frame_3"])}', flush=True)
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(result, indent=2), encoding='utf-8')
     if args.markdown:
@@ -393,22 +507,28 @@ def tables(result: dict[str, Any]) -> str:
         late = r.get('sector_precision_from_frame_3')
         lines.append(f'| {key} | ' + ' | '.join(f'{v[0]:.2f}' for v in r['sector_precision'])
                      + f' | {_band(late) if late else ""} | {sum(r["boxes"])} |')
+    lines += _difference_table(result.get('outage_difference') or {},
+                               'Paired differences (the same drives and resamples), outage '
+                               'recall:')
     occ = result.get('occlusion') or {}
     if occ:
         gaps = len(next(iter(occ.values()))['recall'])
-        lines += ['', 'Natural occlusion (the same drives as the sensor saw them): recall of '
-                  'objects without returns by frames since they were last seen:', '',
+        lines += ['', 'Natural occlusion (the same drives as the sensor saw them): occlusion '
+                  f'events, objects hidden {EVENT_S[0]:g}-{EVENT_S[1]:g} s between frames with '
+                  'returns (3-10 frames at 10 Hz); recall by frame of the event:', '',
                   '| model | ' + ' | '.join(str(g) for g in range(1, gaps + 1))
-                  + ' | 3-10 frames |', '|---' * (gaps + 2) + '|']
+                  + ' | frames 3+ |', '|---' * (gaps + 2) + '|']
         for key, r in occ.items():
             lines.append(f'| {key} | ' + ' | '.join(f'{v[0]:.2f}' for v in r['recall'])
                          + f' | {_band(r["recall_from_frame_3"])} |')
         lines.append('| objects | ' + ' | '.join(str(c) for c in
                                                    next(iter(occ.values()))['objects'])
                      + ' | |')
+    lines += _difference_table(result.get('occlusion_difference') or {},
+                               'Paired differences, recall through occlusion events:')
     occ_ap = result.get('occlusion_ap') or {}
     if occ_ap:
-        lines += ['', 'Occlusion mAP (the frames with an object occluded for 1-10 frames, '
+        lines += ['', 'Occlusion mAP (the frames with an object inside an occlusion event, '
                   'its GT kept), with the memory dropped before every frame, and the paired '
                   'difference (what the memory is worth):',
                   '', '| model | mAP | memory dropped | difference |', '|---|---|---|---|']
@@ -419,7 +539,19 @@ def tables(result: dict[str, Any]) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def _band(v: Any) -> str:
+def _difference_table(diffs: dict[str, dict[str, list[float]]], title: str) -> list[str]:
+    if not diffs:
+        return []
+    lines = ['', title, '', '| models | every frame | frames 3+ |', '|---|---|---|']
+    for pair, d in diffs.items():
+        lines.append(f'| {pair} | {_band(d["recall"], True)} | '
+                     f'{_band(d["recall_from_frame_3"], True)} |')
+    return lines
+
+
+def _band(v: Any, signed: bool = False) -> str:
+    if signed:
+        return f'{v[0]:+.2f} [{v[1]:+.2f}, {v[2]:+.2f}]'
     return f'{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]'
 
 

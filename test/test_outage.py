@@ -8,10 +8,13 @@ import pytest
 
 from suit_ros.outage import (
     Outage,
+    count_events,
     count_occlusion,
     count_outage,
     intervals,
+    occlusion_events,
     outages_for,
+    recall_difference,
     with_outages,
 )
 from suit_ros.structures import Detections, Frame
@@ -94,8 +97,73 @@ def test_occluded_objects_are_counted_by_frames_since_last_seen():
                     resamples=20)
     text = tables({'length': 3, 'width_deg': 120.0, 'drives': 1, 'frames': 12,
                    'runs': {'m': out}, 'occlusion': {'m': j}})
-    assert '| m | 1.00 [1.00, 1.00] |' in text and '| 3-10 frames |' in text
+    assert '| m | 1.00 [1.00, 1.00] |' in text and '| frames 3+ |' in text
     assert '| objects | 1 | 1 | 1 | 0 | 0 | |' in text
+
+
+def hidden(frames, car_frames):
+    """The drive with the car ahead (id 1) without returns at ``car_frames``."""
+    out = list(frames)
+    for k in car_frames:
+        out[k] = replace(out[k], num_points=np.array([0, 50], np.uint32))
+    return out
+
+
+def test_an_occlusion_event_is_an_object_hidden_0_3_to_1_s_and_seen_again():
+    """Events: hidden 3-10 frames at 10 Hz between frames with returns. Hidden 2 frames is
+    too short, 11 too long; hidden to the end of the drive, or from its start, is none (it
+    never comes back, or was never seen); an object that leaves the labels while hidden is
+    none."""
+    def car_events(frames):
+        return [int(p[0]) for p in occlusion_events(frames)]
+    assert car_events(hidden(drive(), [4, 5, 6])) == [0] * 4 + [1, 2, 3] + [0] * 5
+    assert car_events(hidden(drive(), [4, 5])) == [0] * 12
+    assert car_events(hidden(drive(16), range(2, 13))) == [0] * 16
+    assert car_events(hidden(drive(16), range(2, 12))) == [0, 0] + list(range(1, 11)) + [0] * 4
+    assert car_events(hidden(drive(), range(8, 12))) == [0] * 12          # never back
+    assert car_events(hidden(drive(), range(0, 4))) == [0] * 12           # never seen before
+    both = hidden(drive(), [3, 4, 5, 8, 9, 10])                # two events of one object
+    assert car_events(both) == [0, 0, 0, 1, 2, 3, 0, 0, 1, 2, 3, 0]
+    gone = hidden(drive(), [4, 5, 6])
+    gone[5] = replace(gone[5], gt=gone[5].gt.select(np.array([False, True])),
+                      num_points=np.array([50], np.uint32), instance_ids=np.array([2], np.uint32))
+    assert car_events(gone)[4] == 0 and occlusion_events(gone)[5].tolist() == [0]
+
+
+def test_event_recall_and_its_paired_difference_between_two_models():
+    frames = hidden(drive(), [4, 5, 6])
+    car = Detections(np.array([box(10.5, 0)]), np.zeros((1, 2)), np.array([0.9]), [0])
+    empty = Detections.empty()
+    holds = count_events([frames], [[empty] * 4 + [car] * 3 + [empty] * 5], [0.5] * 4, 5)
+    drops = count_events([frames], [[empty] * 4 + [car] + [empty] * 7], [0.5] * 4, 5)
+    assert holds.objects.tolist() == [[1, 1, 1, 0, 0]]
+    assert holds.found.tolist() == [[1, 1, 1, 0, 0]] and drops.found.tolist() == [[1, 0, 0, 0, 0]]
+    d = recall_difference(holds, drops, resamples=20)
+    assert d['recall'][0] == pytest.approx(2 / 3, abs=1e-3)
+    assert d['recall_from_frame_3'] == [1.0, 1.0, 1.0]
+    with pytest.raises(ValueError, match='same objects'):
+        recall_difference(holds, count_events([drive()], [[empty] * 12], [0.5] * 4, 5))
+
+
+def test_an_object_across_the_sectors_edge_is_not_lost():
+    """An outage counts the objects it hides: a car whose centre is in the sector but whose
+    returns outside it are still seen is not counted (it was, as lost, before)."""
+    o = Outage(0.0, 120.0, 4, 3)
+    frames = drive()
+    edge = np.array([[6.0, 9.0]])                   # azimuth 56 deg: just inside the sector
+    for k, f in enumerate(frames):
+        rng = np.random.default_rng(k)
+        across = np.c_[rng.uniform(3.8, 8.2, (40, 1)), np.full((40, 1), 9.0)]
+        pts = np.c_[across, np.full((40, 1), 0.8), np.zeros((40, 2))].astype(np.float32)
+        gt = Detections(np.r_[f.gt.boxes, [[*edge[0], 0.8, 4.5, 1.9, 1.6, 0.0]]],
+                        np.zeros((3, 2)), np.ones(3), np.array([0, 0, 0]))
+        frames[k] = replace(f, points=np.r_[f.points, pts], gt=gt,
+                            num_points=np.array([50, 50, 40], np.uint32),
+                            instance_ids=np.array([1, 2, 3], np.uint32))
+    played = with_outages(frames, [o])
+    assert played[4].num_points[2] > 0                  # part of it outside the sector
+    c = count_outage([played], [[Detections.empty()] * 12], [[o]], [0.5] * 4, 3)
+    assert c.objects.tolist() == [[1, 1, 1]]                      # the car ahead only
 
 
 def test_occlusion_run_keeps_the_occluded_objects_on_the_occlusion_frames():
@@ -115,13 +183,20 @@ def test_occlusion_run_keeps_the_occluded_objects_on_the_occlusion_frames():
                             np.zeros((3, 2)), np.array([0.9, 0.8, 0.95]), [0, 0, 0])
     names = ('car', 'truck', 'pedestrian', 'cyclist')
 
+    bike = np.array([[0.0, -15.0, 0.5, 1.7, 0.6, 1.0, 0.0]], np.float32)
+    frames[5] = replace(frames[5], ignore_boxes=bike)          # the frame's own ignore box
+
     def scored(dets):
         run = ModelRun([f.gt for f in frames], dets, [f.num_points for f in frames],
-                       [0.0] * 12, [0] * 12, {}, [0] * 12)
+                       [0.0] * 12, [0] * 12, {}, [0] * 12,
+                       carried=[np.zeros(len(d), bool) for d in dets],
+                       used_memory=[True] * 12)
         return occlusion_run(run, [frames])
     held = scored([both] * 12)
     assert len(held.gt) == 3 and all(len(g) == 2 for g in held.gt)
     assert held.num_points[0].tolist() == [1, 50]
+    assert len(held.carried) == len(held.used_memory) == 3       # in step with the frames
+    np.testing.assert_array_equal(held.ignore[1], bike)
     dropped = scored([behind] * 12)
     haunted = scored([both] * 4 + [with_ghost] * 3 + [both] * 5)
     ap = {k: r.evaluate(names).class_ap['car'] for k, r in
@@ -139,7 +214,8 @@ def test_outage_command_runs(tmp_path, capsys):
                  str(tmp_path / 'cache'), '--json-out', str(out)]) == 0
     text = capsys.readouterr().out
     assert 'SUIT, tracker' in text and 'single frame' in text and out.is_file()
-    assert 'frames since last seen' in text and 'occlusion mAP' in text
+    assert 'occlusion events' in text and 'occlusion mAP' in text
+    assert 'SUIT - single frame' in text
 
 
 @pytest.mark.slow
