@@ -24,6 +24,7 @@ import hashlib
 import json
 import os
 from pathlib import Path
+import tempfile
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -59,7 +60,8 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
     for name in ('street_objects', 'real_car_ends', 'bystanders', 'dark_tops'):
         if cfg.get('realism') and not cfg['realism'][name]:
             del cfg['realism'][name]             # off: the world (and its key) as before
-    blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 2}, sort_keys=True, default=str)
+    # v3: objects count their own returns where a moving sweep put them outside their box
+    blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 3}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
 
 
@@ -144,9 +146,16 @@ def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
     arrays['meta'] = np.frombuffer(json.dumps(
         {'n': len(frames), 'frame_id': frames[0].frame_id if frames else 'lidar',
          'sequence_id': frames[0].sequence_id if frames else ''}).encode(), np.uint8)
-    tmp = path.with_suffix('.tmp.npz')
-    np.savez(tmp, **arrays)
-    os.replace(tmp, path)
+    # a temporary name of its own: two processes caching one drive each write their own file
+    # (a shared one was renamed under the other writer, and read torn)
+    fd, name = tempfile.mkstemp(prefix=path.stem + '.', suffix='.tmp.npz', dir=path.parent)
+    try:
+        with os.fdopen(fd, 'wb') as out:
+            np.savez(out, **arrays)
+        os.replace(name, path)
+    except BaseException:
+        Path(name).unlink(missing_ok=True)
+        raise
 
 
 def load_sequence(path: Path, points_dtype: PointsDtype = np.float32) -> list[Frame]:

@@ -169,7 +169,7 @@ class Simulation:
         T_ob = base_pose(self.ego, t)
         T_ol = T_ob @ self.T_base_lidar
         actor_boxes, actor_vel = self.actor_boxes(t)
-        gt, num, ids = self._ground_truth(T_ol, actor_boxes, actor_vel, xyz)
+        gt, num, ids = self._ground_truth(T_ol, actor_boxes, actor_vel, xyz, surface)
         frame = SimFrame(k, START_NS + int(round(t * 1e9)), cloud, T_ob, self.T_base_lidar, gt,
                          num, ids, surface, self._surface_boxes(t, actor_boxes),
                          self._odometry(k))
@@ -291,10 +291,16 @@ class Simulation:
         return out
 
     def _ground_truth(self, T_ol: NDArray[np.float64], actor_boxes: NDArray[np.float64],
-                      actor_vel: NDArray[np.float64], xyz: NDArray[np.float64]
+                      actor_vel: NDArray[np.float64], xyz: NDArray[np.float64],
+                      surface: NDArray[np.int64]
                       ) -> tuple[Detections, NDArray[np.uint32], NDArray[np.uint32]]:
         """GT in the LiDAR frame (actors within range, not the one the sensor sits in), the
-        number of returns in each box and the instance ids."""
+        number of returns of each object and the instance ids.
+
+        An object's returns are those in its box at the stamp, or its own (the returns cast
+        on it) where there are more: a sweep taken while the sensor and the object move puts
+        returns of a moving object up to a sweep's motion outside its box at the stamp (a
+        visible object counted 0 was trained as background and left unscored)."""
         lc = self.cfg.lidar
         T_lo = se3_inverse(T_ol)
         boxes_l, vel_l = transform_boxes(T_lo, actor_boxes, actor_vel)
@@ -310,6 +316,18 @@ class Simulation:
         labels = np.array([a.label for a in self.actors], np.int64)[keep]
         ids = np.array([a.instance_id for a in self.actors], np.uint32)[keep]
         num = count_points_in_boxes(xyz, boxes_l)
+        if self.surfaces is not None:
+            owner = np.where(surface >= 0, self.surfaces.instance[surface.clip(0)], 0)
+        else:
+            S = len(self.world.boxes)
+            actor_ids = np.array([a.instance_id for a in self.actors] or [0], np.int64)
+            owner = np.where(surface >= S, actor_ids[(surface - S).clip(0, len(actor_ids) - 1)],
+                             0)
+        if len(ids):
+            own = np.bincount(np.searchsorted(np.sort(ids), owner[np.isin(owner, ids)]),
+                              minlength=len(ids))
+            own = own[np.argsort(np.argsort(ids))]          # back to the order of ``ids``
+            num = np.maximum(num, own.astype(np.uint32))
         gt = Detections(boxes_l, vel_l, np.ones(len(boxes_l), np.float32), labels)
         return gt, num, ids
 
