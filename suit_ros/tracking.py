@@ -283,8 +283,13 @@ class Tracker:
             var_v[read] = 1.0 / (w_h + w_s)
         measured_vel = vel.copy()                    # the detections' frame
         vel = vel @ R.T
-        confident = det.scores >= cfg.birth_score
-        match = self._associate(centres, np.asarray(det.labels, np.int64), confident)
+        # a detection with a non-finite centre or velocity (a caller's bad input) is passed
+        # on untracked: it would turn its track's state NaN for good
+        usable = np.isfinite(centres).all(1) & np.isfinite(vel).all(1)
+        confident = (det.scores >= cfg.birth_score) & usable
+        match = self._associate(np.where(usable[:, None], centres, 1e12),
+                                np.asarray(det.labels, np.int64), confident)
+        match[~usable] = -1
         Rm = np.zeros((len(det), 2, 2))                                   # per axis
         Rm[:, 0, 0] = cfg.pos_sigma ** 2
         Rm[:, 1, 1] = var_v

@@ -81,6 +81,19 @@ def test_classes_never_share_a_track_and_new_objects_get_new_ids():
     assert ids2.tolist() == [3]
 
 
+def test_a_detection_with_a_nan_neither_spoils_nor_starts_a_track():
+    """A caller's detection with a NaN velocity or centre is passed on untracked (id 0): it
+    turned its track's state NaN for good, and the object got a new id a frame later."""
+    vf = Tracker(TrackerConfig(sweep_sigma=None))
+    T = np.eye(4)
+    _, ids = vf.update(frame([[10, 0]], [[0, 0]]), 0, T)
+    out, bad = vf.update(frame([[10, 0], [np.nan, 3]], [[np.nan, 0], [0, 0]]), DT_NS, T)
+    assert bad.tolist() == [0, 0] and np.isnan(out.velocities[0, 0])
+    assert np.isfinite(vf.x).all() and len(vf) == 1
+    out, again = vf.update(frame([[10, 0]], [[0, 0]]), 2 * DT_NS, T)
+    assert again.tolist() == ids.tolist() == [1] and np.isfinite(out.velocities).all()
+
+
 def test_tracks_end_after_misses_and_on_time_jumps():
     cfg = TrackerConfig(max_miss_s=0.2)
     vf = Tracker(cfg)
