@@ -153,3 +153,32 @@ def test_an_unknown_velocity_is_no_target():
     idx = unknown['index'][0, 1]
     cell = reg.grad[0, :, idx // GRID.W, idx % GRID.W]
     assert (cell[8:10] == 0).all() and (cell[:8] != 0).any()
+
+
+def test_a_score_on_an_ignored_thing_costs_nothing():
+    """Cells inside an ignore box (a parked bicycle on a real dataset) are no negatives: a
+    confident score there costs what no score does; outside one it costs."""
+    head = CenterHead(8, 4, GRID)
+    car = torch.tensor([[3.3, -7.1, -0.9, 4.5, 1.9, 1.6, 0.7]])
+    bike = torch.tensor([[-10.0, 6.0, -0.9, 1.7, 0.6, 1.0, 0.4]])
+    args = ([car], [torch.zeros(1, 2)], [torch.tensor([0])])
+    plain = head.build_targets(*args)
+    ignored = head.build_targets(*args, ignore=[bike])
+    assert 'hm_ignore' not in plain and ignored['hm_ignore'].shape == (1, GRID.H, GRID.W)
+    col, row = (int(v) for v in GRID.xy_to_cell(bike[0, :2]))
+    assert ignored['hm_ignore'][0, row, col] and ignored['hm_ignore'][0].sum() >= 2
+    assert not ignored['hm_ignore'][0, row, col + 10]
+    quiet = torch.full((1, 4, GRID.H, GRID.W), -9.0)
+
+    def hm(logits, tgt):
+        preds = {'heatmap': logits}
+        for name, (a, b) in __import__('suit_ros.model.head', fromlist=['REG_SLICES']) \
+                .REG_SLICES.items():
+            preds[name] = torch.zeros(1, b - a, GRID.H, GRID.W)
+        return float(head.loss(preds, tgt)['hm_loss'])
+    on_bike, beside = quiet.clone(), quiet.clone()
+    on_bike[0, 3, row, col] = 5.0              # a cyclist box on the parked bicycle
+    beside[0, 3, row, col + 10] = 5.0
+    assert hm(on_bike, ignored) == pytest.approx(hm(quiet, ignored), abs=1e-6)
+    assert hm(on_bike, plain) > hm(quiet, plain) + 1.0
+    assert hm(beside, ignored) > hm(quiet, ignored) + 1.0

@@ -113,6 +113,12 @@ def test_model_frame_equals_the_streaming_buffer():
     np.testing.assert_allclose(gt.boxes[0, :3], want[:3], atol=1e-5)
     assert gt.boxes[0, 6] == pytest.approx(0.3 + 0.01, abs=1e-4)
     assert np.hypot(*gt.velocities[0]) == pytest.approx(3.0, abs=1e-3)   # pitch 0.02
+    # ignore boxes move into base_link as the GT does
+    from dataclasses import replace
+    ig = model_frame([replace(f, ignore_boxes=f.gt.boxes.astype(np.float32)) for f in frames],
+                     4, 3).ignore_boxes
+    assert ig is not None
+    np.testing.assert_allclose(ig, gt.boxes, atol=1e-5)
 
 
 def test_skipped_sweeps_added_make_the_input_training_makes():

@@ -44,6 +44,10 @@ def test_augmentation_keeps_static_objects_consistent(aug):
     raw = two_frames()[0]
     R = aug.matrix[:2, :2] * aug.scale
     np.testing.assert_allclose(f0.gt.velocities, raw.gt.velocities @ R.T, atol=1e-5)
+    # ignore boxes (a real dataset's parked bicycles) go with the GT, as the same box would
+    frames = [replace(f, ignore_boxes=f.gt.boxes.astype(np.float32)) for f in two_frames()]
+    for f in apply_clip(frames, aug):
+        np.testing.assert_allclose(f.ignore_boxes, f.gt.boxes, atol=1e-4)
 
 
 def test_tilt_lift_and_dropout_draws():

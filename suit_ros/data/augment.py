@@ -19,6 +19,7 @@ intensity, as from a driver that publishes none) teaches the model to work from 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -90,17 +91,22 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
     pose = frame.pose.copy()
     pose[:3, :3] = frame.pose[:3, :3] @ R.T
     pose[:3, 3] = frame.pose[:3, 3] * s - pose[:3, :3] @ np.array([0.0, 0.0, aug.lift])
-    gt = frame.gt
-    if gt is not None:
-        boxes = gt.boxes.astype(np.float64).copy()
+
+    def moved(given: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
+        boxes = np.asarray(given, np.float64).reshape(-1, 7).copy()
         boxes[:, :3] = boxes[:, :3] @ R.T * s
         boxes[:, 2] += aug.lift
         boxes[:, 3:6] *= s
-        yaw = -gt.boxes[:, 6] if aug.flip else gt.boxes[:, 6].astype(np.float64)
+        yaw = -boxes[:, 6] if aug.flip else boxes[:, 6]
         boxes[:, 6] = np.arctan2(np.sin(yaw + aug.angle), np.cos(yaw + aug.angle))
+        return boxes
+    gt = frame.gt
+    if gt is not None:
         vel = gt.velocities.astype(np.float64) @ R[:2, :2].T * s
-        gt = Detections(boxes, vel, gt.scores, gt.labels)
-    return replace(frame, points=pts, pose=pose, gt=gt, times=times)
+        gt = Detections(moved(gt.boxes), vel, gt.scores, gt.labels)
+    ignore = None if frame.ignore_boxes is None else \
+        moved(frame.ignore_boxes).astype(np.float32)          # they go with the GT
+    return replace(frame, points=pts, pose=pose, gt=gt, times=times, ignore_boxes=ignore)
 
 
 def _hash_unit(points: NDArray[np.float32]) -> NDArray[np.float64]:

@@ -417,16 +417,19 @@ def frame_points(frame: Frame, device: torch.device) -> Tensor:
 
 
 def gt_tensors(frames: Sequence[Frame], device: torch.device
-               ) -> tuple[list[Tensor], list[Tensor], list[Tensor]]:
-    """GT boxes, velocities and labels of each frame as tensors (empty when a frame has none)."""
-    boxes, vels, labels = [], [], []
+               ) -> tuple[list[Tensor], list[Tensor], list[Tensor], list[Tensor]]:
+    """GT boxes, velocities and labels of each frame as tensors (empty when a frame has none),
+    and its ignore boxes ``(K, 7)``."""
+    boxes, vels, labels, ignore = [], [], [], []
     for f in frames:
         if f.gt is None:
             raise ValueError(f'frame {f.stamp_ns} of {f.sequence_id!r} has no ground truth')
         boxes.append(torch.from_numpy(f.gt.boxes).to(device))
         vels.append(torch.from_numpy(f.gt.velocities).to(device))
         labels.append(torch.from_numpy(f.gt.labels).to(device))
-    return boxes, vels, labels
+        ig = np.zeros((0, 7), np.float32) if f.ignore_boxes is None else f.ignore_boxes
+        ignore.append(torch.from_numpy(np.asarray(ig, np.float32).reshape(-1, 7)).to(device))
+    return boxes, vels, labels, ignore
 
 
 def assign_velocities(centres: Tensor, batch_index: Tensor, frames: Sequence[Frame],

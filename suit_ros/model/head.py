@@ -48,11 +48,14 @@ def draw_gaussian(heatmap: Tensor, col: int, row: int, radius: int) -> None:
     torch.maximum(region, patch, out=region)
 
 
-def focal_loss(logits: Tensor, target: Tensor) -> Tensor:
-    """CornerNet's penalty-reduced focal loss (alpha 2, beta 4), normalised by positives."""
+def focal_loss(logits: Tensor, target: Tensor, ignore: Tensor | None = None) -> Tensor:
+    """CornerNet's penalty-reduced focal loss (alpha 2, beta 4), normalised by positives;
+    ``ignore`` ``(B, H, W)``: cells where a score costs nothing (on ignored things)."""
     pred = torch.sigmoid(logits).clamp(1e-4, 1 - 1e-4)
     pos = target.eq(1).to(pred.dtype)
     neg_w = torch.pow(1 - target, 4)
+    if ignore is not None:
+        neg_w = neg_w * (~ignore).unsqueeze(1).to(neg_w.dtype)
     pos_loss = (torch.log(pred) * torch.pow(1 - pred, 2) * pos).sum()
     neg_loss = (torch.log(1 - pred) * torch.pow(pred, 2) * neg_w * (1 - pos)).sum()
     return -(pos_loss + neg_loss) / pos.sum().clamp(min=1.0)
@@ -138,15 +141,21 @@ class CenterHead(nn.Module):
 
     # ------------------------------------------------------------------ targets and loss
     def build_targets(self, boxes: list[Tensor], velocities: list[Tensor],
-                      labels: list[Tensor]) -> dict[str, Tensor]:
+                      labels: list[Tensor], ignore: list[Tensor] | None = None
+                      ) -> dict[str, Tensor]:
         """CenterPoint targets for a batch of per-sample GT ``(M_i, 7)``, ``(M_i, 2)``, ``(M_i,)``.
+
+        ``ignore``: per sample ``(K_i, 7)`` boxes of things that are neither objects nor
+        background (a real dataset's parked bicycles, vans of no class here): a score on a
+        cell inside one costs nothing (``hm_ignore``), where it taught them as background.
 
         A velocity that is not finite (NaN: a real dataset's isolated annotation, whose motion
         is unknown) is no target: its object is still found and sized, and ``vel_known`` leaves
         it out of the velocity loss (0 would teach the object to stand still).
 
         :return: ``heatmap (B, K, H, W)``, ``index (B, O)`` flat cell index, ``mask (B, O)``,
-            ``vel_known (B, O)``, ``reg (B, O, 10)`` with O = ``max_objects``.
+            ``vel_known (B, O)``, ``reg (B, O, 10)`` with O = ``max_objects``, and
+            ``hm_ignore (B, H, W)`` when ``ignore`` has a box.
         """
         g = self.grid
         B, O = len(boxes), self.max_objects
@@ -182,13 +191,35 @@ class CenterHead(nn.Module):
                     math.sin(float(bx[i, 6])), math.cos(float(bx[i, 6])),
                     vx, vy])
                 k += 1
-        return {'heatmap': heat, 'index': index, 'mask': mask, 'vel_known': vel_known,
-                'reg': reg}
+        out = {'heatmap': heat, 'index': index, 'mask': mask, 'vel_known': vel_known,
+               'reg': reg}
+        if ignore is not None and any(len(ig) for ig in ignore):
+            out['hm_ignore'] = self.cells_inside(ignore, device)
+        return out
+
+    def cells_inside(self, boxes: list[Tensor], device: torch.device) -> Tensor:
+        """``(B, H, W)`` the head-map cells a sample's boxes reach (BEV; grown by half a cell,
+        so that a box smaller than a cell still holds the cell of its centre)."""
+        g = self.grid
+        xy = g.cell_centres(device).reshape(-1, 2)                     # (HW, 2)
+        inside = torch.zeros(len(boxes), g.H * g.W, dtype=torch.bool, device=device)
+        for b, bx in enumerate(boxes):
+            if not len(bx):
+                continue
+            bx = bx.to(device=device, dtype=torch.float32)
+            d = xy[:, None, :] - bx[None, :, :2]                         # (HW, K, 2)
+            c, s = torch.cos(bx[:, 6]), torch.sin(bx[:, 6])
+            along = d[..., 0] * c + d[..., 1] * s
+            across = -d[..., 0] * s + d[..., 1] * c
+            half = g.cell / 2
+            inside[b] = ((along.abs() <= bx[:, 3] / 2 + half)
+                         & (across.abs() <= bx[:, 4] / 2 + half)).any(1)
+        return inside.reshape(len(boxes), g.H, g.W)
 
     def loss(self, preds: dict[str, Tensor], targets: dict[str, Tensor]) -> dict[str, Tensor]:
         """Focal heatmap loss + weighted L1 regression loss at the GT centres (the velocity
         channels over the objects whose velocity is known, ``vel_known``)."""
-        hm_loss = focal_loss(preds['heatmap'], targets['heatmap'])
+        hm_loss = focal_loss(preds['heatmap'], targets['heatmap'], targets.get('hm_ignore'))
         reg_map = torch.cat([preds[n] for n in REG_SLICES], dim=1)       # (B, 10, H, W)
         B, C = reg_map.shape[:2]
         flat = reg_map.reshape(B, C, -1).permute(0, 2, 1)                   # (B, HW, 10)

@@ -178,8 +178,12 @@ def model_frame(sequence: Sequence[Frame], t: int, sweeps: int,
     if gt is not None:
         boxes, vel = transform_boxes(T_bl, gt.boxes, gt.velocities)
         gt = Detections(boxes, gt.velocities if vel is None else vel, gt.scores, gt.labels)
+    ignore = f.ignore_boxes
+    if ignore is not None:                  # in base_link with the GT
+        ignore = transform_boxes(T_bl, np.asarray(ignore, np.float64).reshape(-1, 7))[0]
+        ignore = ignore.astype(np.float32)
     return replace(f, points=points, pose=np.asarray(f.pose, np.float64) @ se3_inverse(T_bl),
-                   gt=gt, T_base_lidar=np.eye(4), times=None)
+                   gt=gt, T_base_lidar=np.eye(4), times=None, ignore_boxes=ignore)
 
 
 def boxes_to_lidar(det: Detections, T_base_lidar: NDArray[np.float64]) -> Detections:
