@@ -31,7 +31,7 @@ other's (outage and occlusion) comes with a paired per-drive interval.
 from __future__ import annotations
 
 import argparse
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
 import json
 from pathlib import Path
@@ -224,22 +224,33 @@ def count_events(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
     """Recall of objects through their occlusion events (:func:`occlusion_events`), by frame of
     the event (1..``max_len``): an object counts at each frame of its event within 50 m;
     found: matched by a published box of its class within 2 m. The boxes columns stay 0."""
+    return _count_by_column(gt_seqs, det_seqs, thresholds, max_len, occlusion_events)
+
+
+def _count_by_column(gt_seqs: Sequence[Sequence[Frame]],
+                     det_seqs: Sequence[Sequence[Detections]], thresholds: Sequence[float],
+                     width: int,
+                     columns: Callable[[Sequence[Frame]], list[NDArray[np.int64] | None]]
+                     ) -> OutageCounts:
+    """Objects and found per drive and column: ``columns(frames)`` gives, per frame, each GT
+    object's column (1..``width``; 0: not counted); an object counts within 50 m, found when
+    a published box of its class lies within 2 m."""
     from suit_ros.evaluate import match_frame
     n = len(gt_seqs)
-    objects = np.zeros((n, max_len), np.int64)
-    found = np.zeros((n, max_len), np.int64)
+    objects = np.zeros((n, width), np.int64)
+    found = np.zeros((n, width), np.int64)
     thr = np.asarray(thresholds, np.float64)
     for d, (frames, dets) in enumerate(zip(gt_seqs, det_seqs)):
-        for f, pos, det in zip(frames, occlusion_events(frames), dets):
-            if pos is None or f.gt is None:
+        for f, col, det in zip(frames, columns(frames), dets):
+            if col is None or f.gt is None:
                 continue
             near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
             pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
-            for p in np.unique(pos[near & (pos > 0) & (pos <= max_len)]):
-                gt = f.gt.select(near & (pos == p))
-                objects[d, p - 1] += len(gt)
-                for c in range(len(thresholds)):
-                    found[d, p - 1] += int(match_frame(gt, pub, c, MATCH_DIST).tp.sum())
+            for c in np.unique(col[near & (col > 0) & (col <= width)]):
+                gt = f.gt.select(near & (col == c))
+                objects[d, c - 1] += len(gt)
+                for k in range(len(thresholds)):
+                    found[d, c - 1] += int(match_frame(gt, pub, k, MATCH_DIST).tp.sum())
     zeros = np.zeros_like(objects)
     return OutageCounts(objects, found, zeros, zeros.copy())
 
@@ -275,24 +286,8 @@ def count_occlusion(gt_seqs: Sequence[Sequence[Frame]],
     before (``g <= max_gap``), within 50 m; found: matched by a published box of its class
     within 2 m. Column ``g - 1`` of the counts is gap ``g`` (the boxes columns stay 0).
     """
-    from suit_ros.evaluate import match_frame
-    n = len(gt_seqs)
-    objects = np.zeros((n, max_gap), np.int64)
-    found = np.zeros((n, max_gap), np.int64)
-    thr = np.asarray(thresholds, np.float64)
-    for d, (frames, dets) in enumerate(zip(gt_seqs, det_seqs)):
-        for (f, gap), det in zip(frames_since_seen(frames), dets):
-            if gap is None or f.gt is None:
-                continue
-            near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
-            pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
-            for g in np.unique(gap[near & (gap > 0) & (gap <= max_gap)]):
-                gt = f.gt.select(near & (gap == g))
-                objects[d, g - 1] += len(gt)
-                for c in range(len(thresholds)):
-                    found[d, g - 1] += int(match_frame(gt, pub, c, MATCH_DIST).tp.sum())
-    zeros = np.zeros_like(objects)
-    return OutageCounts(objects, found, zeros, zeros.copy())
+    return _count_by_column(gt_seqs, det_seqs, thresholds, max_gap,
+                            lambda frames: [gap for _, gap in frames_since_seen(frames)])
 
 
 def occlusion_run(run: ModelRun, drives: Sequence[Sequence[Frame]]) -> ModelRun:

@@ -155,6 +155,14 @@ def test_fresh_window_of_training_drives_follows_the_first_ones():
         split_drives('train', 2, first=-1)
 
 
+def _small_world(seqs):
+    """``synthetic_sequence`` on the small test world (whatever preset a config names)."""
+    orig = seqs.synthetic_sequence
+    return (lambda name, seed, frames, cache_dir=None, sensor='sim32',
+            points_dtype=np.float32, rate_hz=None:
+            orig('test', seed, frames, cache_dir, points_dtype=points_dtype, rate_hz=rate_hz))
+
+
 def tiny(tmp_path, **kw) -> TrainConfig:
     return replace(TrainConfig(model_config=str(REPO / 'params/model_cpu.yaml'),
                                train_sequences=1, train_frames=4, val_sequences=1,
@@ -167,12 +175,7 @@ def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monk
     from suit_ros.checkpoint import load_checkpoint
     import suit_ros.data.sequences as seqs
     from suit_ros.train import train
-    orig = seqs.synthetic_sequence
-    monkeypatch.setattr(seqs, 'synthetic_sequence',
-                        lambda name, seed, frames, cache_dir=None, sensor='sim32',
-                        points_dtype=np.float32, rate_hz=None:
-                        orig('test', seed, frames, cache_dir, points_dtype=points_dtype,
-                             rate_hz=rate_hz))
+    monkeypatch.setattr(seqs, 'synthetic_sequence', _small_world(seqs))
     # an interrupted run (time budget) ...
     metrics = train(tiny(tmp_path, temporal='suit', max_minutes=1e-6), tmp_path / 'run')
     assert metrics['steps'] == 1 and 'mAP' in metrics
@@ -217,12 +220,7 @@ def test_a_resumed_run_trains_what_the_run_would_have(tmp_path, monkeypatch):
 
     import suit_ros.data.sequences as seqs
     import suit_ros.train as train_mod
-    orig = seqs.synthetic_sequence
-    monkeypatch.setattr(seqs, 'synthetic_sequence',
-                        lambda name, seed, frames, cache_dir=None, sensor='sim32',
-                        points_dtype=np.float32, rate_hz=None:
-                        orig('test', seed, frames, cache_dir, points_dtype=points_dtype,
-                             rate_hz=rate_hz))
+    monkeypatch.setattr(seqs, 'synthetic_sequence', _small_world(seqs))
     torch.set_num_threads(1)               # one thread: the same sums in the same order
     cfg = tiny(tmp_path, temporal='suit', eval_at_end=False, train_frames=8,
                clip_lengths=(2, 3))
@@ -288,13 +286,6 @@ def test_distributed_gradients_agree_across_ranks(tmp_path):
     r1 = torch.load(tmp_path / 'rank1.pt', weights_only=True)
     assert not torch.equal(r0['loss'], r1['loss'])           # different data per rank
     torch.testing.assert_close(r0['grads'], r1['grads'])     # all-reduced gradients agree
-
-
-def _small_world(seqs):
-    orig = seqs.synthetic_sequence
-    return (lambda name, seed, frames, cache_dir=None, sensor='sim32',
-            points_dtype=np.float32, rate_hz=None:
-            orig('test', seed, frames, cache_dir, points_dtype=points_dtype, rate_hz=rate_hz))
 
 
 def _budget_worker(rank, world, port, tmp_path, cfg):
