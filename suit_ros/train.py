@@ -235,10 +235,7 @@ def training_sequences(tc: TrainConfig, class_names: tuple[str, ...], sweeps: in
                     for seq in data]
     elif tc.dataset == 'bags':
         from suit_ros.data.sequences import bag_sequences
-        data = bag_sequences(tc.dataset_paths)
-        if tc.deskew:
-            from suit_ros.evaluate import deskewed
-            data = [deskewed(seq) for seq in data]
+        data = bag_sequences(tc.dataset_paths, sweeps, tc.deskew)
     elif tc.dataset == 'nuscenes':
         from suit_ros.data.sequences import nuscenes_sequences
         if not tc.dataset_paths:

@@ -121,6 +121,30 @@ def test_model_frame_equals_the_streaming_buffer():
     np.testing.assert_allclose(ig, gt.boxes, atol=1e-5)
 
 
+def test_labels_sparser_than_clouds_keep_the_nodes_sweeps():
+    """A bag labelled at half its cloud rate: each labelled frame's input stacks the clouds
+    0.1 and 0.2 s before it, as the node does, not the labelled ones (0.2 and 0.4 s)."""
+    from dataclasses import replace
+
+    from suit_ros.data.sequences import labelled_with_sweeps
+    frames = []
+    for k in range(7):
+        s = sweep_at(0.1 * k, intensity=0.1 * k)
+        gt = Detections(np.array([[5.0, 1.0, -1.0, 4.0, 2.0, 1.5, 0.3]]), np.zeros((1, 2)),
+                        np.ones(1), np.zeros(1, np.int64)) if k % 2 == 0 else None
+        frames.append(Frame(s.points, s.T_odom_lidar, s.stamp_ns, 'lidar', gt,
+                            T_base_lidar=T_BL))
+    seq = labelled_with_sweeps(frames, 3)
+    assert [f.stamp_ns for f in seq] == [frames[k].stamp_ns for k in (0, 2, 4, 6)]
+    for i, k in enumerate((0, 2, 4, 6)):
+        mf = model_frame(seq, i, 3)
+        np.testing.assert_allclose(mf.points, model_frame(frames, k, 3).points, atol=1e-5)
+        lags = sorted(set(np.round(mf.points[:, 4].astype(np.float64), 3).tolist()))
+        assert lags == ([0.0] if k == 0 else [0.0, 0.1, 0.2])
+    labelled = [replace(f, gt=frames[0].gt) for f in frames]
+    assert labelled_with_sweeps(labelled, 3) == labelled          # all labelled: as they are
+
+
 def test_skipped_sweeps_added_make_the_input_training_makes():
     """A node that ran the model on every other cloud but buffered the skipped ones gives it
     the input model_frame gives training: the same sweeps, 0.1 s apart; fed only the clouds

@@ -20,6 +20,7 @@ Data sources yield *sensor frames* (one sweep, LiDAR frame); :class:`ClipSampler
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 import hashlib
 import json
 import os
@@ -79,8 +80,6 @@ def synthetic_sequence(preset_name: str, seed: int, frames: int,
         :func:`~suit_ros.model.sweeps.accumulate_sweeps`).
     :param rate_hz: the sensor's rate (None: the preset's, 10 Hz).
     """
-    from dataclasses import replace
-
     from suit_ros.data.sim import preset, sim_frames
     rate = {} if rate_hz is None else {'rate_hz': rate_hz}
     cfg = preset(preset_name, sensor=sensor, frames=frames, **rate)
@@ -185,7 +184,6 @@ def training_view(frame: Frame, min_points: int = 1,
     keep = frame.num_points >= min_points
     if keep_ids and frame.instance_ids is not None:
         keep |= np.isin(frame.instance_ids, np.fromiter(keep_ids, np.int64))
-    from dataclasses import replace
     return replace(frame, gt=frame.gt.select(keep), num_points=frame.num_points[keep],
                    instance_ids=(frame.instance_ids[keep] if frame.instance_ids is not None
                                  else None))
@@ -325,14 +323,43 @@ class ClipSampler:
         return (with_outages(window, [o]), [t >= begin for t in range(L)],
                 seen_ids(window[offset + begin - 1]))
 
-def bag_sequences(paths: Sequence[str | os.PathLike[str]]) -> list[list[Frame]]:
-    """Sequences from rosbag2 bags that carry ``/points``, ``/odom`` and ``/gt/objects``."""
+def bag_sequences(paths: Sequence[str | os.PathLike[str]], sweeps: int = 3,
+                  deskew: bool = False) -> list[list[Frame]]:
+    """Sequences from rosbag2 bags that carry ``/points``, ``/odom`` and ``/gt/objects``: the
+    labelled clouds (:func:`labelled_with_sweeps`), each cloud deskewed first with ``deskew``
+    (as the node's ``deskew`` does)."""
     from suit_ros.data.bag import read_bag_frames
     out = []
     for p in paths:
-        frames = [f for f in read_bag_frames(p) if f.gt is not None]
-        if frames:
-            out.append(frames)
+        frames = list(read_bag_frames(p))
+        if deskew:
+            from suit_ros.evaluate import deskewed
+            frames = deskewed(frames)
+        seq = labelled_with_sweeps(frames, sweeps)
+        if seq:
+            out.append(seq)
+    return out
+
+
+def labelled_with_sweeps(frames: Sequence[Frame], sweeps: int = 3) -> list[Frame]:
+    """The labelled frames of a drive (GT not None). Where some clouds are unlabelled (labels
+    at 2 Hz, clouds at 10 Hz), each labelled frame comes with its ``sweeps - 1`` past sweeps
+    from every cloud before it, stacked in its LiDAR frame with their time lags, as the node
+    stacks them; from the labelled frames alone they would be 0.5 s apart, not 0.1. A drive
+    labelled throughout is returned as it is (the model stacks its sweeps)."""
+    from suit_ros.model.sweeps import DEFAULT_MAX_AGE_S, Sweep, accumulate_sweeps
+    labelled = [t for t, f in enumerate(frames) if f.gt is not None]
+    if len(labelled) == len(frames):
+        return list(frames)
+    out = []
+    for t in labelled:
+        f = frames[t]
+        past = [frames[j] for j in range(t - 1, max(t - sweeps, -1), -1)
+                if 0 < f.stamp_ns - frames[j].stamp_ns <= DEFAULT_MAX_AGE_S * 1e9]
+        points = accumulate_sweeps([Sweep(f.points, f.pose, f.stamp_ns)]
+                                   + [Sweep(p.points, p.pose, p.stamp_ns) for p in past],
+                                   np.eye(4))              # in the current LiDAR frame
+        out.append(replace(f, points=points, times=None))
     return out
 
 
