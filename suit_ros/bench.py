@@ -136,7 +136,8 @@ def _sensor_sizes(model_args: argparse.Namespace, n: int) -> dict[str, Any]:
     for name, sensor, factor in SENSOR_SIZES:
         frames = synthetic_sequence('demo-real', 7, max(n, 8), sensor=sensor)
         if factor != 1.0:
-            frames = [replace(f, points=densified(f.points, factor, rng), times=None)
+            frames = [replace(f, points=densified(f.points, factor, rng), times=None,
+                              owners=None)
                       for f in frames]
         drives[name] = frames
     model = _model(model_args, 'suit')

@@ -78,8 +78,10 @@ def outages_for(drive: int, frames: int, width_deg: float = 120.0, length: int =
 
 
 def with_outages(seq: Sequence[Frame], outages: Sequence[Outage]) -> list[Frame]:
-    """The drive with the outages' sectors removed from its sweeps (GT kept)."""
-    from suit_ros.ops.geometry import count_points_in_boxes
+    """The drive with the outages' sectors removed from its sweeps (GT kept); each object's
+    returns counted again as the world counts them (:func:`~suit_ros.structures.
+    object_returns`: with the returns' owners where the frame has them)."""
+    from suit_ros.structures import object_returns
     out = []
     for k, f in enumerate(seq):
         lost = [o for o in outages if o.active(k)]
@@ -90,9 +92,10 @@ def with_outages(seq: Sequence[Frame], outages: Sequence[Outage]) -> list[Frame]
         for o in lost:
             keep &= ~o.contains(f.points[:, :2])
         pts = f.points[keep]
-        num = (count_points_in_boxes(pts[:, :3], f.gt.boxes) if f.gt is not None
+        owners = None if f.owners is None else f.owners[keep]
+        num = (object_returns(pts, f.gt.boxes, owners, f.instance_ids) if f.gt is not None
                else f.num_points)
-        out.append(replace(f, points=pts, num_points=num,
+        out.append(replace(f, points=pts, num_points=num, owners=owners,
                            times=None if f.times is None else f.times[keep]))
     return out
 

@@ -13,7 +13,8 @@ class Detections:
     """One frame's 3D boxes (detections, or ground truth with ``scores == 1``).
 
     :param boxes: ``(N, 7)`` float32 ``x, y, z, l, w, h, yaw`` (geometric centre, REP 103).
-    :param velocities: ``(N, 2)`` float32 ``vx, vy`` in m/s, absolute, in the boxes' frame.
+    :param velocities: ``(N, 2)`` float32 ``vx, vy`` in m/s, absolute, in the boxes' frame
+        (ground truth: NaN where unknown, an object annotated in one frame only).
     :param scores: ``(N,)`` float32 confidence in ``[0, 1]``.
     :param labels: ``(N,)`` int64 index into the class names.
     """
@@ -69,9 +70,13 @@ class Frame:
     :param T_base_lidar: ``(4, 4)`` float64 LiDAR mounting extrinsic (identity in a model
         frame, or when the points are already in base_link).
     :param ignore_boxes: ``(M, 7)`` boxes (points' frame) of things that count as neither
-        objects nor false positives in evaluation (real datasets: parked bicycles), or None.
+        objects nor false positives in evaluation, nor background in training (real datasets:
+        parked bicycles), or None.
     :param times: ``(N,)`` float32 each return's time after the stamp (s) in a sensor frame
         whose sweep was taken over time (:mod:`suit_ros.deskew`), or None: at one instant.
+    :param owners: ``(N,)`` uint32 per return the GT object (instance id) whose surface it is
+        on, 0 for none: a synthetic sensor frame's (None elsewhere, and after anything that
+        changes the points' count or order). :func:`object_returns` counts with it.
     """
 
     points: NDArray[np.float32]
@@ -85,3 +90,25 @@ class Frame:
     T_base_lidar: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
     ignore_boxes: NDArray[np.float32] | None = None
     times: NDArray[np.float32] | None = None
+    owners: NDArray[np.uint32] | None = None
+
+
+def object_returns(xyz: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],
+                   owners: NDArray[np.integer[Any]] | None = None,
+                   ids: NDArray[np.integer[Any]] | None = None) -> NDArray[np.uint32]:
+    """Each object's returns: those in its box, or its own (``owners == ids[i]``) where more.
+
+    Range noise puts returns just outside a box's faces, and a sweep taken while the sensor and
+    the object move puts a moving object's returns up to a sweep's motion outside its box at
+    the stamp; counted in its box alone, such a visible object would count 0.
+    """
+    from suit_ros.ops.geometry import count_points_in_boxes
+    num = count_points_in_boxes(np.asarray(xyz)[:, :3], boxes).astype(np.uint32)
+    if owners is None or ids is None or not len(ids):
+        return num
+    ids = np.asarray(ids, np.int64)
+    owned = np.asarray(owners, np.int64)
+    order = np.argsort(ids)
+    own = np.bincount(np.searchsorted(ids[order], owned[np.isin(owned, ids)]),
+                      minlength=len(ids))[np.argsort(order)]
+    return np.asarray(np.maximum(num, own), np.uint32)

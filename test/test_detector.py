@@ -58,8 +58,18 @@ def test_unknown_gt_velocities_train_without_nan():
         vel = f.gt.velocities.copy()
         vel[0] = float('nan')                  # the moving car's motion is unknown
         f.gt = Detections(f.gt.boxes, vel, f.gt.scores, f.gt.labels)
+    seen = []
+    loss = model.geonet.loss
+
+    def spy(logits, velocities, valid=None):
+        seen.append((len(logits), velocities.detach().clone(), valid))
+        return loss(logits, velocities, valid)
+    model.geonet.loss = spy
     losses = model.forward_sequence([frames])
     assert all(torch.isfinite(v) for v in losses.values()), losses
+    # GeoNet is taught only where the motion is known: no NaN target reaches its loss
+    assert seen and all(torch.isfinite(v).all() for _, v, _ in seen)
+    assert all(n == len(v) for n, v, _ in seen)
     losses['loss'].backward()
     assert all(torch.isfinite(p.grad).all() for p in model.parameters() if p.grad is not None)
     centres = torch.tensor([[5.0, 3.0], [-8.0, -6.0], [20.0, 20.0]])

@@ -109,6 +109,22 @@ def hidden(frames, car_frames):
     return out
 
 
+def test_an_outage_counts_an_objects_own_returns_as_the_world_does():
+    """A moving sweep puts a car's returns outside its box (its own, by the returns' owners):
+    the world counts them; so does a frame with a sector lost elsewhere (it recounted the box
+    alone: 0, a visible car taken for lost); a sector over them loses them."""
+    frames = drive()
+    for k, f in enumerate(frames):
+        pts = f.points.copy()
+        pts[:50, 0] += 3.0                     # the car ahead's returns 11-15 m: past its box
+        frames[k] = replace(f, points=pts, owners=np.repeat(np.array([1, 2], np.uint32), 50))
+    behind, ahead = Outage(180.0, 60.0, 4, 2), Outage(0.0, 60.0, 4, 2)
+    kept = with_outages(frames, [behind])[4]
+    assert kept.num_points.tolist() == [50, 0]
+    assert kept.owners is not None and len(kept.owners) == len(kept.points) == 50
+    assert with_outages(frames, [ahead])[4].num_points.tolist() == [0, 50]
+
+
 def test_an_occlusion_event_is_an_object_hidden_0_3_to_1_s_and_seen_again():
     """Events: hidden 3-10 frames at 10 Hz between frames with returns. Hidden 2 frames is
     too short, 11 too long; hidden to the end of the drive, or from its start, is none (it

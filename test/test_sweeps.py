@@ -235,6 +235,9 @@ def test_a_fresh_and_a_cached_drive_are_the_same_frames(tmp_path):
     for a, b in zip(fresh, cached):
         assert a.points.dtype == b.points.dtype == np.float32
         np.testing.assert_array_equal(a.points, b.points)
+        assert a.owners is not None and b.owners is not None         # the returns' owners
+        np.testing.assert_array_equal(a.owners, b.owners)
+        assert len(b.owners) == len(b.points) and set(b.owners.tolist()) > {0}
     uncached = synthetic_sequence('test', 5, 3, None)          # no cache: full precision
     assert any(not np.array_equal(a.points, u.points) for a, u in zip(fresh, uncached))
 

@@ -106,7 +106,8 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
         gt = Detections(moved(gt.boxes), vel, gt.scores, gt.labels)
     ignore = None if frame.ignore_boxes is None else \
         moved(frame.ignore_boxes).astype(np.float32)          # they go with the GT
-    return replace(frame, points=pts, pose=pose, gt=gt, times=times, ignore_boxes=ignore)
+    return replace(frame, points=pts, pose=pose, gt=gt, times=times, ignore_boxes=ignore,
+                   owners=None)
 
 
 def _hash_unit(points: NDArray[np.float32]) -> NDArray[np.float64]:

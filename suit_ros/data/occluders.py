@@ -35,7 +35,7 @@ from suit_ros.ops.geometry import (
     se3_inverse,
     transform_points,
 )
-from suit_ros.structures import Frame
+from suit_ros.structures import Frame, object_returns
 
 # where the sensor is in a model frame's base_link (the frame keeps no extrinsic): the synthetic
 # sensor models sit 0.76-0.94 m ahead of the rear axle and 1.60-1.84 m up (data/sim/config.py).
@@ -171,13 +171,21 @@ def occlude(frame: Frame, screens: list[Screen],
     if times is not None and moved.any():       # a screen stands in the frame at the stamp
         times = np.where(moved, np.float32(0.0), times).astype(np.float32)
     num = frame.num_points
+    owners = frame.owners
+    if owners is not None and moved.any():       # a return moved onto a screen is the screen's
+        owners = np.where(moved, 0, owners).astype(np.uint32)
     if frame.gt is not None and num is not None and len(num):
-        # the current returns each box lost (where they were) off the source's count; a
-        # screen's returns are the screen's, wherever they land
         current = pts[:, 4] == 0 if pts.shape[1] > 4 else np.ones(len(pts), bool)
-        lost = count_points_in_boxes(frame.points[current & moved, :3], frame.gt.boxes)
-        num = np.maximum(num.astype(np.int64) - lost.astype(np.int64), 0).astype(num.dtype)
-    return replace(frame, points=pts, num_points=num, times=times)
+        if owners is not None and current.all():
+            # a sensor frame with its returns' owners: counted again as the world counts
+            num = object_returns(np.where(moved[:, None], np.inf, pts[:, :3]),
+                                 frame.gt.boxes, owners, frame.instance_ids)
+        else:
+            # the current returns each box lost (where they were) off the source's count; a
+            # screen's returns are the screen's, wherever they land
+            lost = count_points_in_boxes(frame.points[current & moved, :3], frame.gt.boxes)
+            num = np.maximum(num.astype(np.int64) - lost.astype(np.int64), 0).astype(num.dtype)
+    return replace(frame, points=pts, num_points=num, times=times, owners=owners)
 
 
 def with_screens(clip: list[Frame], rng: np.random.Generator,

@@ -106,8 +106,11 @@ def add_slabs(frame: Frame, slabs: list[Slab], rng: np.random.Generator) -> Fram
     times = frame.times              # a slab is cast from the pose at the stamp: time 0
     if times is not None:
         times = np.concatenate([times, np.zeros(sum(len(e) for e in extra), np.float32)])
+    owners = frame.owners            # a slab's returns are the slab's
+    if owners is not None:
+        owners = np.concatenate([owners, np.zeros(sum(len(e) for e in extra), np.uint32)])
     return replace(frame, points=np.concatenate([frame.points, *extra]).astype(np.float32),
-                   times=times)
+                   times=times, owners=owners)
 
 
 def with_overhead(clip: list[Frame], rng: np.random.Generator) -> list[Frame]:

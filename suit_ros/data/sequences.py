@@ -89,8 +89,9 @@ def synthetic_sequence(preset_name: str, seed: int, frames: int,
             f'{_cache_key(preset_name, sensor, seed, frames, rate_hz)}.npz'
         if path.is_file():
             cached = load_sequence(path, points_dtype)
-            # a drive cached before the returns' times were kept is made again
-            if not cfg.lidar.motion_distortion or all(f.times is not None for f in cached):
+            # a drive cached before the returns' times, or their owners, were kept is made again
+            if (not cfg.lidar.motion_distortion or all(f.times is not None for f in cached)) \
+                    and all(f.owners is not None for f in cached):
                 return cached
     out = list(sim_frames(cfg, seed))
     if path is not None:
@@ -142,6 +143,8 @@ def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
                        f'{i}/extrinsic': f.T_base_lidar})
         if f.times is not None:
             arrays[f'{i}/times'] = f.times.astype(np.float16)
+        if f.owners is not None:
+            arrays[f'{i}/owners'] = f.owners.astype(np.uint32)
     arrays['meta'] = np.frombuffer(json.dumps(
         {'n': len(frames), 'frame_id': frames[0].frame_id if frames else 'lidar',
          'sequence_id': frames[0].sequence_id if frames else ''}).encode(), np.uint8)
@@ -151,6 +154,9 @@ def save_sequence(path: Path, frames: Sequence[Frame]) -> None:
     try:
         with os.fdopen(fd, 'wb') as out:
             np.savez(out, **arrays)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(name, 0o666 & ~umask)          # as a plain file (mkstemp makes it 0600)
         os.replace(name, path)
     except BaseException:
         Path(name).unlink(missing_ok=True)
@@ -167,10 +173,11 @@ def load_sequence(path: Path, points_dtype: PointsDtype = np.float32) -> list[Fr
                             z[f'{i}/labels'])
             times = (z[f'{i}/times'].astype(np.float32) if f'{i}/times' in z.files
                      else None)
+            owners = z[f'{i}/owners'] if f'{i}/owners' in z.files else None
             out.append(Frame(z[f'{i}/points'].astype(points_dtype), z[f'{i}/pose'],
                              int(z[f'{i}/stamp']), meta['frame_id'], gt, z[f'{i}/num'],
                              z[f'{i}/ids'], meta['sequence_id'], z[f'{i}/extrinsic'],
-                             times=times))
+                             times=times, owners=owners))
     return out
 
 
@@ -359,7 +366,7 @@ def labelled_with_sweeps(frames: Sequence[Frame], sweeps: int = 3) -> list[Frame
         points = accumulate_sweeps([Sweep(f.points, f.pose, f.stamp_ns)]
                                    + [Sweep(p.points, p.pose, p.stamp_ns) for p in past],
                                    np.eye(4))              # in the current LiDAR frame
-        out.append(replace(f, points=points, times=None))
+        out.append(replace(f, points=points, times=None, owners=None))
     return out
 
 

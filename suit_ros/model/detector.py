@@ -386,7 +386,8 @@ class SUITDetector(nn.Module):
     def geo_loss(self, memory: SparseMemory, aux: dict[str, Tensor],
                  prev: Sequence[Frame]) -> Tensor:
         """GeoNet cross-entropy: each sample's target is the bin of its assigned GT velocity
-        (rotated into the current frame), zero velocity when no GT box contains it."""
+        (rotated into the current frame), zero velocity when no GT box contains it; a sample in
+        a box whose velocity is unknown (NaN) is left out."""
         sel = aux['sample_index']
         bi = memory.batch_index[sel]
         centres = memory.cell_xy[sel][:, memory.cell_xy.shape[1] // 2]          # (M, 2)

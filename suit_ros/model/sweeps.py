@@ -183,7 +183,8 @@ def model_frame(sequence: Sequence[Frame], t: int, sweeps: int,
         ignore = transform_boxes(T_bl, np.asarray(ignore, np.float64).reshape(-1, 7))[0]
         ignore = ignore.astype(np.float32)
     return replace(f, points=points, pose=np.asarray(f.pose, np.float64) @ se3_inverse(T_bl),
-                   gt=gt, T_base_lidar=np.eye(4), times=None, ignore_boxes=ignore)
+                   gt=gt, T_base_lidar=np.eye(4), times=None, ignore_boxes=ignore,
+                   owners=None)
 
 
 def boxes_to_lidar(det: Detections, T_base_lidar: NDArray[np.float64]) -> Detections:

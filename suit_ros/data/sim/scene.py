@@ -28,7 +28,7 @@ from suit_ros.ops.geometry import (  # noqa: F401 - points_in_boxes: re-exported
     se3_inverse,
     transform_boxes,
 )
-from suit_ros.structures import Detections, Frame
+from suit_ros.structures import Detections, Frame, object_returns
 
 START_NS = 1_700_000_000 * 10**9          # a fixed epoch: same seed, same stamps
 POINT_DTYPE = np.dtype({'names': ['x', 'y', 'z', 'intensity', 'time', 'ring'],
@@ -54,10 +54,10 @@ class SimFrame:
     odometry: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]] = field(
         default_factory=list)               # (stamp_ns, T_odom_base, twist [vx, vy, wz])
     # detailed world only (empty in the box world): clutter footprints (K, 7) in the LiDAR
-    # frame, their types (ids into clutter.CLUTTER_TYPES), the actor instance per point (0: none)
+    # frame, their types (ids into clutter.CLUTTER_TYPES)
     clutter_boxes: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 7)))
     clutter_types: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
-    surface_instance: NDArray[np.uint32] | None = None
+    surface_instance: NDArray[np.uint32] | None = None     # per point its actor (0: none)
 
     @property
     def T_odom_lidar(self) -> NDArray[np.float64]:  # noqa: N802 - ROS naming T_a_b
@@ -169,15 +169,25 @@ class Simulation:
         T_ob = base_pose(self.ego, t)
         T_ol = T_ob @ self.T_base_lidar
         actor_boxes, actor_vel = self.actor_boxes(t)
-        gt, num, ids = self._ground_truth(T_ol, actor_boxes, actor_vel, xyz, surface)
+        owner = self._owners(surface)
+        gt, num, ids = self._ground_truth(T_ol, actor_boxes, actor_vel, xyz, owner)
         frame = SimFrame(k, START_NS + int(round(t * 1e9)), cloud, T_ob, self.T_base_lidar, gt,
                          num, ids, surface, self._surface_boxes(t, actor_boxes),
-                         self._odometry(k))
+                         self._odometry(k), surface_instance=owner)
         if self.surfaces is not None:
             frame.clutter_boxes, frame.clutter_types = self._clutter(T_ol)
-            frame.surface_instance = self.surfaces.instance[np.clip(surface, 0, None)]
-            frame.surface_instance[surface < 0] = 0
         return frame
+
+    def _owners(self, surface: NDArray[np.int64]) -> NDArray[np.uint32]:
+        """Per return the actor (instance id) whose surface it is on, 0 for none."""
+        if self.surfaces is not None:
+            owner = np.where(surface >= 0, self.surfaces.instance[surface.clip(0)], 0)
+        else:
+            S = len(self.world.boxes)
+            actor_ids = np.array([a.instance_id for a in self.actors] or [0], np.int64)
+            owner = np.where(surface >= S, actor_ids[(surface - S).clip(0, len(actor_ids) - 1)],
+                             0)
+        return np.asarray(owner, np.uint32)
 
     # ------------------------------------------------------------------ casting
     def _cast_sweep(self, t: float, k: int) -> RangeImage:
@@ -292,15 +302,14 @@ class Simulation:
 
     def _ground_truth(self, T_ol: NDArray[np.float64], actor_boxes: NDArray[np.float64],
                       actor_vel: NDArray[np.float64], xyz: NDArray[np.float64],
-                      surface: NDArray[np.int64]
+                      owner: NDArray[np.uint32]
                       ) -> tuple[Detections, NDArray[np.uint32], NDArray[np.uint32]]:
         """GT in the LiDAR frame (actors within range, not the one the sensor sits in), the
         number of returns of each object and the instance ids.
 
         An object's returns are those in its box at the stamp, or its own (the returns cast
-        on it) where there are more: a sweep taken while the sensor and the object move puts
-        returns of a moving object up to a sweep's motion outside its box at the stamp (a
-        visible object counted 0 was trained as background and left unscored)."""
+        on it, ``owner``) where there are more (:func:`~suit_ros.structures.object_returns`):
+        a visible object counted 0 was trained as background and left unscored."""
         lc = self.cfg.lidar
         T_lo = se3_inverse(T_ol)
         boxes_l, vel_l = transform_boxes(T_lo, actor_boxes, actor_vel)
@@ -315,19 +324,7 @@ class Simulation:
         boxes_l, vel_l = boxes_l[keep], vel_l[keep]
         labels = np.array([a.label for a in self.actors], np.int64)[keep]
         ids = np.array([a.instance_id for a in self.actors], np.uint32)[keep]
-        num = count_points_in_boxes(xyz, boxes_l)
-        if self.surfaces is not None:
-            owner = np.where(surface >= 0, self.surfaces.instance[surface.clip(0)], 0)
-        else:
-            S = len(self.world.boxes)
-            actor_ids = np.array([a.instance_id for a in self.actors] or [0], np.int64)
-            owner = np.where(surface >= S, actor_ids[(surface - S).clip(0, len(actor_ids) - 1)],
-                             0)
-        if len(ids):
-            own = np.bincount(np.searchsorted(np.sort(ids), owner[np.isin(owner, ids)]),
-                              minlength=len(ids))
-            own = own[np.argsort(np.argsort(ids))]          # back to the order of ``ids``
-            num = np.maximum(num, own.astype(np.uint32))
+        num = object_returns(xyz, boxes_l, owner, ids)
         gt = Detections(boxes_l, vel_l, np.ones(len(boxes_l), np.float32), labels)
         return gt, num, ids
 
@@ -398,7 +395,8 @@ def to_frame(f: SimFrame, seed: int, intensity_max: float = 255.0) -> Frame:
                     np.zeros(len(c), np.float32)], 1).astype(np.float32)
     times = None if len(c) and not c['time'].any() else np.array(c['time'], np.float32)
     return Frame(pts, f.T_odom_lidar, f.stamp_ns, 'lidar', f.gt, f.num_points, f.instance_ids,
-                 f'sim-{seed}', f.T_base_lidar.copy(), times=times)
+                 f'sim-{seed}', f.T_base_lidar.copy(), times=times,
+                 owners=None if f.surface_instance is None else f.surface_instance.copy())
 
 
 def sim_frames(cfg: SimConfig, seed: int) -> Iterator[Frame]:
