@@ -40,9 +40,10 @@ def box_gap(p, boxes):
 def test_worlds_without_bystanders_keep_their_keys():
     from suit_ros.data.sequences import _cache_key
     # the keys the street-objects validation drives were cached under before this existed
-    assert _cache_key('val-street-ends', 'hdl32e', 9001, 40) == 'a66dc42a7eaa3cd6'
-    assert _cache_key('val-real', 'sim32', 9000, 40) == 'f9bbb3e9d4323884'
-    assert _cache_key('val-bystanders', 'hdl32e', 9001, 40) != 'a66dc42a7eaa3cd6'
+    # (cache version 3 since 2026-12-06)
+    assert _cache_key('val-street-ends', 'hdl32e', 9001, 40) == '52d36ca031398c1e'
+    assert _cache_key('val-real', 'sim32', 9000, 40) == 'a66fafdfe5c2ae10'
+    assert _cache_key('val-bystanders', 'hdl32e', 9001, 40) != '52d36ca031398c1e'
     assert preset('val-street-ends').realism.bystanders == 0.0
     for name in ('train-bystanders', 'val-bystanders'):
         r = preset(name).realism
