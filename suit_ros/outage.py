@@ -331,6 +331,10 @@ def occlusion_ap(model: Any, drives: Sequence[Sequence[Frame]], plain: ModelRun,
     from suit_ros.accuracy import bootstrap
     from suit_ros.evaluate import run_model
     runs = {'model': occlusion_run(plain, drives)}
+    if not runs['model'].det:               # no occlusion event on these drives: nothing scored
+        nan = [float('nan')] * 3
+        return {'model': nan} if model.cfg.temporal == 'none' else \
+            {'model': nan, 'memory dropped': nan, 'difference': nan}
     if model.cfg.temporal != 'none':
         runs['memory dropped'] = occlusion_run(
             run_model(model, drives, drop_memory=True, deskew=deskew), drives)

