@@ -444,8 +444,8 @@ def _resume(last: Path, module: Any, opt: Any, tc: TrainConfig, mcfg: Any
     before_tc = state.get('train_config')
     if before_tc is not None:
         now = _config_dict(tc)
-        diff = sorted(k for k in set(before_tc) & set(now) if k not in RESUMABLE_CHANGES
-                      and before_tc[k] != now[k])
+        diff = _differences({k: v for k, v in before_tc.items()
+                             if k not in RESUMABLE_CHANGES}, now)
         if diff:
             raise ConfigError(
                 f'{last} was trained with other settings: '

@@ -103,12 +103,13 @@ def add_slabs(frame: Frame, slabs: list[Slab], rng: np.random.Generator) -> Fram
     if frame.points.shape[1] > 4:
         lags = np.unique(frame.points[:, 4])
     extra = [slab_points(s, frame.pose, rng, lags) for s in slabs]
+    added = sum(len(e) for e in extra)
     times = frame.times              # a slab is cast from the pose at the stamp: time 0
     if times is not None:
-        times = np.concatenate([times, np.zeros(sum(len(e) for e in extra), np.float32)])
+        times = np.concatenate([times, np.zeros(added, np.float32)])
     owners = frame.owners            # a slab's returns are the slab's
     if owners is not None:
-        owners = np.concatenate([owners, np.zeros(sum(len(e) for e in extra), np.uint32)])
+        owners = np.concatenate([owners, np.zeros(added, np.uint32)])
     return replace(frame, points=np.concatenate([frame.points, *extra]).astype(np.float32),
                    times=times, owners=owners)
 

@@ -203,6 +203,7 @@ class CenterHead(nn.Module):
         g = self.grid
         xy = g.cell_centres(device).reshape(-1, 2)                     # (HW, 2)
         inside = torch.zeros(len(boxes), g.H * g.W, dtype=torch.bool, device=device)
+        half = g.cell / 2
         for b, bx in enumerate(boxes):
             if not len(bx):
                 continue
@@ -211,7 +212,6 @@ class CenterHead(nn.Module):
             c, s = torch.cos(bx[:, 6]), torch.sin(bx[:, 6])
             along = d[..., 0] * c + d[..., 1] * s
             across = -d[..., 0] * s + d[..., 1] * c
-            half = g.cell / 2
             inside[b] = ((along.abs() <= bx[:, 3] / 2 + half)
                          & (across.abs() <= bx[:, 4] / 2 + half)).any(1)
         return inside.reshape(len(boxes), g.H, g.W)
