@@ -407,8 +407,13 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="the sweeps of sensors that take them over time put back at "
                         "their stamps, as the node's `deskew` does")
     parser.add_argument('--cache-dir', default='data_cache')
-    parser.add_argument('--no-occlusion', dest='occlusion', action='store_false',
-                        help='skip the natural-occlusion runs (drives as the sensor saw them)')
+    parser.add_argument('--occlusion', choices=['both', 'natural', 'passing', 'none'],
+                        default='both',
+                        help='occlusion events scored on the drives as the sensor saw them '
+                        '(natural), with passing occluders hiding well-seen objects (passing), '
+                        'both, or none')
+    parser.add_argument('--no-occlusion', dest='occlusion', action='store_const', const='none',
+                        help='the same as --occlusion none')
     parser.add_argument('--coast-s', type=float, default=None, metavar='S',
                         help="the tracker's coast_s, seconds (default: the node's)")
     parser.add_argument('--json-out', help='write the figures as JSON here')
@@ -430,11 +435,21 @@ def run(args: argparse.Namespace) -> int:
     plain = synthetic_split('outage', args.drives, args.frames, args.cache_dir)
     outs = [outages_for(i, args.frames, args.width, args.length) for i in range(len(plain))]
     seqs = [with_outages(seq, o) for seq, o in zip(plain, outs)]
+    # the drives as the sensor saw them ('occlusion': their own events, few and mostly far
+    # objects flickering) and with passing occluders ('passing': data/occluders.py)
+    occlusion_sets: dict[str, list[list[Frame]]] = {}
+    if args.occlusion in ('natural', 'both'):
+        occlusion_sets['occlusion'] = plain
+    if args.occlusion in ('passing', 'both'):
+        from suit_ros.data.occluders import passing_drives
+        occlusion_sets['passing'] = passing_drives(plain)
     result: dict[str, Any] = {'drives': args.drives, 'frames': args.frames,
                               'width_deg': args.width, 'length': args.length, 'runs': {},
-                              'occlusion': {}, 'occlusion_ap': {}, 'deskew': args.deskew,
-                              'outage_difference': {}, 'occlusion_difference': {}}
-    counted: dict[str, dict[str, OutageCounts]] = {'outage': {}, 'occlusion': {}}
+                              'deskew': args.deskew, 'outage_difference': {}}
+    for what in ('occlusion', 'passing'):
+        result.update({what: {}, f'{what}_ap': {}, f'{what}_difference': {}})
+    counted: dict[str, dict[str, OutageCounts]] = {
+        'outage': {}, **{what: {} for what in occlusion_sets}}
     tracker = TrackerConfig()
     if args.coast_s is not None:
         try:
@@ -457,18 +472,18 @@ def run(args: argparse.Namespace) -> int:
                                                                    r['recall'])
                   + f' | frames 3+: {_band(r["recall_from_frame_3"])} | sector precision '
                   + ' '.join(f'{v[0]:.2f}' for v in r['sector_precision']), flush=True)
-            if args.occlusion:
-                run_ = _run(model, plain, tracker if tracked else None, args.deskew == 'on')
-                occ = count_events(plain, published_by_drive(run_, thr, carry), zero)
-                counted['occlusion'][key] = occ
-                result['occlusion'][key] = o = intervals(occ)
-                print(f'{key:<24} occlusion events, recall by frame of the event '
+            for what, drives in occlusion_sets.items():
+                run_ = _run(model, drives, tracker if tracked else None, args.deskew == 'on')
+                occ = count_events(drives, published_by_drive(run_, thr, carry), zero)
+                counted[what][key] = occ
+                result[what][key] = o = intervals(occ)
+                print(f'{key:<24} {what} events, recall by frame of the event '
                       + ' '.join(f'{v[0]:.2f}' for v in o['recall'])
                       + f' | frames 3+: {_band(o["recall_from_frame_3"])}', flush=True)
                 if not tracked:
-                    result['occlusion_ap'][name] = a = occlusion_ap(
-                        model, plain, run_, cfg.class_names, args.deskew == 'on')
-                    print(f'{name:<24} occlusion mAP {_band(a["model"])}'
+                    result[f'{what}_ap'][name] = a = occlusion_ap(
+                        model, drives, run_, cfg.class_names, args.deskew == 'on')
+                    print(f'{name:<24} {what} mAP {_band(a["model"])}'
                           + (f' | memory dropped {_band(a["memory dropped"])} | difference '
                              f'{_band(a["difference"])}' if 'difference' in a else ''),
                           flush=True)
@@ -512,13 +527,25 @@ def tables(result: dict[str, Any]) -> str:
     lines += _difference_table(result.get('outage_difference') or {},
                                'Paired differences (the same drives and resamples), outage '
                                'recall:')
-    occ = result.get('occlusion') or {}
+    lines += _occlusion_tables(
+        result, 'occlusion', 'Natural occlusion (the same drives as the sensor saw them): '
+        f'occlusion events, objects hidden {EVENT_S[0]:g}-{EVENT_S[1]:g} s between frames with '
+        'returns (3-10 frames at 10 Hz); recall by frame of the event:')
+    lines += _occlusion_tables(
+        result, 'passing', 'Passing occluders (the same drives, in every 10 frames up to two '
+        'objects with 10 or more returns 6-40 m away hidden 0.3-0.7 s by something truck-high '
+        'crossing their line of sight: suit_ros/data/occluders.py): occlusion events as above, '
+        'recall by frame of the event:')
+    return '\n'.join(lines) + '\n'
+
+
+def _occlusion_tables(result: dict[str, Any], what: str, title: str) -> list[str]:
+    """The recall, paired-difference and mAP tables of one occlusion set (``what``)."""
+    occ = result.get(what) or {}
+    lines: list[str] = []
     if occ:
         gaps = len(next(iter(occ.values()))['recall'])
-        lines += ['', 'Natural occlusion (the same drives as the sensor saw them): occlusion '
-                  f'events, objects hidden {EVENT_S[0]:g}-{EVENT_S[1]:g} s between frames with '
-                  'returns (3-10 frames at 10 Hz); recall by frame of the event:', '',
-                  '| model | ' + ' | '.join(str(g) for g in range(1, gaps + 1))
+        lines += ['', title, '', '| model | ' + ' | '.join(str(g) for g in range(1, gaps + 1))
                   + ' | frames 3+ |', '|---' * (gaps + 2) + '|']
         for key, r in occ.items():
             lines.append(f'| {key} | ' + ' | '.join(f'{v[0]:.2f}' for v in r['recall'])
@@ -526,19 +553,19 @@ def tables(result: dict[str, Any]) -> str:
         lines.append('| objects | ' + ' | '.join(str(c) for c in
                                                    next(iter(occ.values()))['objects'])
                      + ' | |')
-    lines += _difference_table(result.get('occlusion_difference') or {},
-                               'Paired differences, recall through occlusion events:')
-    occ_ap = result.get('occlusion_ap') or {}
+    lines += _difference_table(result.get(f'{what}_difference') or {},
+                               'Paired differences, recall through these occlusion events:')
+    occ_ap = result.get(f'{what}_ap') or {}
     if occ_ap:
-        lines += ['', 'Occlusion mAP (the frames with an object inside an occlusion event, '
-                  'its GT kept), with the memory dropped before every frame, and the paired '
-                  'difference (what the memory is worth):',
+        lines += ['', 'mAP over these occlusion frames (the frames with an object inside an '
+                  'occlusion event, its GT kept), with the memory dropped before every frame, '
+                  'and the paired difference (what the memory is worth):',
                   '', '| model | mAP | memory dropped | difference |', '|---|---|---|---|']
         for key, a in occ_ap.items():
             lines.append(f'| {key} | {_band(a["model"])} | '
                          + (f'{_band(a["memory dropped"])} | {_band(a["difference"])} |'
                             if 'difference' in a else '| |'))
-    return '\n'.join(lines) + '\n'
+    return lines
 
 
 def _difference_table(diffs: dict[str, dict[str, list[float]]], title: str) -> list[str]:

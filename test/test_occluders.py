@@ -182,3 +182,105 @@ def test_the_training_option_is_validated_and_draws_nothing_when_off(tmp_path: P
     out = _occluded([f, f], TrainConfig(occluder_probability=1.0), np.random.default_rng(0))
     assert [len(o.gt) for o in out] == [0, 0]
     assert np.allclose(out[0].points[:, 0], 10.0, atol=1e-4)
+
+
+# ------------------------------------------------------------------ passing occluders
+def _passing_drive(frames: int = 10) -> list[Frame]:
+    """Sensor frames (the sensor at the origin, 1.8 m above the road) of a car 20 m ahead,
+    id 7, one 20 m to the left, id 8, and a pedestrian 3 m in front of the left car, id 9:
+    each surface's returns are its own (``owners``), the road's none."""
+    rng = np.random.default_rng(4)
+    road = np.c_[rng.uniform(-40, 40, (6000, 2)), np.full(6000, -1.8)]
+    car_a = np.c_[rng.uniform(18.0, 22.0, 300), rng.uniform(-0.9, 0.9, 300),
+                  rng.uniform(-1.6, -0.3, 300)]
+    car_b = np.c_[rng.uniform(-0.9, 0.9, 300), rng.uniform(18.0, 22.0, 300),
+                  rng.uniform(-1.6, -0.3, 300)]
+    ped = np.c_[rng.uniform(-0.25, 0.25, 60), rng.uniform(16.7, 17.2, 60),
+                rng.uniform(-1.7, -0.1, 60)]
+    pts = np.concatenate([road, car_a, car_b, ped])
+    pts = np.c_[pts, np.full(len(pts), 0.5), np.zeros(len(pts))].astype(np.float32)
+    owners = np.concatenate([np.zeros(6000), np.full(300, 7), np.full(300, 8),
+                             np.full(60, 9)]).astype(np.uint32)
+    boxes = np.array([[20.0, 0.0, -0.9, 4.0, 1.8, 1.5, 0.0],
+                      [0.0, 20.0, -0.9, 4.0, 1.8, 1.5, np.pi / 2],
+                      [0.0, 17.0, -0.9, 0.6, 0.6, 1.8, 0.0]])
+    gt = Detections(boxes, np.zeros((3, 2)), np.ones(3), np.array([0, 0, 2]))
+    ids = np.array([7, 8, 9], np.uint32)
+    from suit_ros.structures import object_returns
+    num = object_returns(pts[:, :3], boxes, owners, ids)
+    return [Frame(pts, np.eye(4), k * 10**8, 'lidar', gt, num, ids, owners=owners)
+            for k in range(frames)]
+
+
+def test_a_passing_screen_stands_before_its_object_and_covers_it_as_it_slides():
+    from suit_ros.data.occluders import Passing, _passing_segment
+    box = np.array([20.0, 5.0, -0.9, 4.0, 1.8, 1.5, 0.3])
+    for direction in (1, -1):
+        p = Passing(7, 2, 5, 0.5, 3.5, 2.0, direction, 0.1)
+        ends = [_passing_segment(box, p, q) for q in (0.0, 0.5, 1.0)]
+        assert all(e is not None for e in ends)
+        bearing = np.arctan2(box[1], box[0])
+        c, s = np.cos(box[6]), np.sin(box[6])
+        corners = box[:2] + np.array([[2, 0.9], [2, -0.9], [-2, -0.9], [-2, 0.9]]) \
+            @ np.array([[c, s], [-s, c]])
+        span = np.arctan2(corners[:, 1], corners[:, 0]) - bearing
+        for e in ends:
+            assert e is not None
+            ang = np.sort(np.arctan2(e[:, 1], e[:, 0]) - bearing)
+            assert ang[0] < span.min() and ang[1] > span.max()        # the whole box hidden
+            depth = e @ np.array([np.cos(bearing), np.sin(bearing)])
+            assert np.allclose(depth, depth[0]) and 2.5 <= depth[0] < np.hypot(*corners.T).min()
+        mid = [np.arctan2(e[:, 1], e[:, 0]).mean() for e in ends if e is not None]
+        assert np.sign(mid[2] - mid[0]) == direction                  # it moves across
+    near = np.array([3.0, 0.0, -0.9, 4.0, 1.8, 1.5, 0.0])
+    assert _passing_segment(near, Passing(7, 2, 5, 0.5, 3.5, 2.0, 1, 0.1), 0.0) is None
+
+
+def test_a_passing_occluder_hides_its_object_for_its_frames_then_shows_it_again(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    import suit_ros.data.occluders as occ
+    from suit_ros.outage import occlusion_events
+    drive = _passing_drive()
+    hidden = occ.Passing(7, 2, 4, 0.5, 3.5, 2.0, 1, 0.1)
+    through_ped = occ.Passing(8, 2, 4, 0.95, 3.5, 2.0, 1, 0.1)   # its screen would cross id 9
+    monkeypatch.setattr(occ, 'draw_passing', lambda clip, rng: [hidden, through_ped])
+    out = occ.with_passing(drive, np.random.default_rng(0))
+    monkeypatch.undo()
+    counts = np.array([f.num_points for f in out])
+    assert (counts[2:6, 0] == 0).all() and counts[1, 0] == 300 and counts[6, 0] == 300
+    assert (counts[:, 1] == 300).all()          # left out: it would pass through the pedestrian
+    assert (counts[:, 2] == 60).all()
+    assert [len(f.points) for f in out] == [len(f.points) for f in drive]
+    events = occlusion_events(out)
+    assert [int(e[0]) for e in events] == [0, 0, 1, 2, 3, 4, 0, 0, 0, 0]
+    # drawn: the well-seen objects hidden for 3-7 frames, fixed per seed
+    a, b = occ.passing_drives([drive]), occ.passing_drives([drive])
+    assert all(np.array_equal(x.points, y.points) for x, y in zip(a[0], b[0]))
+    ev = np.array(occlusion_events(a[0]))
+    assert ev.max() >= 3 and all(x.gt is f.gt for x, f in zip(a[0], drive))
+    assert occ.passing_drives([drive[:5]])[0][0] is drive[0]       # too short a clip: none drawn
+
+
+def test_training_clips_with_passing_occluders_keep_the_hidden_objects_labels():
+    from suit_ros.data.sequences import ClipSampler
+    drive = _passing_drive(12)
+    sampler = ClipSampler([drive], [6], seed=3, sweeps=1, passing_probability=1.0)
+    hidden_frames = 0
+    for _ in range(6):
+        clips, lost = sampler.batch_with_outages(1)
+        clip, active = clips[0], lost[0]
+        assert len(clip) == 6 and not active[0] and sum(active) >= 3
+        for f, on in zip(clip, active):
+            assert f.gt is not None and f.num_points is not None
+            if on:                # a hidden target: labelled, with no returns
+                hidden_frames += 1
+                assert (f.num_points == 0).any() and len(f.gt) >= 2
+            else:
+                assert (f.num_points > 0).all()
+    assert hidden_frames >= 18
+    plain = ClipSampler([drive], [6], seed=3, sweeps=1)           # off: nothing drawn
+    clips, lost = plain.batch_with_outages(2)
+    assert not any(any(a) for a in lost) and all((f.num_points > 0).all() for c in clips
+                                                  for f in c)
+    with pytest.raises(ValueError, match='passing_probability'):
+        ClipSampler([drive], [6], seed=3, passing_probability=1.5)

@@ -224,14 +224,22 @@ def test_occlusion_run_keeps_the_occluded_objects_on_the_occlusion_frames():
 
 @pytest.mark.slow
 def test_outage_command_runs(tmp_path, capsys):
+    import json
+
     from suit_ros.cli import main
+    from suit_ros.outage import tables
     out = tmp_path / 'o.json'
     assert main(['outage', '--drives', '1', '--frames', '14', '--cache-dir',
                  str(tmp_path / 'cache'), '--json-out', str(out)]) == 0
     text = capsys.readouterr().out
     assert 'SUIT, tracker' in text and 'single frame' in text and out.is_file()
     assert 'occlusion events' in text and 'occlusion mAP' in text
+    assert 'passing events' in text and 'passing mAP' in text
     assert 'SUIT - single frame' in text
+    result = json.loads(out.read_text())
+    assert set(result['passing']) == {'SUIT', 'SUIT, tracker', 'single frame',
+                                      'single frame, tracker'}
+    assert 'Passing occluders' in tables(result)
 
 
 @pytest.mark.slow

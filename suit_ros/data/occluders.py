@@ -203,3 +203,131 @@ def occluded_drives(drives: list[list[Frame]], seed: int = 0, window: int = 10
     the occluder robustness (``suit-ros compare --variant occluders``)."""
     return windowed_drives(drives, lambda clip, rng: with_screens(clip, rng, (0.0, 0.0, 0.0)),
                            seed, window)
+
+
+# ------------------------------------------------------------------ passing occluders
+PASSING_FRAMES = (3, 7)     # frames a passing occluder hides its target: 0.3-0.7 s at 10 Hz
+
+
+@dataclass(frozen=True)
+class Passing:
+    """A passing occluder: something truck-high that crosses the line of sight between the
+    sensor and one object (``instance``) and hides it entirely for ``frames`` frames from the
+    clip's frame ``first``, at ``fraction`` of the object's distance, moving ``slide`` m across
+    the line of sight (``direction`` +1: to the sensor's left) over those frames."""
+
+    instance: int
+    first: int
+    frames: int
+    fraction: float
+    height: float
+    slide: float
+    direction: int
+    intensity: float
+
+
+def _passing_segment(box: NDArray[np.float64], p: Passing, q: float, edge: float = 0.3
+                     ) -> NDArray[np.float64] | None:
+    """Endpoints ``(2, 2)`` (the frame's x, y; the sensor at its origin) of ``p``'s screen at
+    progress ``q`` (0: the event's first frame, 1: its last) hiding ``box`` with ``edge`` m to
+    spare on either side; None when the box is too near to stand a screen before it."""
+    c, s = np.cos(box[6]), np.sin(box[6])
+    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * (0.5 * box[3:5] + edge)
+    corners = box[:2] + half @ np.array([[c, s], [-s, c]])                 # (4, 2)
+    theta = float(np.arctan2(box[1], box[0]))
+    u = np.array([np.cos(theta), np.sin(theta)])
+    v = np.array([-u[1], u[0]])
+    depth = corners @ u
+    if depth.min() < 4.0:
+        return None
+    dist = max(p.fraction * float(depth.min()), 2.5)
+    lateral = (corners @ v) * dist / depth            # the box's shadow on the screen's line
+    lo, hi = float(lateral.min()) - edge, float(lateral.max()) + edge
+    if p.direction > 0:
+        lo, hi = lo - p.slide * (1.0 - q), hi + p.slide * q
+    else:
+        lo, hi = lo - p.slide * q, hi + p.slide * (1.0 - q)
+    return np.stack([dist * u + lo * v, dist * u + hi * v])
+
+
+def draw_passing(clip: list[Frame], rng: np.random.Generator, last: int = 1,
+                 come_back: bool = True, targets: int = 2, min_returns: int = 10,
+                 reach_m: float = 40.0) -> list[Passing]:
+    """Passing occluders for a clip of sensor frames: up to ``targets`` objects of its frame
+    ``last`` with at least ``min_returns`` returns 6-``reach_m`` m away, at bearings 30
+    degrees apart, each hidden from the frame after it for :data:`PASSING_FRAMES` frames and
+    labelled through them (and in the frame after them, which the clip then holds: the frame
+    it comes back in, with ``come_back``; else the event may run to the clip's end)."""
+    after = 1 if come_back else 0
+    longest = min(PASSING_FRAMES[1], len(clip) - last - 1 - after)
+    f = clip[last] if 0 <= last < len(clip) else None
+    if longest < PASSING_FRAMES[0] or f is None or f.gt is None or f.instance_ids is None \
+            or f.num_points is None or not len(f.gt):
+        return []
+    boxes = np.asarray(f.gt.boxes, np.float64)
+    dist = np.hypot(boxes[:, 0], boxes[:, 1])
+    cand = np.flatnonzero((f.num_points >= min_returns) & (dist > 6.0) & (dist < reach_m))
+    out: list[Passing] = []
+    bearings: list[float] = []
+    for j in rng.permutation(cand):
+        if len(out) >= targets:
+            break
+        frames = int(rng.integers(PASSING_FRAMES[0], longest + 1))
+        iid = int(f.instance_ids[j])
+        if not all(g.instance_ids is not None and iid in g.instance_ids
+                   for g in clip[last + 1:last + 1 + frames + after]):
+            continue
+        bearing = float(np.arctan2(boxes[j, 1], boxes[j, 0]))
+        if any(abs(np.angle(np.exp(1j * (bearing - b)))) < np.radians(30) for b in bearings):
+            continue
+        bearings.append(bearing)
+        out.append(Passing(iid, last + 1, frames, float(rng.uniform(0.3, 0.7)),
+                           float(rng.uniform(3.2, 4.0)), float(rng.uniform(1.0, 4.0)),
+                           int(rng.choice([-1, 1])), float(rng.uniform(0.02, 0.3))))
+    return out
+
+
+def cast_passing(clip: list[Frame], passing: list[Passing]) -> list[Frame]:
+    """A clip of sensor frames (the sensor at the points' origin) with ``passing`` cast into
+    the frames they stand in. A screen that would pass through another labelled object in a
+    frame is left out of that frame (its target then shows there)."""
+    out = list(clip)
+    for k in range(len(clip)):
+        f = clip[k]
+        screens = []
+        for p in passing:
+            j = k - p.first
+            if not 0 <= j < p.frames or f.gt is None or f.instance_ids is None:
+                continue
+            rows = np.flatnonzero(f.instance_ids == p.instance)
+            if not len(rows):
+                continue
+            box = np.asarray(f.gt.boxes[rows[0]], np.float64)
+            seg = _passing_segment(box, p, j / max(p.frames - 1, 1))
+            if seg is None or _crosses(seg, np.delete(f.gt.boxes, rows, axis=0)):
+                continue
+            mid = seg.mean(0)
+            ground = ground_near(np.asarray(f.points[:, :3], np.float64), mid[0], mid[1])
+            bottom = float(box[2] - box[5] / 2) if ground is None else ground
+            w = transform_points(np.asarray(f.pose, np.float64), np.c_[seg, np.full(2, bottom)])
+            screens.append(Screen((float(w[0, 0]), float(w[0, 1])),
+                                  (float(w[1, 0]), float(w[1, 1])), float(w[:, 2].mean()),
+                                  p.height, p.intensity))
+        out[k] = occlude(f, screens, (0.0, 0.0, 0.0))
+    return out
+
+
+def with_passing(clip: list[Frame], rng: np.random.Generator) -> list[Frame]:
+    """A clip of sensor frames with passing occluders drawn on its frame 1 (:func:`draw_passing`)
+    cast into it (:func:`cast_passing`)."""
+    return cast_passing(clip, draw_passing(clip, rng))
+
+
+def passing_drives(drives: list[list[Frame]], seed: int = 0, window: int = 10
+                   ) -> list[list[Frame]]:
+    """Drives (sensor frames) with passing occluders: in every ``window`` frames up to two
+    well-seen objects hidden 0.3-0.7 s by something truck-high crossing their line of sight
+    (fixed draws per drive): the occlusion set of ``suit-ros outage``, issue 21's "vehicles
+    passing between the ego and objects", where a drive's own occlusions are few and mostly far
+    objects flickering between one or two returns and none."""
+    return windowed_drives(drives, with_passing, seed, window)

@@ -234,6 +234,11 @@ class ClipSampler:
         the outage (they are still there), so the loss rewards carrying them.
     :param carry_gt: every frame's GT keeps the objects that had returns in an earlier frame of
         the clip (occluded now, still there), in every clip.
+    :param passing_probability: share of the clips (of 5 frames or more, without an outage)
+        with passing occluders drawn in (:func:`suit_ros.data.occluders.draw_passing`): up to
+        two objects with 10 or more returns in clip frame 0 or 1 hidden for 3-7 frames by
+        something truck-high crossing their line of sight; the GT of those frames keeps them
+        (they are still there), and the frames count as outage frames (``lost``).
     :param occlusion_weight: clips are drawn with weight ``1 + occlusion_weight * n``, where
         ``n`` counts the clip's objects that only a memory can see (frame by frame: present,
         with returns earlier in the clip but in none of the last ``sweeps`` frames, see
@@ -244,7 +249,8 @@ class ClipSampler:
     def __init__(self, sequences: Sequence[Sequence[Frame]], lengths: Sequence[int],
                  seed: int, sweeps: int = 1, outage_probability: float = 0.0,
                  outage_width_deg: tuple[float, float] = (60.0, 180.0),
-                 carry_gt: bool = False, occlusion_weight: float = 0.0) -> None:
+                 carry_gt: bool = False, occlusion_weight: float = 0.0,
+                 passing_probability: float = 0.0) -> None:
         span = max(lengths)
         self.sequences = [s for s in sequences if len(s) >= span]
         if not self.sequences:
@@ -258,7 +264,10 @@ class ClipSampler:
             raise ValueError('clips with outages need at least 3 frames')
         self.lengths = list(lengths)
         self.sweeps = sweeps
+        if not 0.0 <= passing_probability <= 1.0:
+            raise ValueError(f'passing_probability must be in [0, 1], not {passing_probability}')
         self.outage_probability = outage_probability
+        self.passing_probability = passing_probability
         self.outage_width_deg = outage_width_deg
         self.carry_gt = carry_gt
         if not (occlusion_weight >= 0.0 and np.isfinite(occlusion_weight)):
@@ -298,6 +307,9 @@ class ClipSampler:
             seen: frozenset[int] | None = None
             if L >= 3 and self.rng.random() < self.outage_probability:
                 window, active, seen = self._draw_outage(window, start - first, L)
+            elif self.passing_probability and L >= 5 \
+                    and self.rng.random() < self.passing_probability:
+                window, active, seen = self._draw_passing(window, start - first, L)
             clip = []
             earlier = frozenset[int]()
             for t in range(L):
@@ -319,6 +331,18 @@ class ClipSampler:
             return self.sequences[int(i)], int(start)
         seq = self.sequences[int(self.rng.integers(len(self.sequences)))]
         return seq, int(self.rng.integers(len(seq) - L + 1))
+
+    def _draw_passing(self, window: list[Frame], offset: int, L: int
+                      ) -> tuple[list[Frame], list[bool], frozenset[int] | None]:
+        """Passing occluders hiding objects of clip frame 0 or 1 from the frame after it."""
+        from suit_ros.data.occluders import cast_passing, draw_passing
+        begin = int(self.rng.integers(1, 3))
+        drawn = draw_passing(window, self.rng, last=offset + begin - 1, come_back=False)
+        if not drawn:
+            return window, [False] * L, None
+        active = [any(p.first <= offset + t < p.first + p.frames for p in drawn)
+                  for t in range(L)]
+        return cast_passing(window, drawn), active, frozenset(p.instance for p in drawn)
 
     def _draw_outage(self, window: list[Frame], offset: int, L: int
                      ) -> tuple[list[Frame], list[bool], frozenset[int]]:
