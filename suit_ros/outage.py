@@ -121,6 +121,17 @@ class OutageCounts:
         b = self.boxes[p].sum(0)
         return np.asarray(np.where(b > 0, self.true[p].sum(0) / np.maximum(b, 1), np.nan))
 
+    def to_json(self) -> dict[str, list[list[int]]]:
+        """The counts as lists (``suit-ros outage --json-out`` keeps them, so that two runs
+        over the same drives can be paired later: :meth:`from_json`)."""
+        return {k: getattr(self, k).tolist() for k in ('objects', 'found', 'boxes', 'true')}
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> OutageCounts:
+        """Counts written by :meth:`to_json`."""
+        return cls(*(np.asarray(data[k], np.int64).reshape(len(data['objects']), -1)
+                     for k in ('objects', 'found', 'boxes', 'true')))
+
 
 def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence[Detections]],
                  outages: Sequence[Sequence[Outage]], thresholds: Sequence[float],
@@ -497,6 +508,8 @@ def run(args: argparse.Namespace) -> int:
                     result[f'{what}_difference'][f'{a} - {b}'] = d
                     print(f'{what}: {a} - {b}: recall {_band(d["recall"])}, frames 3+ '
                           f'{_band(d["recall_from_frame_3"])}', flush=True)
+    result['counts'] = {what: {key: c.to_json() for key, c in counts_by.items()}
+                        for what, counts_by in counted.items()}
     if args.json_out:
         Path(args.json_out).write_text(json.dumps(result, indent=2), encoding='utf-8')
     if args.markdown:

@@ -8,6 +8,7 @@ import pytest
 
 from suit_ros.outage import (
     Outage,
+    OutageCounts,
     count_events,
     count_occlusion,
     count_outage,
@@ -159,6 +160,11 @@ def test_event_recall_and_its_paired_difference_between_two_models():
     assert d['recall_from_frame_3'] == [1.0, 1.0, 1.0]
     with pytest.raises(ValueError, match='same objects'):
         recall_difference(holds, count_events([drive()], [[empty] * 12], [0.5] * 4, 5))
+    # two runs written out separately pair as well as in one (the JSON keeps the counts)
+    import json
+    back = [OutageCounts.from_json(json.loads(json.dumps(c.to_json()))) for c in (holds, drops)]
+    assert recall_difference(*back, resamples=20) == d
+    assert back[0].found.dtype == np.int64 and back[0].found.tolist() == holds.found.tolist()
 
 
 def test_an_object_across_the_sectors_edge_is_not_lost():
@@ -240,6 +246,7 @@ def test_outage_command_runs(tmp_path, capsys):
     assert set(result['passing']) == {'SUIT', 'SUIT, tracker', 'single frame',
                                       'single frame, tracker'}
     assert 'Passing occluders' in tables(result)
+    assert set(result['counts']) == {'outage', 'occlusion', 'passing'}
 
 
 @pytest.mark.slow
