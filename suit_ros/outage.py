@@ -129,7 +129,8 @@ class OutageCounts:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> OutageCounts:
         """Counts written by :meth:`to_json`."""
-        return cls(*(np.asarray(data[k], np.int64).reshape(len(data['objects']), -1)
+        return cls(*(np.asarray(data[k], np.int64).reshape(len(data[k]), -1) if len(data[k])
+                     else np.zeros((0, 0), np.int64)
                      for k in ('objects', 'found', 'boxes', 'true')))
 
 

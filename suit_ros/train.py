@@ -117,6 +117,10 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     if not tc.augment and (tc.overhead_probability > 0 or tc.occluder_probability > 0):
         raise ConfigError(f'{path}: overhead_probability and occluder_probability draw into '
                           'augmented clips; with augment: false set them to 0')
+    if tc.passing_probability > 0 and max(tc.clip_lengths) < 5:
+        raise ConfigError(f'{path}: passing_probability needs clips of 5 frames or more '
+                          f'(clip_lengths {list(tc.clip_lengths)}): 3-7 hidden frames after one '
+                          'seen')
     if tc.occluder_probability > 0 and tc.carry_gt:
         raise ConfigError(f'{path}: occluder_probability and carry_gt cannot be combined (a '
                           'screen may hide an object that carry_gt would keep)')

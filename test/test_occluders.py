@@ -229,11 +229,38 @@ def test_a_passing_screen_stands_before_its_object_and_covers_it_as_it_slides():
             ang = np.sort(np.arctan2(e[:, 1], e[:, 0]) - bearing)
             assert ang[0] < span.min() and ang[1] > span.max()        # the whole box hidden
             depth = e @ np.array([np.cos(bearing), np.sin(bearing)])
-            assert np.allclose(depth, depth[0]) and 2.5 <= depth[0] < np.hypot(*corners.T).min()
+            assert np.allclose(depth, depth[0]) and 3.5 <= depth[0] < np.hypot(*corners.T).min()
         mid = [np.arctan2(e[:, 1], e[:, 0]).mean() for e in ends if e is not None]
         assert np.sign(mid[2] - mid[0]) == direction                  # it moves across
     near = np.array([3.0, 0.0, -0.9, 4.0, 1.8, 1.5, 0.0])
     assert _passing_segment(near, Passing(7, 2, 5, 0.5, 3.5, 2.0, 1, 0.1), 0.0) is None
+    # never nearer than 3.5 m: the ego's bonnet ends about 2.8 m ahead of the sensor
+    ahead = np.array([8.0, 0.0, -0.9, 4.0, 1.8, 1.5, 0.0])
+    seg = _passing_segment(ahead, Passing(7, 2, 5, 0.3, 3.5, 2.0, 1, 0.1), 0.0)
+    assert seg is not None and seg[:, 0].min() == pytest.approx(3.5)
+
+
+def test_a_passing_screen_grows_to_hide_a_tall_truck_uphill(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A 3.6 m truck 25 m ahead on a 0.5 m rise, seen from 1.8 m up: a 3.2 m screen at 70% of
+    its distance would show its top rows; the screen is raised until it hides them all."""
+    import suit_ros.data.occluders as occ
+    rng = np.random.default_rng(5)
+    road = np.c_[rng.uniform(-40, 40, (4000, 2)), np.full(4000, -1.8)]
+    truck = np.c_[rng.uniform(22.0, 28.0, 500), rng.uniform(-1.2, 1.2, 500),
+                  rng.uniform(-1.3, 2.3, 500)]
+    pts = np.concatenate([road, truck])
+    pts = np.c_[pts, np.full(len(pts), 0.5), np.zeros(len(pts))].astype(np.float32)
+    owners = np.r_[np.zeros(4000), np.full(500, 3)].astype(np.uint32)
+    box = np.array([[25.0, 0.0, 0.5, 6.0, 2.4, 3.6, 0.0]])
+    gt = Detections(box, np.zeros((1, 2)), np.ones(1), np.array([1]))
+    ids = np.array([3], np.uint32)
+    frames = [Frame(pts, np.eye(4), k * 10**8, 'lidar', gt, np.array([500], np.uint32), ids,
+                    owners=owners) for k in range(6)]
+    low = occ.Passing(3, 2, 3, 0.7, 3.2, 1.0, 1, 0.1)
+    monkeypatch.setattr(occ, 'draw_passing', lambda clip, rng: [low])
+    out = occ.with_passing(frames, np.random.default_rng(0))
+    assert [int(f.num_points[0]) for f in out] == [500, 500, 0, 0, 0, 500]
 
 
 def test_a_passing_occluder_hides_its_object_for_its_frames_then_shows_it_again(
@@ -274,13 +301,36 @@ def test_training_clips_with_passing_occluders_keep_the_hidden_objects_labels():
             assert f.gt is not None and f.num_points is not None
             if on:                # a hidden target: labelled, with no returns
                 hidden_frames += 1
-                assert (f.num_points == 0).any() and len(f.gt) >= 2
+                assert (f.num_points == 0).any()
             else:
                 assert (f.num_points > 0).all()
+            # what the screen hides besides its target is still there too: labelled
+            assert len(f.gt) == 3
     assert hidden_frames >= 18
-    plain = ClipSampler([drive], [6], seed=3, sweeps=1)           # off: nothing drawn
-    clips, lost = plain.batch_with_outages(2)
-    assert not any(any(a) for a in lost) and all((f.num_points > 0).all() for c in clips
-                                                  for f in c)
+    # off: no draw, so a recipe with outages replays the same clips as before the option
+    a = ClipSampler([drive], [6], seed=3, sweeps=1, outage_probability=0.5)
+    b = ClipSampler([drive], [6], seed=3, sweeps=1, outage_probability=0.5,
+                    passing_probability=0.0)
+    for _ in range(4):
+        (ca, la), (cb, lb) = a.batch_with_outages(2), b.batch_with_outages(2)
+        assert la == lb and all(np.array_equal(x.points, y.points)
+                                for p, q in zip(ca, cb) for x, y in zip(p, q))
     with pytest.raises(ValueError, match='passing_probability'):
         ClipSampler([drive], [6], seed=3, passing_probability=1.5)
+    with pytest.raises(ValueError, match='5 frames'):
+        ClipSampler([drive], [2, 3, 4], seed=3, passing_probability=0.5)
+
+
+def test_the_passing_training_option_is_validated(tmp_path: Path) -> None:
+    from suit_ros.train import load_train_config
+    short = tmp_path / 'short.yaml'
+    short.write_text('passing_probability: 0.5\n')              # default clips of 2-4 frames
+    with pytest.raises(ConfigError, match='5 frames or more'):
+        load_train_config(short)
+    bad = tmp_path / 'bad.yaml'
+    bad.write_text('passing_probability: -0.1\nclip_lengths: [8]\n')
+    with pytest.raises(ConfigError, match='passing_probability must be in'):
+        load_train_config(bad)
+    ok = tmp_path / 'ok.yaml'
+    ok.write_text('passing_probability: 0.5\nclip_lengths: [8]\ncarry_gt: true\n')
+    assert load_train_config(ok).passing_probability == 0.5

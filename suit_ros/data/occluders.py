@@ -207,6 +207,7 @@ def occluded_drives(drives: list[list[Frame]], seed: int = 0, window: int = 10
 
 # ------------------------------------------------------------------ passing occluders
 PASSING_FRAMES = (3, 7)     # frames a passing occluder hides its target: 0.3-0.7 s at 10 Hz
+PASSING_NEAREST_M = 3.5     # no nearer to the sensor: the ego's bonnet ends ~2.8 m ahead of it
 
 
 @dataclass(frozen=True)
@@ -230,7 +231,8 @@ def _passing_segment(box: NDArray[np.float64], p: Passing, q: float, edge: float
                      ) -> NDArray[np.float64] | None:
     """Endpoints ``(2, 2)`` (the frame's x, y; the sensor at its origin) of ``p``'s screen at
     progress ``q`` (0: the event's first frame, 1: its last) hiding ``box`` with ``edge`` m to
-    spare on either side; None when the box is too near to stand a screen before it."""
+    spare on either side; None when the box is too near to stand a screen before it (the
+    screen stands at least :data:`PASSING_NEAREST_M` from the sensor, clear of the ego)."""
     c, s = np.cos(box[6]), np.sin(box[6])
     half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * (0.5 * box[3:5] + edge)
     corners = box[:2] + half @ np.array([[c, s], [-s, c]])                 # (4, 2)
@@ -238,9 +240,9 @@ def _passing_segment(box: NDArray[np.float64], p: Passing, q: float, edge: float
     u = np.array([np.cos(theta), np.sin(theta)])
     v = np.array([-u[1], u[0]])
     depth = corners @ u
-    if depth.min() < 4.0:
+    if depth.min() < PASSING_NEAREST_M + 0.5:
         return None
-    dist = max(p.fraction * float(depth.min()), 2.5)
+    dist = max(p.fraction * float(depth.min()), PASSING_NEAREST_M)
     lateral = (corners @ v) * dist / depth            # the box's shadow on the screen's line
     lo, hi = float(lateral.min()) - edge, float(lateral.max()) + edge
     if p.direction > 0:
@@ -309,10 +311,17 @@ def cast_passing(clip: list[Frame], passing: list[Passing]) -> list[Frame]:
             mid = seg.mean(0)
             ground = ground_near(np.asarray(f.points[:, :3], np.float64), mid[0], mid[1])
             bottom = float(box[2] - box[5] / 2) if ground is None else ground
+            # tall enough that the rays to the box's top cross it (a bus beside a slope)
+            bearing = np.array([np.cos(np.arctan2(box[1], box[0])),
+                                np.sin(np.arctan2(box[1], box[0]))])
+            dist = float(seg[0] @ bearing)
+            reach = np.hypot(*box[:2]) + np.array([-0.5, 0.5]) * np.hypot(*box[3:5])
+            top = float(box[2] + box[5] / 2) * dist / np.maximum(reach, dist + 0.1)
+            height = max(p.height, float(top.max()) + 0.3 - bottom)
             w = transform_points(np.asarray(f.pose, np.float64), np.c_[seg, np.full(2, bottom)])
             screens.append(Screen((float(w[0, 0]), float(w[0, 1])),
                                   (float(w[1, 0]), float(w[1, 1])), float(w[:, 2].mean()),
-                                  p.height, p.intensity))
+                                  height, p.intensity))
         out[k] = occlude(f, screens, (0.0, 0.0, 0.0))
     return out
 

@@ -236,9 +236,11 @@ class ClipSampler:
         the clip (occluded now, still there), in every clip.
     :param passing_probability: share of the clips (of 5 frames or more, without an outage)
         with passing occluders drawn in (:func:`suit_ros.data.occluders.draw_passing`): up to
-        two objects with 10 or more returns in clip frame 0 or 1 hidden for 3-7 frames by
-        something truck-high crossing their line of sight; the GT of those frames keeps them
-        (they are still there), and the frames count as outage frames (``lost``).
+        two objects with 10 or more returns in clip frame 0 or 1 hidden for 3-7 frames (0.3-0.7 s
+        at 10 Hz; frames, whatever their spacing) by something truck-high crossing their line of
+        sight; the GT of those frames keeps them and every other object seen just before (the
+        screen hides what stands behind it too: all still there), and the frames count as
+        outage frames (``lost``).
     :param occlusion_weight: clips are drawn with weight ``1 + occlusion_weight * n``, where
         ``n`` counts the clip's objects that only a memory can see (frame by frame: present,
         with returns earlier in the clip but in none of the last ``sweeps`` frames, see
@@ -266,6 +268,8 @@ class ClipSampler:
         self.sweeps = sweeps
         if not 0.0 <= passing_probability <= 1.0:
             raise ValueError(f'passing_probability must be in [0, 1], not {passing_probability}')
+        if passing_probability and span < 5:
+            raise ValueError('clips with passing occluders need at least 5 frames')
         self.outage_probability = outage_probability
         self.passing_probability = passing_probability
         self.outage_width_deg = outage_width_deg
@@ -342,7 +346,8 @@ class ClipSampler:
             return window, [False] * L, None
         active = [any(p.first <= offset + t < p.first + p.frames for p in drawn)
                   for t in range(L)]
-        return cast_passing(window, drawn), active, frozenset(p.instance for p in drawn)
+        kept = frozenset(p.instance for p in drawn) | seen_ids(window[offset + begin - 1])
+        return cast_passing(window, drawn), active, kept
 
     def _draw_outage(self, window: list[Frame], offset: int, L: int
                      ) -> tuple[list[Frame], list[bool], frozenset[int]]:
