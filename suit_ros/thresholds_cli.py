@@ -37,6 +37,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='store the chosen thresholds in the checkpoint (metadata only)')
     parser.add_argument('--drives', type=int, default=TUNE_DRIVES, help='tune-split drives')
     parser.add_argument('--cache-dir', default='data_cache')
+    parser.add_argument('--keep-published', action='store_true',
+                        help="keep the checkpoint's published thresholds (a model whose cells "
+                        'with returns decode as before, e.g. a retrained carry branch) and '
+                        'choose only the carry thresholds')
 
 
 def best_f1(counts: ClassCounts, grid: Sequence[float] = SWEEP) -> dict[str, Any]:
@@ -50,7 +54,12 @@ def best_f1(counts: ClassCounts, grid: Sequence[float] = SWEEP) -> dict[str, Any
 
 def run(args: argparse.Namespace) -> int:
     """Choose (and with ``--write`` store) the published thresholds."""
-    from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, update_metadata
+    from suit_ros.checkpoint import (
+        default_checkpoint_path,
+        load_checkpoint,
+        published_thresholds,
+        update_metadata,
+    )
     from suit_ros.data.sequences import synthetic_split
     from suit_ros.errors import ConfigError
     from suit_ros.evaluate import run_model
@@ -59,16 +68,20 @@ def run(args: argparse.Namespace) -> int:
     if args.drives < 1:
         raise ConfigError(f'--drives must be at least 1 (thresholds need GT), got {args.drives}')
     path = args.checkpoint or default_checkpoint_path()
-    model, cfg, _ = load_checkpoint(path)
+    model, cfg, meta = load_checkpoint(path)
     names = tuple(cfg.class_names)
+    if args.keep_published and getattr(model, 'carry', None) is None:
+        raise ConfigError(f'--keep-published chooses carry thresholds only: {path} has no '
+                          'carry branch')
     seqs = synthetic_split('tune', args.drives, TUNE_FRAMES, args.cache_dir)
     run_ = run_model(model, seqs, tracker=TrackerConfig(), deskew=True)   # as the node
     counts = class_counts(run_.gt, run_.det, names, run_.num_points)
     chosen: dict[str, float] = {}
     print(f'{path}: tune split, {args.drives} drives x {TUNE_FRAMES} frames, node defaults')
     print(f'{"class":<12}{"threshold":>10}{"recall":>8}{"precision":>10}{"F1":>7}{"GT":>6}')
-    for c in names:
-        row = best_f1(counts[c])
+    kept = published_thresholds(meta, list(names)) if args.keep_published else None
+    for k, c in enumerate(names):
+        row = best_f1(counts[c], [kept[k]] if kept is not None else SWEEP)
         chosen[c] = float(row['threshold'])
         print(f'{c:<12}{row["threshold"]:>10.2f}{row["recall"]:>8.3f}'
               f'{row["precision"]:>10.3f}{row["f1"]:>7.3f}{row["gt"]:>6d}')
@@ -81,7 +94,9 @@ def run(args: argparse.Namespace) -> int:
                      f'on outage frames 3+ of the tune drives with outages drawn in')}
         print('carry thresholds (boxes held where the cloud shows nothing): '
               + ', '.join(f'{c} {v:.3f}' for c, v in zip(names, carry)))
-    if args.write:
+    if args.write and kept is not None:
+        update_metadata(path, **extra)
+    elif args.write:
         update_metadata(path, publish_thresholds=chosen, publish_thresholds_source=(
             f'best F1 per class on the synthetic tune split ({args.drives} drives x '
             f'{TUNE_FRAMES} frames, seeds 8000+), node defaults, BEV centre <= 2 m within 50 m'),

@@ -42,6 +42,8 @@ def test_counts_that_make_no_sense_are_refused(tmp_path, capsys):
     for argv, message in (
             (['eval', '--synthetic', 'val', '--history', '0'], '--history must be at least 1'),
             (['choose-thresholds', '--drives', '0'], '--drives must be at least 1'),
+            (['choose-thresholds', '--checkpoint', 'suit_default', '--keep-published'],
+             'has no carry branch'),
             (['play', str(tmp_path / 'bag'), '--start-delay', '-1'],
              '--start-delay and --wait-subscribers are seconds >= 0'),
             (['train', '--config', 'params/train_suit.yaml', '--out', str(tmp_path / 't'),
