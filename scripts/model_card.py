@@ -97,10 +97,15 @@ def carry_lines() -> list[str]:
     if not (Path(CARRY).is_file() and Path(OUTAGE).is_file() and Path(CARRY_VAL).is_file()):
         return []
     meta = read_metadata(CARRY)
-    runs = json.loads(Path(OUTAGE).read_text())['runs']
+    outage = json.loads(Path(OUTAGE).read_text())
+    runs = outage['runs']
     diff = json.loads(Path(CARRY_VAL).read_text())['differences']['suit_carry - SUIT']
-    c, d = runs['suit_carry'], runs['SUIT (suit_default)']
-    ct, dt = runs['suit_carry, tracker'], runs['SUIT (suit_default), tracker']
+    # the labels the page's command gave (docs/outage/README.md), older ones too
+    carry = next(k for k in ('SUIT carry', 'suit_carry') if k in runs)
+    default = next(k for k in ('SUIT', 'SUIT (suit_default)') if k in runs)
+    c, d = runs[carry], runs[default]
+    ct, dt = runs[f'{carry}, tracker'], runs[f'{default}, tracker']
+    passing = outage.get('passing') or {}
     thr = meta.get('carry_publish_thresholds', {})
     return ['', '**`suit_carry.safetensors`** (opt-in: `checkpoint: suit_carry`): '
             f'{meta.get("description", "")}. Outage frames 3-6 of a 120-degree sector lost for '
@@ -109,7 +114,13 @@ def carry_lines() -> list[str]:
             f'{fmt(c, "sector_precision_from_frame_3", 2)}; tracked as the node publishes, '
             f'recall {fmt(ct, "recall_from_frame_3", 2)} against '
             f'{fmt(dt, "recall_from_frame_3", 2)}, sector precision '
-            f'{fmt(ct, "sector_precision_from_frame_3", 2)}; validation mAP against '
+            f'{fmt(ct, "sector_precision_from_frame_3", 2)}; '
+            + ('objects hidden 0.3-0.7 s by a passing truck, from the third frame of the event, '
+               f'{fmt(passing[carry], "recall_from_frame_3", 2)} alone, '
+               f'{fmt(passing[carry + ", tracker"], "recall_from_frame_3", 2)} tracked '
+               f'(suit_default {fmt(passing[default + ", tracker"], "recall_from_frame_3", 2)} '
+               'tracked); ' if carry in passing else '')
+            + 'validation mAP against '
             f'its base (run 22, suit_default) {fmt(diff, "mAP")}, NDS {fmt(diff, "NDS")}. '
             'The boxes it holds '
             'where the cloud has no returns are published at '
