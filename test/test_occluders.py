@@ -150,21 +150,21 @@ def test_clips_and_drives_keep_their_labels_and_are_fixed_per_seed():
     assert [len(c.points) for c in clip] == [len(f.points) for f in drive[:2]]
 
 
+def _refused(tmp_path: Path, text: str, message: str) -> None:
+    """A training config with ``text`` is refused with ``message``."""
+    from suit_ros.train import load_train_config
+    path = tmp_path / 'refused.yaml'
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
+        load_train_config(path)
+
+
 def test_the_training_option_is_validated_and_draws_nothing_when_off(tmp_path: Path,
                                                                     monkeypatch):
-    from suit_ros.train import TrainConfig, _occluded, load_train_config
-    bad = tmp_path / 'bad.yaml'
-    bad.write_text('occluder_probability: 1.5\n')
-    with pytest.raises(ConfigError, match='occluder_probability must be in'):
-        load_train_config(bad)
-    both = tmp_path / 'both.yaml'
-    both.write_text('occluder_probability: 0.5\ncarry_gt: true\n')
-    with pytest.raises(ConfigError, match='cannot be combined'):
-        load_train_config(both)
-    plain = tmp_path / 'plain.yaml'
-    plain.write_text('occluder_probability: 0.5\naugment: false\n')
-    with pytest.raises(ConfigError, match='augment: false'):
-        load_train_config(plain)
+    from suit_ros.train import TrainConfig, _occluded
+    _refused(tmp_path, 'occluder_probability: 1.5\n', 'occluder_probability must be in')
+    _refused(tmp_path, 'occluder_probability: 0.5\ncarry_gt: true\n', 'cannot be combined')
+    _refused(tmp_path, 'occluder_probability: 0.5\naugment: false\n', 'augment: false')
     clip = [_frame(np.array([[10.0, 0.0, 0.5]]))]
     rng = np.random.default_rng(0)
     assert _occluded(clip, TrainConfig(), rng) is clip
@@ -323,14 +323,10 @@ def test_training_clips_with_passing_occluders_keep_the_hidden_objects_labels():
 
 def test_the_passing_training_option_is_validated(tmp_path: Path) -> None:
     from suit_ros.train import load_train_config
-    short = tmp_path / 'short.yaml'
-    short.write_text('passing_probability: 0.5\n')              # default clips of 2-4 frames
-    with pytest.raises(ConfigError, match='5 frames or more'):
-        load_train_config(short)
-    bad = tmp_path / 'bad.yaml'
-    bad.write_text('passing_probability: -0.1\nclip_lengths: [8]\n')
-    with pytest.raises(ConfigError, match='passing_probability must be in'):
-        load_train_config(bad)
+    # the default clips of 2-4 frames hold no 3-7 hidden frames after a seen one
+    _refused(tmp_path, 'passing_probability: 0.5\n', '5 frames or more')
+    _refused(tmp_path, 'passing_probability: -0.1\nclip_lengths: [8]\n',
+             'passing_probability must be in')
     ok = tmp_path / 'ok.yaml'
     ok.write_text('passing_probability: 0.5\nclip_lengths: [8]\ncarry_gt: true\n')
     assert load_train_config(ok).passing_probability == 0.5
