@@ -101,8 +101,11 @@ def carry_lines() -> list[str]:
     runs = outage['runs']
     diff = json.loads(Path(CARRY_VAL).read_text())['differences']['suit_carry - SUIT']
     # the labels the page's command gave (docs/outage/README.md), older ones too
-    carry = next(k for k in ('SUIT carry', 'suit_carry') if k in runs)
-    default = next(k for k in ('SUIT', 'SUIT (suit_default)') if k in runs)
+    carry = next((k for k in ('SUIT carry', 'suit_carry') if k in runs), None)
+    default = next((k for k in ('SUIT', 'SUIT (suit_default)') if k in runs), None)
+    if carry is None or default is None:
+        raise ValueError(f'{OUTAGE} has runs {sorted(runs)}: the suit_carry and suit_default '
+                         "labels of docs/outage/README.md's command are needed")
     c, d = runs[carry], runs[default]
     ct, dt = runs[f'{carry}, tracker'], runs[f'{default}, tracker']
     passing = outage.get('passing') or {}
@@ -119,7 +122,8 @@ def carry_lines() -> list[str]:
                f'{fmt(passing[carry], "recall_from_frame_3", 2)} alone, '
                f'{fmt(passing[carry + ", tracker"], "recall_from_frame_3", 2)} tracked '
                f'(suit_default {fmt(passing[default + ", tracker"], "recall_from_frame_3", 2)} '
-               'tracked); ' if carry in passing else '')
+               'tracked); ' if {carry, f'{carry}, tracker', f'{default}, tracker'} <= set(passing)
+               else '')
             + 'validation mAP against '
             f'its base (run 22, suit_default) {fmt(diff, "mAP")}, NDS {fmt(diff, "NDS")}. '
             'The boxes it holds '

@@ -101,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
             f'best F1 per class on the synthetic tune split ({args.drives} drives x '
             f'{TUNE_FRAMES} frames, seeds 8000+), node defaults, BEV centre <= 2 m within 50 m'),
             **extra)
+    if args.write:
         print(f'stored in {path}')
     return 0
 
