@@ -56,13 +56,19 @@ class Screen:
     intensity: float
 
 
+def _footprint(box: NDArray[np.float64], grow: float = 0.0) -> NDArray[np.float64]:
+    """The ``(4, 2)`` corners (x, y) of ``box``'s footprint grown by ``grow`` m on every side."""
+    c, s = np.cos(box[6]), np.sin(box[6])
+    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * (0.5 * box[3:5] + grow)
+    corners: NDArray[np.float64] = box[:2] + half @ np.array([[c, s], [-s, c]])
+    return corners
+
+
 def _screen_before(box: NDArray[np.float64], sensor: NDArray[np.float64],
                    rng: np.random.Generator) -> NDArray[np.float64] | None:
     """Endpoints ``(2, 2)`` (the frame's x, y) of a screen hiding part of ``box`` from
     ``sensor``, or None when the box is too near."""
-    c, s = np.cos(box[6]), np.sin(box[6])
-    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * 0.5 * box[3:5]
-    corners = box[:2] + half @ np.array([[c, s], [-s, c]]) - sensor[:2]
+    corners = _footprint(box) - sensor[:2]
     centre = box[:2] - sensor[:2]
     theta = float(np.arctan2(centre[1], centre[0]))
     rel = np.angle(np.exp(1j * (np.arctan2(corners[:, 1], corners[:, 0]) - theta)))
@@ -233,9 +239,7 @@ def _passing_segment(box: NDArray[np.float64], p: Passing, q: float, edge: float
     progress ``q`` (0: the event's first frame, 1: its last) hiding ``box`` with ``edge`` m to
     spare on either side; None when the box is too near to stand a screen before it (the
     screen stands at least :data:`PASSING_NEAREST_M` from the sensor, clear of the ego)."""
-    c, s = np.cos(box[6]), np.sin(box[6])
-    half = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * (0.5 * box[3:5] + edge)
-    corners = box[:2] + half @ np.array([[c, s], [-s, c]])                 # (4, 2)
+    corners = _footprint(box, edge)
     theta = float(np.arctan2(box[1], box[0]))
     u = np.array([np.cos(theta), np.sin(theta)])
     v = np.array([-u[1], u[0]])
@@ -297,6 +301,7 @@ def cast_passing(clip: list[Frame], passing: list[Passing]) -> list[Frame]:
     for k in range(len(clip)):
         f = clip[k]
         screens = []
+        xyz = np.asarray(f.points[:, :3], np.float64)
         for p in passing:
             j = k - p.first
             if not 0 <= j < p.frames or f.gt is None or f.instance_ids is None:
@@ -309,13 +314,13 @@ def cast_passing(clip: list[Frame], passing: list[Passing]) -> list[Frame]:
             if seg is None or _crosses(seg, np.delete(f.gt.boxes, rows, axis=0)):
                 continue
             mid = seg.mean(0)
-            ground = ground_near(np.asarray(f.points[:, :3], np.float64), mid[0], mid[1])
+            ground = ground_near(xyz, mid[0], mid[1])
             bottom = float(box[2] - box[5] / 2) if ground is None else ground
-            # tall enough that the rays to the box's top cross it (a bus beside a slope)
-            bearing = np.array([np.cos(np.arctan2(box[1], box[0])),
-                                np.sin(np.arctan2(box[1], box[0]))])
-            dist = float(seg[0] @ bearing)
-            reach = np.hypot(*box[:2]) + np.array([-0.5, 0.5]) * np.hypot(*box[3:5])
+            # tall enough that the rays to the box's top cross it (a bus beside a slope): the
+            # screen stands ``dist`` along the box's bearing
+            r = float(np.hypot(box[0], box[1]))
+            dist = float(seg[0] @ box[:2]) / r
+            reach = r + np.array([-0.5, 0.5]) * np.hypot(*box[3:5])
             top = float(box[2] + box[5] / 2) * dist / np.maximum(reach, dist + 0.1)
             height = max(p.height, float(top.max()) + 0.3 - bottom)
             w = transform_points(np.asarray(f.pose, np.float64), np.c_[seg, np.full(2, bottom)])
