@@ -50,6 +50,16 @@ def test_fusion_equation_11_single_sample(dt):
         c, r = torch.floor(GRID.xy_to_cell(pos[0, 0] + disp[0, k])).long().tolist()
         expect[0, :, r, c] += 0.8 * q[0, k] * 2.0 * f[0, 0]
     torch.testing.assert_close(out.dense(), expect)
+    # the term's rows are the cells the memory puts something in: two bins, two cells (the
+    # window spanning the 1 m displacement holds more, adding nothing); a bin pruned to zero
+    # weight puts nothing
+    assert sorted(out.index.tolist()) == sorted(
+        (expect[0].abs().sum(0).flatten() > 0).nonzero()[:, 0].tolist())
+    assert len(out.index) == 2
+    pruned = sparse_past_term(f, torch.tensor([[0.8]]), torch.ones(1, 1, dtype=torch.bool), pos,
+                              torch.zeros(1, dtype=torch.long), disp, q, proj, GRID, 1,
+                              prune=0.5)
+    assert len(pruned.index) == 1
     # added in place: only the touched rows of a channels-last map, a dense add otherwise
     base = torch.randn(1, C, GRID.H, GRID.W)
     for x in (base.clone(), base.clone().contiguous(memory_format=torch.channels_last)):

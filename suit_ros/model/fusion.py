@@ -152,7 +152,8 @@ def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: T
     contains ``position + displacement``. Implemented per sample as a small matrix product:
     the weights of its ``P`` source cells over a local ``D x D`` window of destination cells
     (``D`` covers the largest displacement) are accumulated first, then multiplied with the
-    ``(P, C)`` features, and only the ``D x D`` results are scattered into the map.
+    ``(P, C)`` features, and only the ``D x D`` results that receive a weight are scattered
+    into the map (the term's rows: where the memory puts something).
 
     :param features: ``(M, P, C)`` memory features; ``probs``/``mask``: ``(M, P)``.
     :param positions: ``(M, P, 2)`` cell positions already moved into the current frame.
@@ -187,7 +188,9 @@ def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: T
     dr, dc = torch.meshgrid(offs, offs, indexing='ij')
     col = centre[:, 0, 0, None] + dc.reshape(1, -1)                            # (M, D*D)
     row = centre[:, 0, 1, None] + dr.reshape(1, -1)
-    ok = (col >= 0) & (col < W) & (row >= 0) & (row < H)
+    # only the window cells that receive a weight: the window spans the largest displacement
+    # of any sample (bins pruned or not), and most of its cells add exactly zero
+    ok = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (Wm.amax(dim=2) > 0)
     flat = (batch_index[:, None] * H + row) * W + col
     return PastTerm(flat[ok], out_local[ok], shape)
 

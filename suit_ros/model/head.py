@@ -116,17 +116,17 @@ class CenterHead(nn.Module):
         :meth:`forward`'s up to the summation order (the tests compare them). Works on the
         training module and on an inference copy (folded norms, low-precision casts).
         """
-        B, _, H, W = x.shape
+        B, C, H, W = x.shape
         out = {k: v.clone() for k, v in elsewhere.items()}
         cells = torch.nonzero(needed)                                    # (M, 3): b, y, x
         if len(cells) == 0:
             return out
         near = F.max_pool2d(needed[:, None].float(), 3, 1, 1)[:, 0] > 0
         feeding = torch.nonzero(near)
-        shared = _at_cells(self.shared, _padded_rows(x), feeding, H, W)
-        rows = shared.new_zeros(B * (H + 2) * (W + 2), shared.shape[1])  # zero off the map
-        rows.index_copy_(0, (feeding[:, 0] * (H + 2) + feeding[:, 1] + 1) * (W + 2)
-                         + feeding[:, 2] + 1, shared)
+        # the map's rows as they lie (a view of a channels-last map: no copy)
+        shared = _at_cells(self.shared, x.permute(0, 2, 3, 1).reshape(-1, C), feeding, H, W)
+        rows = shared.new_zeros(B * H * W, shared.shape[1])      # zero where not computed
+        rows.index_copy_(0, (feeding[:, 0] * H + feeding[:, 1]) * W + feeding[:, 2], shared)
         maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W)}
         reg = _at_cells(self.regression, rows, cells, H, W)
         for name, (a, b) in REG_SLICES.items():
@@ -291,15 +291,11 @@ class CenterHead(nn.Module):
 
 
 
-def _padded_rows(x: Tensor) -> Tensor:
-    """``(B, C, H, W)`` as ``(B * (H + 2) * (W + 2), C)`` rows of the zero-padded map."""
-    return F.pad(x, (1, 1, 1, 1)).permute(0, 2, 3, 1).reshape(-1, x.shape[1])
-
-
 def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:
     """A head layer stack (a 3 x 3 conv, then norms, ReLUs, 1 x 1 convs, dtype casts: the
-    training module or its inference copy) at ``cells`` ``(M, 3)`` (b, y, x) of a map given as
-    the padded rows of :func:`_padded_rows`; :return: ``(M, out channels)``."""
+    training module or its inference copy) at ``cells`` ``(M, 3)`` (b, y, x) of a ``(B, C, H, W)``
+    map given as its ``(B * H * W, C)`` rows, zero off the map as a padded convolution has it;
+    :return: ``(M, out channels)``."""
     from suit_ros.model.inference import Cast
     ops: list[tuple[str, typing.Any]] = []
 
@@ -325,11 +321,13 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) ->
         elif isinstance(op, nn.Conv2d) and op.kernel_size == (3, 3):
             if v is not None:
                 raise ValueError('a head layer stack holds one 3x3 conv, first')
-            offsets = [(dy, dx) for dy in (0, 1, 2) for dx in (0, 1, 2)]
-            index = torch.stack([(b * (H + 2) + y + dy) * (W + 2) + x + dx
-                                 for dy, dx in offsets], dim=1)          # (M, 9)
-            patches = torch.index_select(rows, 0, index.view(-1))        # (9 M, C)
-            patches = patches.view(len(cells), -1).to(dtype)             # (M, 9 C)
+            ys = y[:, None] + torch.tensor([-1, -1, -1, 0, 0, 0, 1, 1, 1], device=y.device)
+            xs = x[:, None] + torch.tensor([-1, 0, 1, -1, 0, 1, -1, 0, 1], device=x.device)
+            inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)         # (M, 9)
+            index = (b[:, None] * H + ys.clamp(0, H - 1)) * W + xs.clamp(0, W - 1)
+            patches = torch.index_select(rows, 0, index.view(-1)).view(len(cells), 9, -1)
+            patches = (patches * inside[..., None].to(patches.dtype)).view(len(cells), -1)
+            patches = patches.to(dtype)                                  # (M, 9 C)
             w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).to(dtype)
             v = patches @ w.t()
             if op.bias is not None:
