@@ -24,9 +24,11 @@ from suit_ros.model.backbone import BEVBackbone
 from suit_ros.model.distill import Distiller
 from suit_ros.model.fusion import (
     BranchTerms,
+    FoldedFused,
     PastTerm,
     TemporalFusion,
     sparse_past_term,
+    sparse_past_terms,
     warp_dense,
 )
 from suit_ros.model.geonet import GeoNet
@@ -198,27 +200,33 @@ class SUITDetector(nn.Module):
         own = torch.nonzero(sub.owned(), as_tuple=True)[0]
         if self.fusion.zero_past:
             own = own[:0]
-        return BranchTerms(
-            sparse_past_term(feats[own], probs[own], mask[own], positions[own], bi[own],
-                             disp[own], q[own], self.fusion.past, self.grid, B, prune),
-            sparse_past_term(feats, probs, mask, positions, bi, disp, q, self.carry.past,
-                             self.grid, B, prune)), aux
+        own_term, carry_term = sparse_past_terms(
+            feats, probs, mask, positions, bi, disp, q,
+            [(self.fusion.past, own), (self.carry.past, None)], self.grid, B, prune)
+        return BranchTerms(own_term, carry_term), aux
 
     def fuse(self, current: Tensor, past: Past | None,
-             observed: Tensor | None = None) -> Tensor:
+             observed: Tensor | None = None) -> Tensor | FoldedFused:
         """Concatenate-and-fuse (a no-op for the single-frame model). With ``observed``
         (``fusion_gate: unobserved``) the past term enters only the cells without returns;
         with a carry branch this is the model's own fused map, as without a gate."""
         if self.fusion is None:
             return current
+        # an inference copy whose heads read the fused map through W1 (HeadFold): not formed
+        folded = self.head.fold is not None
         if isinstance(past, BranchTerms) and observed is not None:
-            own_fused, past.carry_input = self.fusion.forward_branches(
-                current, past.own, gate_past(past.carry, observed))
+            carry = gate_past(past.carry, observed)
+            if folded and isinstance(carry, PastTerm):
+                past.carry_input = FoldedFused(current, carry, self.fusion)
+                return FoldedFused(current, past.own, self.fusion)
+            own_fused, past.carry_input = self.fusion.forward_branches(current, past.own, carry)
             return own_fused
         if isinstance(past, BranchTerms):
             past = past.own
         elif observed is not None and past is not None:
             past = gate_past(past, observed)
+        if folded and not isinstance(past, Tensor):
+            return FoldedFused(current, past, self.fusion)
         fused: Tensor = self.fusion(current, past)
         return fused
 
@@ -232,7 +240,7 @@ class SUITDetector(nn.Module):
                             aux['carry_shift'], aux['T_now_prev'].numpy(), poses,
                             list(stamps_ns))
 
-    def predict(self, current: Tensor, past: Past | None, fused: Tensor,
+    def predict(self, current: Tensor, past: Past | None, fused: Tensor | FoldedFused,
                 observed: Tensor | None) -> dict[str, Tensor]:
         """The head on the fused map; with ``fusion_gate: unobserved_output`` its outputs at
         the observed cells are those of the current frame alone (the head's receptive field
@@ -250,16 +258,17 @@ class SUITDetector(nn.Module):
                            else self.fusion(current, carry_term))
             if self.training or not isinstance(carry_term, PastTerm):
                 carried: dict[str, Tensor] = self.carry.head(carry_input)
+                merged = {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
             else:
                 # inference: the carry head only where its output is read (cells without
                 # returns) and can differ from the model's own head (within its two-cell
                 # receptive field of the carry term), gathered; the own outputs elsewhere
+                # (the observed cells among them)
                 B, _, H, W = carry_input.shape
                 touched = torch.zeros(B * H * W, dtype=torch.bool, device=observed.device)
                 touched[carry_term.index] = True
                 near = F.max_pool2d(touched.view(B, 1, H, W).float(), 5, 1, 2)[:, 0] > 0
-                carried = self.carry.head.forward_at(carry_input, near & ~observed, preds)
-            merged = {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
+                merged = self.carry.head.forward_at(carry_input, near & ~observed, preds)
             merged.update({OWN + k: v for k, v in preds.items()})
             return merged
         if self.cfg.fusion_gate != 'unobserved_output':
@@ -291,7 +300,7 @@ class SUITDetector(nn.Module):
         out['carried'] = carried
         return out
 
-    def sample_memory(self, fused: Tensor, preds: dict[str, Tensor],
+    def sample_memory(self, fused: Tensor | FoldedFused, preds: dict[str, Tensor],
                       poses: NDArray[np.float64], stamps_ns: Sequence[int],
                       carried: SparseMemory | None = None,
                       observed: Tensor | None = None) -> Memory | None:
@@ -304,7 +313,8 @@ class SUITDetector(nn.Module):
         if self.cfg.temporal == 'none':
             return None
         if self.cfg.temporal == 'dense':
-            return DenseMemory(fused.float(), list(stamps_ns), poses)
+            dense = fused.dense() if isinstance(fused, FoldedFused) else fused
+            return DenseMemory(dense.float(), list(stamps_ns), poses)
         if OWN + 'heatmap' in preds:
             preds = {k[len(OWN):]: v for k, v in preds.items() if k.startswith(OWN)}
         head = self.head

@@ -12,6 +12,7 @@ import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
 
+from suit_ros.model.fusion import FoldedFused, PastTerm, unwrap_conv
 from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.nms import batched_nms
 
@@ -61,6 +62,84 @@ def focal_loss(logits: Tensor, target: Tensor, ignore: Tensor | None = None) -> 
     return -(pos_loss + neg_loss) / pos.sum().clamp(min=1.0)
 
 
+class HeadFold(nn.Module):
+    """A head's first layer composed with the fusion's current-feature 1 x 1 convolution (W1,
+    bias b), for an inference copy (:func:`~suit_ros.model.inference.fold_fusion`).
+
+    On the fused map ``W1 F_t + b + past`` the layer's pre-activation is
+    ``K' F_t + K b + K past``: ``K' = K W1`` a 3 x 3 convolution of F_t (as costly as K on the
+    fused map), ``K b`` (with K's own bias) a constant inside the map, the conv's bias, and
+    less at its edge cells, where the padding holds no b (a correction at those few cells), and
+    ``K past`` the past term's few rows spread over their 3 x 3 neighbours. So W1 never runs
+    over the whole map; the values are the head's on the formed map up to float rounding."""
+
+    edge_index: Tensor          # (E,) the map's edge cells, row * W + col
+    edge_values: Tensor         # (E, hc) what K b is there less its inside value
+    past_weight: Tensor         # (C, 9 hc) K's taps as one matrix
+
+    def __init__(self, shared: nn.Sequential, fusion: nn.Conv2d, H: int, W: int) -> None:
+        super().__init__()
+        first = shared[0]
+        if not (isinstance(first, nn.Conv2d) and first.kernel_size == (3, 3)
+                and first.padding == (1, 1) and first.stride == (1, 1)
+                and all(isinstance(m, nn.Identity | nn.ReLU) for m in list(shared)[1:])):
+            raise ValueError('a head folds the fusion only into a 3x3 conv, norms folded, ReLU')
+        K = first.weight.detach().float()                            # (hc, C, 3, 3)
+        w1 = fusion.weight.detach().float()[:, :, 0, 0]              # (C, C_in)
+        hc, C = K.shape[:2]
+        b1 = (fusion.bias.detach().float() if fusion.bias is not None else K.new_zeros(C))
+        kb = first.bias.detach().float() if first.bias is not None else None
+        with torch.no_grad():
+            bias = F.conv2d(b1.view(1, C, 1, 1).expand(1, C, H, W), K, kb, padding=1)[0]
+            inside = bias[:, min(1, H - 1), min(1, W - 1)]
+            rows = (bias - inside[:, None, None]).permute(1, 2, 0).reshape(H * W, hc)
+            edge = torch.nonzero(rows.abs().amax(dim=1) > 0)[:, 0]
+            self.conv = nn.Conv2d(w1.shape[1], hc, 3, padding=1)
+            self.conv.weight.copy_(torch.einsum('omyx,mc->ocyx', K, w1))
+            typing.cast(Tensor, self.conv.bias).copy_(inside)
+        self.register_buffer('edge_index', edge)
+        self.register_buffer('edge_values', rows[edge].contiguous())
+        self.register_buffer('past_weight', K.permute(1, 2, 3, 0).reshape(C, 9 * hc))
+        self.H, self.W, self.hc = H, W, hc
+
+    def _terms(self, past: PastTerm | None, batch: int) -> PastTerm:
+        """The edge correction and ``K past``, as a sparse term over the pre-activation."""
+        H, W, hc = self.H, self.W, self.hc
+        offsets = torch.arange(batch, device=self.edge_index.device) * (H * W)
+        index = [(offsets[:, None] + self.edge_index).reshape(-1)]
+        values = [self.edge_values.repeat(batch, 1)]
+        if past is not None and len(past.index):
+            spread = (past.values.float() @ self.past_weight).view(-1, 9, hc)
+            b, y, x = past.index // (H * W), past.index // W % H, past.index % W
+            # an input row at (y, x) feeds tap (dy, dx) of the output cell (y - dy + 1, x - dx + 1)
+            ys = y[:, None] + 1 - torch.arange(3, device=y.device).repeat_interleave(3)
+            xs = x[:, None] + 1 - torch.arange(3, device=x.device).repeat(3)
+            inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)
+            index.append(((b[:, None] * H + ys) * W + xs)[inside])
+            values.append(spread[inside])
+        return PastTerm(torch.cat(index), torch.cat(values), (batch, hc, H, W))
+
+    def dense(self, fused: FoldedFused) -> Tensor:
+        """The layer's output ``(B, hc, H, W)`` over the whole map."""
+        pre: Tensor = self.conv(fused.current)          # in an inference copy's conv dtype
+        self._terms(fused.past, pre.shape[0]).add_to(pre)
+        return torch.relu_(pre)
+
+    def at(self, fused: FoldedFused, cells: Tensor) -> Tensor:
+        """The layer's output ``(M, hc)`` at ``cells`` ``(M, 3)`` (b, y, x)."""
+        B, C, H, W = fused.current.shape
+        conv = unwrap_conv(self.conv)
+        rows = fused.current.permute(0, 2, 3, 1).reshape(-1, C)     # a view when channels-last
+        patches = _neighbourhoods(rows, cells, H, W).to(conv.weight.dtype)
+        v = patches @ conv.weight.permute(0, 2, 3, 1).reshape(conv.out_channels, -1).t()
+        v = v + typing.cast(Tensor, conv.bias)
+        term = self._terms(fused.past, B)
+        spread = term.values.new_zeros(B * H * W, self.hc)
+        spread.index_add_(0, term.index, term.values)
+        flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
+        return torch.relu(v + spread[flat].to(v.dtype))
+
+
 class CenterHead(nn.Module):
     """Heatmap and regression branches over the BEV feature map ``(B, C, H, W)``."""
 
@@ -91,21 +170,27 @@ class CenterHead(nn.Module):
             nn.BatchNorm2d(head_channels), nn.ReLU(inplace=True))
         self.heatmap = branch(num_classes)
         self.regression = branch(10)
+        # set on an inference copy: the first layer composed with the fusion's W1 (HeadFold)
+        self.fold: HeadFold | None = None
         last = self.heatmap[-1]
         if isinstance(last, nn.Conv2d) and last.bias is not None:
             nn.init.constant_(last.bias, -2.19)   # prior 0.1, as CenterPoint
 
-    def forward(self, x: Tensor) -> dict[str, Tensor]:
-        """Return ``heatmap`` logits ``(B, K, H, W)`` and the regression maps by name."""
-        s = self.shared(x)
+    def forward(self, x: Tensor | FoldedFused) -> dict[str, Tensor]:
+        """Return ``heatmap`` logits ``(B, K, H, W)`` and the regression maps by name (on a
+        :class:`FoldedFused` map through :attr:`fold`, or on the map it forms)."""
+        if isinstance(x, FoldedFused):
+            s = self.fold.dense(x) if self.fold is not None else self.shared(x.dense())
+        else:
+            s = self.shared(x)
         reg = self.regression(s)
         out = {'heatmap': self.heatmap(s)}
         for name, (a, b) in REG_SLICES.items():
             out[name] = reg[:, a:b]
         return out
 
-    def forward_at(self, x: Tensor, needed: Tensor, elsewhere: dict[str, Tensor]
-                   ) -> dict[str, Tensor]:
+    def forward_at(self, x: Tensor | FoldedFused, needed: Tensor,
+                   elsewhere: dict[str, Tensor]) -> dict[str, Tensor]:
         """:meth:`forward`'s values at the ``needed`` cells (``(B, H, W)`` bool), ``elsewhere``'s
         on the rest: a carry branch's head is read only at the few cells where the memory holds
         what the cloud does not show (a few percent of the map).
@@ -123,8 +208,12 @@ class CenterHead(nn.Module):
             return out
         near = F.max_pool2d(needed[:, None].float(), 3, 1, 1)[:, 0] > 0
         feeding = torch.nonzero(near)
-        # the map's rows as they lie (a view of a channels-last map: no copy)
-        shared = _at_cells(self.shared, x.permute(0, 2, 3, 1).reshape(-1, C), feeding, H, W)
+        if isinstance(x, FoldedFused) and self.fold is not None:
+            shared = self.fold.at(x, feeding)
+        else:
+            x = x.dense() if isinstance(x, FoldedFused) else x
+            # the map's rows as they lie (a view of a channels-last map: no copy)
+            shared = _at_cells(self.shared, x.permute(0, 2, 3, 1).reshape(-1, C), feeding, H, W)
         rows = shared.new_zeros(B * H * W, shared.shape[1])      # zero where not computed
         rows.index_copy_(0, (feeding[:, 0] * H + feeding[:, 1]) * W + feeding[:, 2], shared)
         maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W)}
@@ -291,6 +380,19 @@ class CenterHead(nn.Module):
 
 
 
+def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:
+    """The 3 x 3 neighbourhoods ``(M, 9 C)`` (row-major taps) at ``cells`` ``(M, 3)`` (b, y, x)
+    of a map given as its ``(B * H * W, C)`` rows, zero off the map as a padded convolution
+    has it."""
+    b, y, x = cells[:, 0], cells[:, 1], cells[:, 2]
+    ys = y[:, None] + torch.arange(-1, 2, device=y.device).repeat_interleave(3)
+    xs = x[:, None] + torch.arange(-1, 2, device=x.device).repeat(3)
+    inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)                 # (M, 9)
+    index = (b[:, None] * H + ys.clamp(0, H - 1)) * W + xs.clamp(0, W - 1)
+    patches = torch.index_select(rows, 0, index.view(-1)).view(len(cells), 9, -1)
+    return (patches * inside[..., None].to(patches.dtype)).view(len(cells), -1)
+
+
 def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:
     """A head layer stack (a 3 x 3 conv, then norms, ReLUs, 1 x 1 convs, dtype casts: the
     training module or its inference copy) at ``cells`` ``(M, 3)`` (b, y, x) of a ``(B, C, H, W)``
@@ -310,7 +412,6 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) ->
         elif not isinstance(m, nn.Identity):
             ops.append(('layer', m))
     flatten(layers)
-    b, y, x = cells[:, 0], cells[:, 1], cells[:, 2]
     v: Tensor | None = None
     dtype = rows.dtype
     for kind, op in ops:
@@ -321,13 +422,7 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) ->
         elif isinstance(op, nn.Conv2d) and op.kernel_size == (3, 3):
             if v is not None:
                 raise ValueError('a head layer stack holds one 3x3 conv, first')
-            ys = y[:, None] + torch.tensor([-1, -1, -1, 0, 0, 0, 1, 1, 1], device=y.device)
-            xs = x[:, None] + torch.tensor([-1, 0, 1, -1, 0, 1, -1, 0, 1], device=x.device)
-            inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)         # (M, 9)
-            index = (b[:, None] * H + ys.clamp(0, H - 1)) * W + xs.clamp(0, W - 1)
-            patches = torch.index_select(rows, 0, index.view(-1)).view(len(cells), 9, -1)
-            patches = (patches * inside[..., None].to(patches.dtype)).view(len(cells), -1)
-            patches = patches.to(dtype)                                  # (M, 9 C)
+            patches = _neighbourhoods(rows, cells, H, W).to(dtype)       # (M, 9 C)
             w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).to(dtype)
             v = patches @ w.t()
             if op.bias is not None:

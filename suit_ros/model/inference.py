@@ -152,6 +152,9 @@ def _low_precision(model: nn.Module, dtype: torch.dtype) -> int:
         if head is not None and isinstance(getattr(head, 'shared', None), nn.Sequential):
             head.shared = Cast(head.shared, dtype, dtype)
             wrapped += 1
+            if getattr(head, 'fold', None) is not None:   # the shared layer composed with W1
+                head.fold.conv = Cast(head.fold.conv, dtype, dtype)
+                wrapped += 1
             for name in ('heatmap', 'regression'):
                 branch = getattr(head, name)
                 # the 3x3 conv (+ folded norm, ReLU) in low precision, the final 1x1 in float32
@@ -159,6 +162,28 @@ def _low_precision(model: nn.Module, dtype: torch.dtype) -> int:
                                                   branch[-1]))
                 wrapped += 1
     return wrapped
+
+
+def fold_fusion(model: nn.Module) -> int:
+    """Compose the first layer of a sparse-memory detector's heads (its own and a carry
+    branch's) with the fusion's current-feature 1 x 1 convolution W1
+    (:class:`~suit_ros.model.head.HeadFold`), so that no step runs W1 over the whole map; in
+    place, on a model whose norms are folded. Not for a W1 that is the identity (skipped
+    already) or a dense memory. Returns the number of heads folded."""
+    from suit_ros.config import SPARSE_MEMORIES
+    from suit_ros.model.head import HeadFold
+    fusion = getattr(model, 'fusion', None)
+    cfg = getattr(model, 'cfg', None)
+    if (fusion is None or cfg is None or cfg.temporal not in SPARSE_MEMORIES
+            or not isinstance(fusion.current, nn.Conv2d) or fusion.mark_identity()):
+        return 0
+    folded = 0
+    carry = getattr(model, 'carry', None)
+    for head in (getattr(model, 'head', None), getattr(carry, 'head', None)):
+        if head is not None:
+            head.fold = HeadFold(head.shared, fusion.current, head.grid.H, head.grid.W)
+            folded += 1
+    return folded
 
 
 def inference_copy(model: nn.Module, channels_last: bool = True,
@@ -177,6 +202,7 @@ def inference_copy(model: nn.Module, channels_last: bool = True,
         raise ValueError(f'precision must be float32 or bfloat16, got {precision!r}')
     copied = copy.deepcopy(model).eval()
     fold_batchnorm(copied)
+    fold_fusion(copied)
     if precision == 'bfloat16':
         _low_precision(copied, torch.bfloat16)
     if channels_last:

@@ -22,6 +22,7 @@ import torch
 from torch import Tensor
 
 from suit_ros.config import SamplingConfig
+from suit_ros.model.fusion import FoldedFused
 from suit_ros.model.grid import BEVGrid
 from suit_ros.model.memory import SparseMemory
 from suit_ros.ops.nms import greedy_suppression, rotated_suppression
@@ -124,11 +125,12 @@ def significant_sampling(heatmap_logits: Tensor,
     return Samples(b[keep], cells[keep], scores[keep], boxes[keep], vel[keep])
 
 
-def gather_window(features: Tensor, prob: Tensor, batch_index: Tensor, cells: Tensor,
-                  mask: Tensor) -> tuple[Tensor, Tensor]:
+def gather_window(features: Tensor | FoldedFused, prob: Tensor, batch_index: Tensor,
+                  cells: Tensor, mask: Tensor) -> tuple[Tensor, Tensor]:
     """Features ``(M, P, C)`` and probabilities ``(M, P)`` at window cells (zero outside mask).
 
-    :param features: ``(B, C, H, W)``; ``prob``: ``(B, H, W)``.
+    :param features: ``(B, C, H, W)`` (or a fused map not formed, whose rows are computed);
+        ``prob``: ``(B, H, W)``.
     """
     M, P, _ = cells.shape
     B, C, H, W = features.shape
@@ -136,7 +138,8 @@ def gather_window(features: Tensor, prob: Tensor, batch_index: Tensor, cells: Te
     row = cells[..., 1].clamp(0, H - 1)
     b = batch_index[:, None].expand(M, P)
     flat = (b * H + row) * W + col                                             # (M, P)
-    feat = features.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat.reshape(-1)]
+    feat = (features.rows(flat.reshape(-1)) if isinstance(features, FoldedFused) else
+            features.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat.reshape(-1)])
     feat = feat.view(M, P, C) * mask[..., None].to(feat.dtype)
     p = prob.reshape(-1)[flat.reshape(-1)].view(M, P) * mask.to(prob.dtype)
     return feat, p
