@@ -238,9 +238,44 @@ def test_the_heads_read_the_fused_map_through_w1_as_on_the_formed_map(monkeypatc
         assert (at_got[k] - at_want[k]).abs().max() <= tol * scale + tol, k
 
 
+def test_a_fold_equals_the_formed_map_over_a_batch_at_the_edges():
+    """HeadFold and FoldedFused.rows on a batch of two: past rows at the corners, on the last
+    row of the first map and the first of the second, one cell repeated, equal the head's
+    first layer on the formed map (the whole map and gathered at cells) and its rows."""
+    from suit_ros.model.fusion import FoldedFused, PastTerm, TemporalFusion
+    from suit_ros.model.head import HeadFold, _neighbourhoods
+    torch.manual_seed(0)
+    B, C, hc, H, W = 2, 6, 5, 7, 9
+    fusion = TemporalFusion(C).eval()
+    with torch.no_grad():
+        fusion.current.weight.normal_(0, 0.5)
+        fusion.current.bias.uniform_(-1, 1)
+    shared = torch.nn.Sequential(torch.nn.Conv2d(C, hc, 3, padding=1), torch.nn.ReLU())
+    fold = HeadFold(shared, fusion.current, H, W)
+    index = torch.tensor([0, W - 1, H * W - W, H * W - 1, H * W, 2 * H * W - 1, 3 * W + 4,
+                          3 * W + 4, H * W + 2 * W])
+    past = PastTerm(index, torch.randn(len(index), C), (B, C, H, W))
+    current = torch.randn(B, C, H, W)
+    folded = FoldedFused(current, past, fusion)
+    with torch.no_grad():
+        formed = folded.dense()
+        want = shared(formed)
+        torch.testing.assert_close(fold.dense(folded), want, atol=1e-5, rtol=1e-5)
+        cells = torch.nonzero(torch.ones(B, H, W, dtype=torch.bool))
+        torch.testing.assert_close(fold.at(folded, cells),
+                                   want.permute(0, 2, 3, 1).reshape(-1, hc), atol=1e-5,
+                                   rtol=1e-5)
+        flat = torch.arange(B * H * W)
+        torch.testing.assert_close(folded.rows(flat),
+                                   formed.permute(0, 2, 3, 1).reshape(-1, C), atol=1e-5,
+                                   rtol=1e-5)
+        rows = formed.permute(0, 2, 3, 1).reshape(-1, C)
+        assert _neighbourhoods(rows, cells, H, W).shape == (B * H * W, 9 * C)
+
+
 def test_no_fold_where_it_saves_nothing_or_cannot_hold():
     """A W1 still the identity (skipped already) and a dense memory are not folded; a head
-    whose first layer is not a 3x3 conv followed by a ReLU is refused."""
+    whose first layer is not a plain 3x3 conv followed by one ReLU is refused."""
     from suit_ros.model.head import HeadFold
     from suit_ros.model.inference import inference_copy
     torch.manual_seed(0)
@@ -249,5 +284,12 @@ def test_no_fold_where_it_saves_nothing_or_cannot_hold():
     assert inference_copy(dense).head.fold is None
     assert inference_copy(_trained_fusion(SUITDetector(small_config('suit')))).head.fold
     model = SUITDetector(small_config('suit'))
-    with pytest.raises(ValueError, match='3x3'):
-        HeadFold(torch.nn.Sequential(torch.nn.Conv2d(48, 32, 1)), model.fusion.current, 8, 8)
+    C = model.fusion.current.out_channels
+    relu = torch.nn.ReLU()
+    for bad in (torch.nn.Sequential(torch.nn.Conv2d(C, 32, 1), relu),
+                torch.nn.Sequential(torch.nn.Conv2d(C, 32, 3, padding=1)),
+                torch.nn.Sequential(torch.nn.Conv2d(C, 32, 3, padding=2, dilation=2), relu),
+                torch.nn.Sequential(torch.nn.Conv2d(C, 32, 3, padding=1,
+                                                    padding_mode='reflect'), relu)):
+        with pytest.raises(ValueError, match='3x3'):
+            HeadFold(bad, model.fusion.current, 8, 8)

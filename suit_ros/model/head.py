@@ -79,11 +79,15 @@ class HeadFold(nn.Module):
 
     def __init__(self, shared: nn.Sequential, fusion: nn.Conv2d, H: int, W: int) -> None:
         super().__init__()
-        first = shared[0]
+        first, rest = shared[0], list(shared)[1:]
         if not (isinstance(first, nn.Conv2d) and first.kernel_size == (3, 3)
                 and first.padding == (1, 1) and first.stride == (1, 1)
-                and all(isinstance(m, nn.Identity | nn.ReLU) for m in list(shared)[1:])):
-            raise ValueError('a head folds the fusion only into a 3x3 conv, norms folded, ReLU')
+                and first.dilation == (1, 1) and first.groups == 1
+                and first.padding_mode == 'zeros'
+                and all(isinstance(m, nn.Identity | nn.ReLU) for m in rest)
+                and sum(isinstance(m, nn.ReLU) for m in rest) == 1):
+            raise ValueError('a head folds the fusion only into a plain 3x3 conv (zero padding) '
+                             'followed by one ReLU, its norm folded')
         K = first.weight.detach().float()                            # (hc, C, 3, 3)
         w1 = fusion.weight.detach().float()[:, :, 0, 0]              # (C, C_in)
         hc, C = K.shape[:2]
@@ -94,7 +98,7 @@ class HeadFold(nn.Module):
             inside = bias[:, min(1, H - 1), min(1, W - 1)]
             rows = (bias - inside[:, None, None]).permute(1, 2, 0).reshape(H * W, hc)
             edge = torch.nonzero(rows.abs().amax(dim=1) > 0)[:, 0]
-            self.conv = nn.Conv2d(w1.shape[1], hc, 3, padding=1)
+            self.conv = nn.Conv2d(w1.shape[1], hc, 3, padding=1, device=K.device)
             self.conv.weight.copy_(torch.einsum('omyx,mc->ocyx', K, w1))
             typing.cast(Tensor, self.conv.bias).copy_(inside)
         self.register_buffer('edge_index', edge)

@@ -11,10 +11,12 @@ bfloat16 3x3 convolution several times faster than a float32 one. ``precision='b
 runs the backbone, the neck, the fusion's 1x1 convolution over the current features and the
 head's 3x3 convolutions in bfloat16 (the pillar encoder writes its pseudo-image in bfloat16,
 the backbone hands bfloat16 features to the fusion, the past term is added to the fused map in
-bfloat16 and the head takes that map as it is); the pillar features, the memory's features
-(gathered as float32), the past term and GeoNet, the head's final 1x1 projections and the
-decoding stay float32, so box parameters and scores come from float32 maps and the memory holds
-float32 features.
+bfloat16 and the head takes that map as it is; where the heads read the fused map through W1
+(:func:`fold_fusion`), their first layer runs in bfloat16 on the backbone's features and the
+past term and edge correction, computed in float32, are added to its bfloat16 output); the
+pillar features, the memory's features (gathered as float32), the past term and GeoNet, the
+head's final 1x1 projections and the decoding stay float32, so box parameters and scores come
+from float32 maps and the memory holds float32 features.
 :func:`resolve_precision` picks bfloat16 for ``auto`` only where the CPU has those units.
 """
 from __future__ import annotations
@@ -144,7 +146,8 @@ def _low_precision(model: nn.Module, dtype: torch.dtype) -> int:
     fusion = getattr(model, 'fusion', None)
     if fusion is not None and isinstance(getattr(fusion, 'current', None), nn.Conv2d):
         # the fused map stays in low precision too (the past term is added in it): the head
-        # takes it as it is; the memory's features are gathered from it as float32
+        # takes it as it is (or, folded, reads it through W1); the memory's features are
+        # gathered from it as float32
         fusion.current = Cast(fusion.current, dtype, dtype)
         wrapped += 1
     carry = getattr(model, 'carry', None)
