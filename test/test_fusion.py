@@ -247,7 +247,8 @@ def _stream(model, clouds):
             preds = model.predict(current, past, fused, observed)
             memory = model.sample_memory(fused, preds, poses, stamps,
                                          model.carried(memory, aux, poses, stamps), observed)
-            out.append((preds, observed, memory))
+            # an inference copy reads its regression where decoded: the maps, to compare
+            out.append(({**preds, **model.head.dense_outputs(preds)}, observed, memory))
     return out
 
 

@@ -94,6 +94,9 @@ class SUITDetector(nn.Module):
                                h.max_objects, h.yaw_velocity_min_speed)
         self.carry = (CarryBranch(C, self.head)
                       if cfg.fusion_gate == 'carry_branch' and self.fusion is not None else None)
+        # set on an inference copy: the head's regression only where it is read
+        # (CenterHead.forward_lazy); not with the output gate, which merges whole maps
+        self.lazy_regression = False
 
     @property
     def device(self) -> torch.device:
@@ -248,7 +251,8 @@ class SUITDetector(nn.Module):
         ``carry_branch`` the unobserved cells' outputs are the carry head's on the current
         features plus the carry projection's past term there (the model's own outputs stay
         in the predictions under ``own.<name>``, for the memory's sampling)."""
-        preds: dict[str, Tensor] = self.head(fused)
+        preds: dict[str, Tensor] = (self.head.forward_lazy(fused) if self.lazy_regression
+                                    else self.head(fused))
         if past is None or observed is None or self.fusion is None:
             return preds
         seen = observed[:, None]

@@ -17,6 +17,9 @@ from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.nms import batched_nms
 
 REG_SLICES = {'offset': (0, 2), 'z': (2, 3), 'size': (3, 6), 'rot': (6, 8), 'vel': (8, 10)}
+# :meth:`CenterHead.forward_lazy`'s outputs besides the heatmap: the shared layer's map, and
+# where a carry head answered (flat cells, sorted) its regression rows
+SHARED, CARRY_CELLS, CARRY_REG = 'shared', 'carry_cells', 'carry_reg'
 
 
 def gaussian_radius(height: float, width: float, min_overlap: float = 0.1) -> float:
@@ -193,6 +196,53 @@ class CenterHead(nn.Module):
             out[name] = reg[:, a:b]
         return out
 
+    def forward_lazy(self, x: Tensor | FoldedFused) -> dict[str, Tensor]:
+        """:meth:`forward` with the regression left for the cells it is read at
+        (:meth:`decode_cells`: the decoded peaks and the memory's samples, a few hundred of
+        16k): ``heatmap`` and the shared layer's map (``shared``). The regression branch over
+        the whole map was a tenth of a float32 step; the values at the cells read are its own
+        up to the summation order."""
+        if isinstance(x, FoldedFused):
+            s = self.fold.dense(x) if self.fold is not None else self.shared(x.dense())
+        else:
+            s = self.shared(x)
+        return {'heatmap': self.heatmap(s), SHARED: s}
+
+    def regression_at(self, preds: dict[str, Tensor], batch_index: Tensor, rows: Tensor,
+                      cols: Tensor) -> Tensor:
+        """The ``(N, 10)`` regression at cells of :meth:`forward_lazy`'s outputs (dense maps
+        where :meth:`forward` gave them); a carry head's rows where it answered."""
+        if SHARED not in preds:
+            return torch.cat([preds[n][batch_index, :, rows, cols] for n in REG_SLICES], dim=1)
+        s = preds[SHARED]
+        B, hc, H, W = s.shape
+        cells = torch.stack([batch_index, rows, cols], dim=1)
+        reg = _at_cells(self.regression, s.permute(0, 2, 3, 1).reshape(-1, hc), cells, H, W)
+        if CARRY_CELLS in preds and len(preds[CARRY_CELLS]) and len(cells):
+            known = preds[CARRY_CELLS]
+            flat = (batch_index * H + rows) * W + cols
+            at = torch.searchsorted(known, flat).clamp(max=len(known) - 1)
+            hit = known[at] == flat
+            reg[hit] = preds[CARRY_REG][at[hit]].to(reg.dtype)
+        return reg
+
+    def dense_outputs(self, preds: dict[str, Tensor]) -> dict[str, Tensor]:
+        """:meth:`forward`'s maps from :meth:`forward_lazy`'s outputs (the regression branch
+        over the whole map, a carry head's rows where it answered): for inspection and tests;
+        dense outputs pass through."""
+        if SHARED not in preds:
+            return preds
+        s = preds[SHARED]
+        B, _, H, W = s.shape
+        reg = self.regression(s).float().permute(0, 2, 3, 1).reshape(B * H * W, -1).clone()
+        if CARRY_CELLS in preds:
+            reg[preds[CARRY_CELLS]] = preds[CARRY_REG].to(reg.dtype)
+        maps = reg.view(B, H, W, -1).permute(0, 3, 1, 2)
+        out = {'heatmap': preds['heatmap']}
+        for name, (a, b) in REG_SLICES.items():
+            out[name] = maps[:, a:b]
+        return out
+
     def forward_at(self, x: Tensor | FoldedFused, needed: Tensor,
                    elsewhere: dict[str, Tensor]) -> dict[str, Tensor]:
         """:meth:`forward`'s values at the ``needed`` cells (``(B, H, W)`` bool), ``elsewhere``'s
@@ -203,10 +253,13 @@ class CenterHead(nn.Module):
         layer at the needed cells and their neighbours, the branches at the needed cells), the
         shared layer's output zero off the map as the full map's padding has it; the values are
         :meth:`forward`'s up to the summation order (the tests compare them). Works on the
-        training module and on an inference copy (folded norms, low-precision casts).
+        training module and on an inference copy (folded norms, low-precision casts). On
+        :meth:`forward_lazy`'s outputs the regression at the needed cells comes back as rows
+        (``carry_cells``, ``carry_reg``), read by :meth:`regression_at`.
         """
         B, C, H, W = x.shape
-        out = {k: v.clone() for k, v in elsewhere.items()}
+        # (forward_lazy's shared map is the own head's: not written, not copied)
+        out = {k: v if k == SHARED else v.clone() for k, v in elsewhere.items()}
         cells = torch.nonzero(needed)                                    # (M, 3): b, y, x
         if len(cells) == 0:
             return out
@@ -222,8 +275,12 @@ class CenterHead(nn.Module):
         rows.index_copy_(0, (feeding[:, 0] * H + feeding[:, 1]) * W + feeding[:, 2], shared)
         maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W)}
         reg = _at_cells(self.regression, rows, cells, H, W)
-        for name, (a, b) in REG_SLICES.items():
-            maps[name] = reg[:, a:b]
+        if SHARED in elsewhere:         # forward_lazy's outputs: the rows where it answered
+            out[CARRY_CELLS] = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
+            out[CARRY_REG] = reg
+        else:
+            for name, (a, b) in REG_SLICES.items():
+                maps[name] = reg[:, a:b]
         for b in range(B):
             mine = cells[:, 0] == b
             flat = cells[mine, 1] * W + cells[mine, 2]
@@ -336,9 +393,11 @@ class CenterHead(nn.Module):
         """Decode boxes ``(N, 7)`` and velocities ``(N, 2)`` at integer cells ``(N, 2)``."""
         g = self.grid
         b, c, r = batch_index.long(), cells[:, 0].long(), cells[:, 1].long()
+        reg = self.regression_at(preds, b, r, c)                         # (N, 10)
 
         def at(name: str) -> Tensor:
-            return preds[name][b, :, r, c]                               # (N, ch)
+            first, last = REG_SLICES[name]
+            return reg[:, first:last]
 
         off, z, size, rot, vel = at('offset'), at('z'), at('size'), at('rot'), at('vel')
         x = (c.to(off.dtype) + off[:, 0]) * g.cell + g.point_range[0]
@@ -393,8 +452,9 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:
     xs = x[:, None] + torch.arange(-1, 2, device=x.device).repeat(3)
     inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)                 # (M, 9)
     index = (b[:, None] * H + ys.clamp(0, H - 1)) * W + xs.clamp(0, W - 1)
-    patches = torch.index_select(rows, 0, index.view(-1)).view(len(cells), 9, -1)
-    return (patches * inside[..., None].to(patches.dtype)).view(len(cells), -1)
+    C = rows.shape[1]
+    patches = torch.index_select(rows, 0, index.view(-1)).view(len(cells), 9, C)
+    return (patches * inside[..., None].to(patches.dtype)).view(len(cells), 9 * C)
 
 
 def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:

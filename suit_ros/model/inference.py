@@ -206,6 +206,10 @@ def inference_copy(model: nn.Module, channels_last: bool = True,
     copied = copy.deepcopy(model).eval()
     fold_batchnorm(copied)
     fold_fusion(copied)
+    cfg = getattr(copied, 'cfg', None)
+    if hasattr(copied, 'lazy_regression') and cfg is not None:
+        # the regression branch only at the cells decoded and sampled (CenterHead.forward_lazy)
+        copied.lazy_regression = cfg.fusion_gate != 'unobserved_output'
     if precision == 'bfloat16':
         _low_precision(copied, torch.bfloat16)
     if channels_last:
