@@ -293,3 +293,52 @@ def test_no_fold_where_it_saves_nothing_or_cannot_hold():
                                                     padding_mode='reflect'), relu)):
         with pytest.raises(ValueError, match='3x3'):
             HeadFold(bad, model.fusion.current, 8, 8)
+
+
+def test_the_regression_read_where_decoded_gives_the_boxes_of_the_whole_maps():
+    """An inference copy runs the regression branch only at the cells it decodes and samples
+    (a carry head's rows where it answered): over a stream with a memory and a lost half of
+    the cloud, its boxes (carried ones among them) and its memory's boxes are those of the
+    same copy with the whole maps; the maps rebuilt from its outputs are the head's."""
+    from dataclasses import replace
+
+    from modelkit import frame
+
+    from suit_ros.model.head import CARRY_CELLS, SHARED
+    torch.manual_seed(0)
+    cfg = small_config('suit')
+    cfg = replace(cfg, fusion_gate='carry_branch',
+                  sampling=replace(cfg.sampling, carry_frames=3, alpha=0.01, top_k=5))
+    model = _trained_fusion(SUITDetector(cfg))
+    K = len(cfg.class_names)
+    runs = []
+    for lazy in (True, False):
+        runner = StreamingDetector(model, score_thresholds=[0.05] * K)
+        assert runner.model.lazy_regression
+        runner.model.lazy_regression = lazy
+        out = []
+        for t in range(5):
+            f = frame(t)
+            pts = f.points if t < 2 else f.points[f.points[:, 0] < 0]
+            res = runner.step(pts, f.stamp_ns, f.pose)
+            out.append((res, runner.memory))
+        runs.append(out)
+    for (a, ma), (b, mb) in zip(*runs):
+        assert len(a.detections) == len(b.detections) > 0
+        np.testing.assert_array_equal(a.carried, b.carried)
+        np.testing.assert_allclose(a.detections.boxes, b.detections.boxes, atol=1e-4)
+        np.testing.assert_allclose(a.detections.scores, b.detections.scores, atol=1e-5)
+        torch.testing.assert_close(ma.boxes, mb.boxes, atol=1e-4, rtol=1e-4)
+    assert sum(int(r.carried.sum()) for r, _ in runs[0]) > 0
+    # the outputs themselves: a carry head's rows where it answered, the maps rebuilt
+    fast = runner.model
+    with torch.no_grad():
+        f0 = frame(0)
+        c0, o0 = fast.encode_observed([torch.from_numpy(f0.points)])
+        p0 = fast.predict(c0, None, fast.fuse(c0, None, o0), o0)
+        assert SHARED not in p0 and 'offset' in p0          # lazy off on this copy
+        fast.lazy_regression = True
+        lazy = fast.predict(c0, None, fast.fuse(c0, None, o0), o0)
+        assert SHARED in lazy and 'offset' not in lazy and CARRY_CELLS not in lazy
+        for k, v in fast.head.dense_outputs(lazy).items():
+            torch.testing.assert_close(v, p0[k], atol=1e-5, rtol=1e-5)

@@ -250,7 +250,10 @@ class SUITDetector(nn.Module):
         would otherwise carry the past term from the unobserved cells next to them); with
         ``carry_branch`` the unobserved cells' outputs are the carry head's on the current
         features plus the carry projection's past term there (the model's own outputs stay
-        in the predictions under ``own.<name>``, for the memory's sampling)."""
+        in the predictions under ``own.<name>``, for the memory's sampling). An inference copy
+        (``lazy_regression``) returns the heatmap and the shared map (``shared``) for the
+        regression to be read where decoded, and a carry head's rows where it answered
+        (``carry_cells``, ``carry_reg``): :meth:`CenterHead.forward_lazy`."""
         preds: dict[str, Tensor] = (self.head.forward_lazy(fused) if self.lazy_regression
                                     else self.head(fused))
         if past is None or observed is None or self.fusion is None:
