@@ -41,12 +41,17 @@ class PastTerm:
     values: Tensor
     shape: tuple[int, int, int, int]
 
-    def dense(self) -> Tensor:
-        """The term as a ``(B, C, H, W)`` map (channels-last memory)."""
+    def rows(self) -> Tensor:
+        """The term summed per cell, as the ``(B * H * W, C)`` rows of the map."""
         B, C, H, W = self.shape
         out = self.values.new_zeros(B * H * W, C)
         out.index_add_(0, self.index, self.values)
-        return out.view(B, H, W, C).permute(0, 3, 1, 2)
+        return out
+
+    def dense(self) -> Tensor:
+        """The term as a ``(B, C, H, W)`` map (channels-last memory)."""
+        B, C, H, W = self.shape
+        return self.rows().view(B, H, W, C).permute(0, 3, 1, 2)
 
     def add_to(self, x: Tensor) -> Tensor:
         """``x += term`` in place (in ``x``'s dtype); only the touched rows when ``x`` is

@@ -140,11 +140,8 @@ class HeadFold(nn.Module):
         patches = _neighbourhoods(rows, cells, H, W).to(conv.weight.dtype)
         v = patches @ conv.weight.permute(0, 2, 3, 1).reshape(conv.out_channels, -1).t()
         v = v + typing.cast(Tensor, conv.bias)
-        term = self._terms(fused.past, B)
-        spread = term.values.new_zeros(B * H * W, self.hc)
-        spread.index_add_(0, term.index, term.values)
         flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
-        return torch.relu(v + spread[flat].to(v.dtype))
+        return torch.relu(v + self._terms(fused.past, B).rows()[flat].to(v.dtype))
 
 
 class CenterHead(nn.Module):
@@ -183,13 +180,18 @@ class CenterHead(nn.Module):
         if isinstance(last, nn.Conv2d) and last.bias is not None:
             nn.init.constant_(last.bias, -2.19)   # prior 0.1, as CenterPoint
 
+    def _shared(self, x: Tensor | FoldedFused) -> Tensor:
+        """The shared layer's map: on a :class:`FoldedFused` map through :attr:`fold` (or on
+        the map it forms)."""
+        if isinstance(x, FoldedFused):
+            return self.fold.dense(x) if self.fold is not None else self.shared(x.dense())
+        out: Tensor = self.shared(x)
+        return out
+
     def forward(self, x: Tensor | FoldedFused) -> dict[str, Tensor]:
         """Return ``heatmap`` logits ``(B, K, H, W)`` and the regression maps by name (on a
         :class:`FoldedFused` map through :attr:`fold`, or on the map it forms)."""
-        if isinstance(x, FoldedFused):
-            s = self.fold.dense(x) if self.fold is not None else self.shared(x.dense())
-        else:
-            s = self.shared(x)
+        s = self._shared(x)
         reg = self.regression(s)
         out = {'heatmap': self.heatmap(s)}
         for name, (a, b) in REG_SLICES.items():
@@ -202,10 +204,7 @@ class CenterHead(nn.Module):
         16k): ``heatmap`` and the shared layer's map (``shared``). The regression branch over
         the whole map was a tenth of a float32 step; the values at the cells read are its own
         up to the summation order."""
-        if isinstance(x, FoldedFused):
-            s = self.fold.dense(x) if self.fold is not None else self.shared(x.dense())
-        else:
-            s = self.shared(x)
+        s = self._shared(x)
         return {'heatmap': self.heatmap(s), SHARED: s}
 
     def regression_at(self, preds: dict[str, Tensor], batch_index: Tensor, rows: Tensor,
