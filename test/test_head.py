@@ -7,6 +7,7 @@ from modelkit import GRID
 import numpy as np
 import pytest
 import torch
+import torch.nn.functional as F
 
 from suit_ros.model.grid import BEVGrid
 from suit_ros.model.head import CenterHead, draw_gaussian, gaussian_radius
@@ -182,3 +183,19 @@ def test_a_score_on_an_ignored_thing_costs_nothing():
     assert hm(on_bike, ignored) == pytest.approx(hm(quiet, ignored), abs=1e-6)
     assert hm(on_bike, plain) > hm(quiet, plain) + 1.0
     assert hm(beside, ignored) > hm(quiet, ignored) + 1.0
+
+
+@pytest.mark.parametrize('r', [1, 2])
+def test_dilated_cells_are_what_a_max_pool_of_their_map_marks(r):
+    """The sparse neighbourhood the carry head is read in equals the dense max pool it
+    replaced, edges and a batch of two included, repeats in the input allowed."""
+    from suit_ros.model.head import dilated_cells
+    g = torch.Generator().manual_seed(r)
+    B, H, W = 2, 9, 13
+    flat = torch.randint(0, B * H * W, (25,), generator=g)
+    flat = torch.cat([flat, flat[:5], torch.tensor([0, H * W - 1, B * H * W - 1, W - 1])])
+    marked = torch.zeros(B * H * W)
+    marked[flat] = 1
+    want = torch.nonzero(F.max_pool2d(marked.view(B, 1, H, W), 2 * r + 1, 1, r).reshape(-1) > 0)
+    assert dilated_cells(flat, H, W, r).tolist() == want[:, 0].tolist()
+    assert len(dilated_cells(flat[:0], H, W, r)) == 0

@@ -189,6 +189,45 @@ def test_a_carried_detection_keeps_its_tracks_score():
     assert ids[1] > 1 and out.scores[1] == pytest.approx(0.5)
 
 
+def test_carried_boxes_need_not_keep_a_track_alive():
+    """With ``carried_refresh`` off a track held only by carried boxes ends ``max_miss_s``
+    after its last box seen in the cloud (a memory's boxes do not hold it for ever), and a
+    track a carried box continued is not also coasted (one box per object)."""
+    T = np.eye(4)
+    lives = {}
+    for refresh in (True, False):
+        trk = Tracker(TrackerConfig(carried_refresh=refresh, max_miss_s=0.3, coast_s=0.3))
+        trk.update(frame([[10, 0]], [[0, 0]]), 0, T, current=np.zeros((0, 3)))
+        for k in range(1, 8):
+            out, ids = trk.update(frame([[10, 0]], [[0, 0]], scores=[0.2]), k * DT_NS, T,
+                                  carried=np.array([True]), current=np.zeros((0, 3)))
+            assert trk.coasted == 0 and len(out) == 1
+            if ids[0] == 1:
+                lives[refresh] = k
+    assert lives == {True: 7, False: 4}     # the last 0.4 s after the box seen (0.3 s + a frame)
+
+
+def test_a_carried_box_keeps_the_size_and_heading_it_was_seen_with():
+    """With ``carried_as_seen`` (the default) a carried detection continuing a track is
+    published with the size and heading of the track's last box, not the carry head's guess
+    (here a squashed box turned 90 degrees), at the centre the memory holds it at."""
+    T = np.eye(4)
+    out = {}
+    for as_seen in (False, True):
+        trk = Tracker(TrackerConfig(carried_as_seen=as_seen))
+        for k in range(6):                               # seen: 10 m/s along x
+            trk.update(frame([[10 + k, 0]], [[10, 0]]), k * DT_NS, T)
+        guess = frame([[16.1, 0.2]], [[10, 0]], yaw=np.pi / 2)
+        guess.boxes[:, 3:6] = (2.0, 1.0, 1.0)
+        out[as_seen], _ = trk.update(guess, 6 * DT_NS, T, carried=np.array([True]))
+        # a box seen in the cloud again is published as the model gives it
+        seen, _ = trk.update(guess, 7 * DT_NS, T, carried=np.array([False]))
+        assert seen.boxes[0, 3:6].tolist() == [2.0, 1.0, 1.0]
+    assert out[False].boxes[0, 3:7].tolist() == pytest.approx([2.0, 1.0, 1.0, np.pi / 2])
+    assert out[True].boxes[0, 3:7].tolist() == pytest.approx([4.5, 1.9, 1.6, 0.0])
+    assert out[True].boxes[0, :2].tolist() == pytest.approx([16.1, 0.2])   # where held
+
+
 def car_points(centre, yaw, speed, lags, rng, n=60):
     """Returns on the visible outline of a 4.5 x 1.9 m car moving ``speed`` m/s along its
     heading, one cloud per time lag (the car was ``speed x lag`` behind then), ground at z 0."""

@@ -33,7 +33,7 @@ from suit_ros.model.fusion import (
 )
 from suit_ros.model.geonet import GeoNet
 from suit_ros.model.grid import BEVGrid
-from suit_ros.model.head import CenterHead
+from suit_ros.model.head import CenterHead, dilated_cells
 from suit_ros.model.memory import (
     DenseMemory,
     SparseMemory,
@@ -271,11 +271,10 @@ class SUITDetector(nn.Module):
                 # returns) and can differ from the model's own head (within its two-cell
                 # receptive field of the carry term), gathered; the own outputs elsewhere
                 # (the observed cells among them)
-                B, _, H, W = carry_input.shape
-                touched = torch.zeros(B * H * W, dtype=torch.bool, device=observed.device)
-                touched[carry_term.index] = True
-                near = F.max_pool2d(touched.view(B, 1, H, W).float(), 5, 1, 2)[:, 0] > 0
-                merged = self.carry.head.forward_at(carry_input, near & ~observed, preds)
+                _, _, H, W = carry_input.shape
+                near = dilated_cells(carry_term.index, H, W, 2)
+                needed = near[~observed.reshape(-1)[near]]
+                merged = self.carry.head.forward_at(carry_input, needed, preds)
             merged.update({OWN + k: v for k, v in preds.items()})
             return merged
         if self.cfg.fusion_gate != 'unobserved_output':

@@ -244,9 +244,10 @@ class CenterHead(nn.Module):
 
     def forward_at(self, x: Tensor | FoldedFused, needed: Tensor,
                    elsewhere: dict[str, Tensor]) -> dict[str, Tensor]:
-        """:meth:`forward`'s values at the ``needed`` cells (``(B, H, W)`` bool), ``elsewhere``'s
-        on the rest: a carry branch's head is read only at the few cells where the memory holds
-        what the cloud does not show (a few percent of the map).
+        """:meth:`forward`'s values at the ``needed`` cells (``(B, H, W)`` bool, or their sorted
+        flat indices ``(b * H + y) * W + x``), ``elsewhere``'s on the rest: a carry branch's
+        head is read only at the few cells where the memory holds what the cloud does not show
+        (a few percent of the map).
 
         The two 3 x 3 layers run as gathered products at just the cells they feed (the shared
         layer at the needed cells and their neighbours, the branches at the needed cells), the
@@ -259,11 +260,12 @@ class CenterHead(nn.Module):
         B, C, H, W = x.shape
         # (forward_lazy's shared map is the own head's: not written, not copied)
         out = {k: v if k == SHARED else v.clone() for k, v in elsewhere.items()}
-        cells = torch.nonzero(needed)                                    # (M, 3): b, y, x
-        if len(cells) == 0:
+        flat_needed = (torch.nonzero(needed.reshape(-1))[:, 0] if needed.dtype == torch.bool
+                       else needed)
+        if len(flat_needed) == 0:
             return out
-        near = F.max_pool2d(needed[:, None].float(), 3, 1, 1)[:, 0] > 0
-        feeding = torch.nonzero(near)
+        cells = unflatten_cells(flat_needed, H, W)                       # (M, 3): b, y, x
+        feeding = unflatten_cells(dilated_cells(flat_needed, H, W, 1), H, W)
         if isinstance(x, FoldedFused) and self.fold is not None:
             shared = self.fold.at(x, feeding)
         else:
@@ -272,10 +274,11 @@ class CenterHead(nn.Module):
             shared = _at_cells(self.shared, x.permute(0, 2, 3, 1).reshape(-1, C), feeding, H, W)
         rows = shared.new_zeros(B * H * W, shared.shape[1])      # zero where not computed
         rows.index_copy_(0, (feeding[:, 0] * H + feeding[:, 1]) * W + feeding[:, 2], shared)
-        maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W)}
-        reg = _at_cells(self.regression, rows, cells, H, W)
+        patches = _neighbourhoods(rows, cells, H, W)                     # both branches'
+        maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W, patches)}
+        reg = _at_cells(self.regression, rows, cells, H, W, patches)
         if SHARED in elsewhere:         # forward_lazy's outputs: the rows where it answered
-            out[CARRY_CELLS] = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
+            out[CARRY_CELLS] = flat_needed
             out[CARRY_REG] = reg
         else:
             for name, (a, b) in REG_SLICES.items():
@@ -456,10 +459,33 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:
     return (patches * inside[..., None].to(patches.dtype)).view(len(cells), 9 * C)
 
 
-def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:
+def unflatten_cells(flat: Tensor, H: int, W: int) -> Tensor:
+    """Flat cells ``(b * H + y) * W + x`` as ``(M, 3)`` rows (b, y, x)."""
+    return torch.stack([flat // (H * W), flat // W % H, flat % W], dim=1)
+
+
+def dilated_cells(flat: Tensor, H: int, W: int, r: int) -> Tensor:
+    """The sorted flat cells within ``r`` cells (a square) of the flat cells ``flat`` (repeats
+    allowed), on a ``(B, H, W)`` map: what a ``2 r + 1`` max pool of their map marks, found
+    without forming the map (a few hundred cells of 16k)."""
+    flat = torch.unique(flat)
+    if len(flat) == 0:
+        return flat
+    d = torch.arange(-r, r + 1, device=flat.device)
+    b, y, x = flat // (H * W), flat // W % H, flat % W
+    ys = y[:, None] + d.repeat_interleave(2 * r + 1)
+    xs = x[:, None] + d.repeat(2 * r + 1)
+    inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)
+    out: Tensor = torch.unique(((b[:, None] * H + ys) * W + xs)[inside])
+    return out
+
+
+def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
+              patches: Tensor | None = None) -> Tensor:
     """A head layer stack (a 3 x 3 conv, then norms, ReLUs, 1 x 1 convs, dtype casts: the
     training module or its inference copy) at ``cells`` ``(M, 3)`` (b, y, x) of a ``(B, C, H, W)``
-    map given as its ``(B * H * W, C)`` rows, zero off the map as a padded convolution has it;
+    map given as its ``(B * H * W, C)`` rows, zero off the map as a padded convolution has it
+    (``patches``: their :func:`_neighbourhoods`, when already gathered);
     :return: ``(M, out channels)``."""
     from suit_ros.model.inference import Cast
     ops: list[tuple[str, typing.Any]] = []
@@ -485,9 +511,10 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int) ->
         elif isinstance(op, nn.Conv2d) and op.kernel_size == (3, 3):
             if v is not None:
                 raise ValueError('a head layer stack holds one 3x3 conv, first')
-            patches = _neighbourhoods(rows, cells, H, W).to(dtype)       # (M, 9 C)
+            taps = (patches if patches is not None
+                    else _neighbourhoods(rows, cells, H, W)).to(dtype)     # (M, 9 C)
             w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).to(dtype)
-            v = patches @ w.t()
+            v = taps @ w.t()
             if op.bias is not None:
                 v = v + op.bias.to(dtype)
         elif isinstance(op, nn.Conv2d):                                  # 1 x 1
