@@ -48,6 +48,19 @@ class PastTerm:
         out.index_add_(0, self.index, self.values)
         return out
 
+    def at(self, flat: Tensor) -> Tensor:
+        """The term summed per cell at the flat cells ``flat`` ``(N,)``: ``(N, C)`` rows (zero
+        where it adds nothing), without forming the map's rows."""
+        cells, where = torch.unique(self.index, return_inverse=True)
+        summed = self.values.new_zeros(len(cells), self.values.shape[1])
+        summed.index_add_(0, where, self.values)
+        out = self.values.new_zeros(len(flat), self.values.shape[1])
+        if len(cells):
+            at = torch.searchsorted(cells, flat).clamp(max=len(cells) - 1)
+            hit = cells[at] == flat
+            out[hit] = summed[at[hit]]
+        return out
+
     def dense(self) -> Tensor:
         """The term as a ``(B, C, H, W)`` map (channels-last memory)."""
         B, C, H, W = self.shape
@@ -156,21 +169,17 @@ class FoldedFused:
         return fused
 
     def rows(self, flat: Tensor) -> Tensor:
-        """The fused map's rows ``(N, C)`` at flat cells ``(b * H + row) * W + col``, in the
-        dtype the dense map has."""
+        """The fused map's rows ``(N, C)`` at flat cells ``(b * H + row) * W + col``, in float32
+        (a low-precision inference copy's dense map rounds them; a few hundred rows gain
+        nothing from its speed)."""
         B, C, H, W = self.current.shape
         conv = unwrap_conv(self.fusion.current)
-        x = self.current.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat].to(conv.weight.dtype)
-        out = x @ conv.weight[:, :, 0, 0].t()
+        x = self.current.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat].float()
+        out = x @ conv.weight[:, :, 0, 0].float().t()
         if conv.bias is not None:
-            out = out + conv.bias
+            out = out + conv.bias.float()
         if self.past is not None and len(self.past.index):
-            cells, where = torch.unique(self.past.index, return_inverse=True)
-            summed = self.past.values.new_zeros(len(cells), self.past.values.shape[1])
-            summed.index_add_(0, where, self.past.values)
-            at = torch.searchsorted(cells, flat).clamp(max=len(cells) - 1)
-            hit = cells[at] == flat
-            out[hit] += summed[at[hit]].to(out.dtype)
+            out += self.past.at(flat).float()
         return out
 
 

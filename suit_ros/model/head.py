@@ -133,15 +133,16 @@ class HeadFold(nn.Module):
         return torch.relu_(pre)
 
     def at(self, fused: FoldedFused, cells: Tensor) -> Tensor:
-        """The layer's output ``(M, hc)`` at ``cells`` ``(M, 3)`` (b, y, x)."""
+        """The layer's output ``(M, hc)`` at ``cells`` ``(M, 3)`` (b, y, x), in float32 (as
+        :func:`_at_cells`)."""
         B, C, H, W = fused.current.shape
         conv = unwrap_conv(self.conv)
         rows = fused.current.permute(0, 2, 3, 1).reshape(-1, C)     # a view when channels-last
-        patches = _neighbourhoods(rows, cells, H, W).to(conv.weight.dtype)
-        v = patches @ conv.weight.permute(0, 2, 3, 1).reshape(conv.out_channels, -1).t()
-        v = v + typing.cast(Tensor, conv.bias)
+        patches = _neighbourhoods(rows, cells, H, W).float()
+        v = patches @ conv.weight.permute(0, 2, 3, 1).reshape(conv.out_channels, -1).float().t()
+        v = v + typing.cast(Tensor, conv.bias).float()
         flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
-        return torch.relu(v + self._terms(fused.past, B).rows()[flat].to(v.dtype))
+        return torch.relu(v + self._terms(fused.past, B).at(flat).float())
 
 
 class CenterHead(nn.Module):
@@ -272,9 +273,12 @@ class CenterHead(nn.Module):
             x = x.dense() if isinstance(x, FoldedFused) else x
             # the map's rows as they lie (a view of a channels-last map: no copy)
             shared = _at_cells(self.shared, x.permute(0, 2, 3, 1).reshape(-1, C), feeding, H, W)
-        rows = shared.new_zeros(B * H * W, shared.shape[1])      # zero where not computed
-        rows.index_copy_(0, (feeding[:, 0] * H + feeding[:, 1]) * W + feeding[:, 2], shared)
-        patches = _neighbourhoods(rows, cells, H, W)                     # both branches'
+        # the computed rows and a zero one; every tap of a needed cell on the map is fed
+        rows = torch.cat([shared, shared.new_zeros(1, shared.shape[1])])
+        where = torch.full((B * H * W,), len(feeding), dtype=torch.long, device=rows.device)
+        where[(feeding[:, 0] * H + feeding[:, 1]) * W + feeding[:, 2]] = torch.arange(
+            len(feeding), device=rows.device)
+        patches = _neighbourhoods(rows, cells, H, W, where)              # both branches'
         maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W, patches)}
         reg = _at_cells(self.regression, rows, cells, H, W, patches)
         if SHARED in elsewhere:         # forward_lazy's outputs: the rows where it answered
@@ -445,15 +449,18 @@ class CenterHead(nn.Module):
 
 
 
-def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int) -> Tensor:
+def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
+                    where: Tensor | None = None) -> Tensor:
     """The 3 x 3 neighbourhoods ``(M, 9 C)`` (row-major taps) at ``cells`` ``(M, 3)`` (b, y, x)
-    of a map given as its ``(B * H * W, C)`` rows, zero off the map as a padded convolution
-    has it."""
+    of a map given as its ``(B * H * W, C)`` rows (or as some of them: ``where`` ``(B * H * W,)``
+    the row of ``rows`` each cell's is), zero off the map as a padded convolution has it."""
     b, y, x = cells[:, 0], cells[:, 1], cells[:, 2]
     ys = y[:, None] + torch.arange(-1, 2, device=y.device).repeat_interleave(3)
     xs = x[:, None] + torch.arange(-1, 2, device=x.device).repeat(3)
     inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)                 # (M, 9)
     index = (b[:, None] * H + ys.clamp(0, H - 1)) * W + xs.clamp(0, W - 1)
+    if where is not None:
+        index = where[index]
     C = rows.shape[1]
     patches = torch.index_select(rows, 0, index.view(-1)).view(len(cells), 9, C)
     return (patches * inside[..., None].to(patches.dtype)).view(len(cells), 9 * C)
@@ -486,7 +493,9 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
     training module or its inference copy) at ``cells`` ``(M, 3)`` (b, y, x) of a ``(B, C, H, W)``
     map given as its ``(B * H * W, C)`` rows, zero off the map as a padded convolution has it
     (``patches``: their :func:`_neighbourhoods`, when already gathered);
-    :return: ``(M, out channels)``."""
+    :return: ``(M, out channels)``, in the dtype the stack gives. Computed in float32 whatever
+    the stack's casts: on a few hundred rows low precision saves nothing and its conversions
+    cost (a bfloat16 inference copy's gathered head took twice the float32 time)."""
     from suit_ros.model.inference import Cast
     ops: list[tuple[str, typing.Any]] = []
 
@@ -502,33 +511,31 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
             ops.append(('layer', m))
     flatten(layers)
     v: Tensor | None = None
-    dtype = rows.dtype
+    dtype = rows.dtype              # what the stack gives (its last cast's)
     for kind, op in ops:
         if kind == 'cast':
             dtype = op
-            if v is not None:
-                v = v.to(op)
         elif isinstance(op, nn.Conv2d) and op.kernel_size == (3, 3):
             if v is not None:
                 raise ValueError('a head layer stack holds one 3x3 conv, first')
             taps = (patches if patches is not None
-                    else _neighbourhoods(rows, cells, H, W)).to(dtype)     # (M, 9 C)
-            w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).to(dtype)
+                    else _neighbourhoods(rows, cells, H, W)).float()       # (M, 9 C)
+            w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).float()
             v = taps @ w.t()
             if op.bias is not None:
-                v = v + op.bias.to(dtype)
+                v = v + op.bias.float()
         elif isinstance(op, nn.Conv2d):                                  # 1 x 1
             assert v is not None
-            w1 = op.weight.reshape(op.out_channels, -1).to(v.dtype)
-            v = v @ w1.t() + (op.bias.to(v.dtype) if op.bias is not None else 0)
+            w1 = op.weight.reshape(op.out_channels, -1).float()
+            v = v @ w1.t() + (op.bias.float() if op.bias is not None else 0)
         elif isinstance(op, nn.BatchNorm2d):
             assert v is not None and op.running_var is not None and op.running_mean is not None
-            scale = op.weight / torch.sqrt(op.running_var + op.eps)
-            v = (v - op.running_mean.to(v.dtype)) * scale.to(v.dtype) + op.bias.to(v.dtype)
+            scale = op.weight.float() / torch.sqrt(op.running_var.float() + op.eps)
+            v = (v - op.running_mean.float()) * scale + op.bias.float()
         elif isinstance(op, nn.ReLU):
             assert v is not None
             v = torch.relu(v)
         else:
             raise ValueError(f'a head layer of type {type(op).__name__} cannot run at cells')
     assert v is not None
-    return v
+    return v.to(dtype)

@@ -126,8 +126,11 @@ def suppress_near(centers: Tensor, labels: Tensor, movable: Tensor, radius: Tens
             & (labels[:, None] == labels[None, :]))
     earlier = torch.ones(n, n, dtype=torch.bool, device=centers.device).tril(-1)
     sup = (near & earlier & movable[:, None]).cpu().numpy()      # sup[i, j]: j may drop i
+    mov = movable.cpu().numpy()
     kept = keep.cpu().numpy()
-    for i in np.nonzero(movable.cpu().numpy())[0]:
+    kept[(sup & ~mov[None]).any(axis=1)] = False      # a box that always stays drops it
+    # the rest in order: a movable box drops a later one only while it stays itself
+    for i in np.nonzero(kept & (sup & mov[None]).any(axis=1))[0]:
         if (sup[i] & kept).any():
             kept[i] = False
     return torch.from_numpy(kept).to(centers.device)
