@@ -17,7 +17,6 @@ import numpy as np
 from numpy.typing import NDArray
 import torch
 from torch import Tensor, nn
-import torch.nn.functional as F
 
 from suit_ros.config import ModelConfig
 from suit_ros.model.backbone import BEVBackbone
@@ -32,7 +31,7 @@ from suit_ros.model.fusion import (
     warp_dense,
 )
 from suit_ros.model.geonet import GeoNet
-from suit_ros.model.grid import BEVGrid
+from suit_ros.model.grid import BEVGrid, pooled_occupancy
 from suit_ros.model.head import CenterHead, dilated_cells
 from suit_ros.model.memory import (
     DenseMemory,
@@ -122,12 +121,9 @@ class SUITDetector(nn.Module):
             return out, None
         with torch.no_grad():
             # an occupied pillar has a non-zero feature (max over its points after a ReLU)
-            occ = occupied[:, None].float()
-            occ = F.max_pool2d(occ, self.cfg.out_stride, self.cfg.out_stride)
-            r = self.cfg.fusion_gate_radius
-            if r:
-                occ = F.max_pool2d(occ, 2 * r + 1, 1, r)
-        return out, occ[:, 0] > 0
+            observed = pooled_occupancy(occupied, self.cfg.out_stride,
+                                        self.cfg.fusion_gate_radius)
+        return out, observed
 
     @staticmethod
     def usable(memory: Memory | None, stamps_ns: Sequence[int]
