@@ -93,9 +93,10 @@ class TrackerConfig:
         held (0: off; 0.5 s, 5 frames at 10 Hz: docs/experiments/coast; was ``coast_frames``).
     :param coast_margin: see ``coast_s`` (m the box is grown by).
     :param carried_refresh: a carried detection (a carry branch's box where the cloud has no
-        returns: :meth:`Tracker.update`'s ``carried``) keeps its track alive; off (default),
-        a track held only by carried boxes ends ``max_miss_s`` after its last detection seen in
-        the cloud, so what the memory holds cannot keep a track for ever.
+        returns: :meth:`Tracker.update`'s ``carried``) keeps its track alive and may start
+        one; off (default), a track held only by carried boxes ends ``max_miss_s`` after its
+        last detection seen in the cloud and no carried box starts a track, so what the
+        memory holds cannot keep a track for ever (nor start one anew, under a new id).
     :param carried_as_seen: a carried detection continuing a track is published with the size
         and heading of the track's last box (the carry head guesses them without returns);
         its centre and velocity are measured as any other's.
@@ -255,8 +256,10 @@ class Tracker:
             (a carry branch's). Such a detection continues its track and is scored with the
             track's running score like any other, but it does not lower that score: an object
             the memory holds through an occlusion keeps the confidence it was tracked with,
-            while its carried boxes last (``sampling.carry_frames``). Without a carry branch
-            (None, or none carried) nothing changes.
+            while the track lives (with ``carried_refresh`` off, the default, ``max_miss_s``
+            after its last detection seen in the cloud; then the memory's boxes are passed on
+            untracked at their own scores while it holds them, ``sampling.carry_frames``).
+            Without a carry branch (None, or none carried) nothing changes.
         :param current: ``(M, >= 3)`` the current sweep's returns in the detections' frame,
             for ``coast_s`` (None: nothing coasts), and ``sensor`` where they were seen
             from in that frame (default: its origin).
@@ -322,6 +325,8 @@ class Tracker:
         seen[match[hit] if cfg.carried_refresh else match[hit & ~held]] = True
         self.last_seen_ns[seen] = stamp_ns
         new = ~hit & confident
+        if not cfg.carried_refresh:     # nor does a carried box start a track
+            new &= ~held
         n_new = int(new.sum())
         new_ids = np.arange(self.next_id, self.next_id + n_new, dtype=np.int64)
         self.next_id += n_new
@@ -351,7 +356,7 @@ class Tracker:
         as_seen = held & hit if cfg.carried_as_seen else np.zeros(len(det), bool)
         if as_seen.any():           # size and heading as the track's last published box
             boxes = boxes.copy()
-            boxes[as_seen, 2:6] = self.shape[rows[as_seen], :4]
+            boxes[as_seen, 3:6] = self.shape[rows[as_seen], 1:4]
             boxes[as_seen, 6] = wrap_angle(self.shape[rows[as_seen], 4] - yaw_frame)
         shape = boxes[tracked][:, 2:7].astype(np.float64)      # the box as published
         shape[:, 4] += yaw_frame

@@ -183,28 +183,36 @@ def test_a_carried_detection_keeps_its_tracks_score():
     assert out.scores.tolist() == pytest.approx([(1 - mix) * 0.6 + mix * 0.8])
     out, _ = held.update(frame([[10, 0]], [[0, 0]], scores=[0.6]), 7 * DT_NS, T)
     assert out.scores.tolist() == pytest.approx([(1 - mix) * 0.6 + mix * 0.7])
-    # a carried box that starts no track is published at its own score
+    # a carried box no track takes is published at its own score, untracked (it starts none)
     out, ids = held.update(frame([[10, 0], [40, 0]], [[0, 0], [0, 0]], scores=[0.6, 0.5]),
                            8 * DT_NS, T, carried=np.array([False, True]))
-    assert ids[1] > 1 and out.scores[1] == pytest.approx(0.5)
+    assert ids[1] == 0 and out.scores[1] == pytest.approx(0.5)
 
 
-def test_carried_boxes_need_not_keep_a_track_alive():
+@pytest.mark.parametrize('score', [0.2, 0.6])
+def test_carried_boxes_need_not_keep_a_track_alive(score):
     """With ``carried_refresh`` off a track held only by carried boxes ends ``max_miss_s``
-    after its last box seen in the cloud (a memory's boxes do not hold it for ever), and a
-    track a carried box continued is not also coasted (one box per object)."""
+    after its last box seen in the cloud, and no carried box starts a track (a memory's boxes
+    keep no object tracked for ever, not under a new id either: a sure one is passed on
+    untracked, id 0, at its own score); a track a carried box continued is not also coasted
+    (one box per object)."""
     T = np.eye(4)
-    lives = {}
+    lives, ids_seen = {}, {}
     for refresh in (True, False):
         trk = Tracker(TrackerConfig(carried_refresh=refresh, max_miss_s=0.3, coast_s=0.3))
         trk.update(frame([[10, 0]], [[0, 0]]), 0, T, current=np.zeros((0, 3)))
-        for k in range(1, 8):
-            out, ids = trk.update(frame([[10, 0]], [[0, 0]], scores=[0.2]), k * DT_NS, T,
+        ids_seen[refresh] = set()
+        for k in range(1, 12):
+            out, ids = trk.update(frame([[10, 0]], [[0, 0]], scores=[score]), k * DT_NS, T,
                                   carried=np.array([True]), current=np.zeros((0, 3)))
             assert trk.coasted == 0 and len(out) == 1
+            ids_seen[refresh].add(int(ids[0]))
             if ids[0] == 1:
                 lives[refresh] = k
-    assert lives == {True: 7, False: 4}     # the last 0.4 s after the box seen (0.3 s + a frame)
+        if not refresh:
+            assert ids[0] == 0 and out.scores[0] == pytest.approx(score) and len(trk) == 0
+    assert lives == {True: 11, False: 4}    # the last 0.4 s after the box seen (0.3 s + a frame)
+    assert ids_seen[False] == {0, 1}
 
 
 def test_a_carried_box_keeps_the_size_and_heading_it_was_seen_with():
@@ -218,14 +226,14 @@ def test_a_carried_box_keeps_the_size_and_heading_it_was_seen_with():
         for k in range(6):                               # seen: 10 m/s along x
             trk.update(frame([[10 + k, 0]], [[10, 0]]), k * DT_NS, T)
         guess = frame([[16.1, 0.2]], [[10, 0]], yaw=np.pi / 2)
-        guess.boxes[:, 3:6] = (2.0, 1.0, 1.0)
+        guess.boxes[:, 2:6] = (0.3, 2.0, 1.0, 1.0)        # its centre, height included, held
         out[as_seen], _ = trk.update(guess, 6 * DT_NS, T, carried=np.array([True]))
         # a box seen in the cloud again is published as the model gives it
         seen, _ = trk.update(guess, 7 * DT_NS, T, carried=np.array([False]))
         assert seen.boxes[0, 3:6].tolist() == [2.0, 1.0, 1.0]
     assert out[False].boxes[0, 3:7].tolist() == pytest.approx([2.0, 1.0, 1.0, np.pi / 2])
     assert out[True].boxes[0, 3:7].tolist() == pytest.approx([4.5, 1.9, 1.6, 0.0])
-    assert out[True].boxes[0, :2].tolist() == pytest.approx([16.1, 0.2])   # where held
+    assert out[True].boxes[0, :3].tolist() == pytest.approx([16.1, 0.2, 0.3])  # where held
 
 
 def car_points(centre, yaw, speed, lags, rng, n=60):

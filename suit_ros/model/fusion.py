@@ -170,16 +170,17 @@ class FoldedFused:
 
     def rows(self, flat: Tensor) -> Tensor:
         """The fused map's rows ``(N, C)`` at flat cells ``(b * H + row) * W + col``, in float32
-        (a low-precision inference copy's dense map rounds them; a few hundred rows gain
-        nothing from its speed)."""
+        (float64 on a float64 map; a low-precision inference copy's dense map rounds them, and
+        a few hundred rows gain nothing from its speed)."""
         B, C, H, W = self.current.shape
         conv = unwrap_conv(self.fusion.current)
-        x = self.current.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat].float()
-        out = x @ conv.weight[:, :, 0, 0].float().t()
+        exact = self.current.dtype if self.current.dtype == torch.float64 else torch.float32
+        x = self.current.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat].to(exact)
+        out = x @ conv.weight[:, :, 0, 0].to(exact).t()
         if conv.bias is not None:
-            out = out + conv.bias.float()
+            out = out + conv.bias.to(exact)
         if self.past is not None and len(self.past.index):
-            out += self.past.at(flat).float()
+            out += self.past.at(flat).to(exact)
         return out
 
 

@@ -133,16 +133,17 @@ class HeadFold(nn.Module):
         return torch.relu_(pre)
 
     def at(self, fused: FoldedFused, cells: Tensor) -> Tensor:
-        """The layer's output ``(M, hc)`` at ``cells`` ``(M, 3)`` (b, y, x), in float32 (as
-        :func:`_at_cells`)."""
+        """The layer's output ``(M, hc)`` at ``cells`` ``(M, 3)`` (b, y, x), in float32 on a
+        low-precision map (:func:`gathered_dtype`)."""
         B, C, H, W = fused.current.shape
         conv = unwrap_conv(self.conv)
         rows = fused.current.permute(0, 2, 3, 1).reshape(-1, C)     # a view when channels-last
-        patches = _neighbourhoods(rows, cells, H, W).float()
-        v = patches @ conv.weight.permute(0, 2, 3, 1).reshape(conv.out_channels, -1).float().t()
-        v = v + typing.cast(Tensor, conv.bias).float()
+        exact = gathered_dtype(rows.dtype)
+        patches = _neighbourhoods(rows, cells, H, W).to(exact)
+        v = patches @ conv.weight.permute(0, 2, 3, 1).reshape(conv.out_channels, -1).to(exact).t()
+        v = v + typing.cast(Tensor, conv.bias).to(exact)
         flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
-        return torch.relu(v + self._terms(fused.past, B).at(flat).float())
+        return torch.relu(v + self._terms(fused.past, B).at(flat).to(exact))
 
 
 class CenterHead(nn.Module):
@@ -466,6 +467,12 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
     return (patches * inside[..., None].to(patches.dtype)).view(len(cells), 9 * C)
 
 
+def gathered_dtype(dtype: torch.dtype) -> torch.dtype:
+    """What a gathered product over a few hundred rows computes in: float32 for a low-precision
+    map (bfloat16 saves nothing on so few rows and its conversions cost), else the map's own."""
+    return dtype if dtype in (torch.float32, torch.float64) else torch.float32
+
+
 def unflatten_cells(flat: Tensor, H: int, W: int) -> Tensor:
     """Flat cells ``(b * H + y) * W + x`` as ``(M, 3)`` rows (b, y, x)."""
     return torch.stack([flat // (H * W), flat // W % H, flat % W], dim=1)
@@ -493,9 +500,10 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
     training module or its inference copy) at ``cells`` ``(M, 3)`` (b, y, x) of a ``(B, C, H, W)``
     map given as its ``(B * H * W, C)`` rows, zero off the map as a padded convolution has it
     (``patches``: their :func:`_neighbourhoods`, when already gathered);
-    :return: ``(M, out channels)``, in the dtype the stack gives. Computed in float32 whatever
-    the stack's casts: on a few hundred rows low precision saves nothing and its conversions
-    cost (a bfloat16 inference copy's gathered head took twice the float32 time)."""
+    :return: ``(M, out channels)``, in the dtype the stack gives. Computed in
+    :func:`gathered_dtype` whatever the stack's casts: on a few hundred rows low precision
+    saves nothing and its conversions cost (a bfloat16 inference copy's gathered head took
+    twice the float32 time)."""
     from suit_ros.model.inference import Cast
     ops: list[tuple[str, typing.Any]] = []
 
@@ -512,6 +520,7 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
     flatten(layers)
     v: Tensor | None = None
     dtype = rows.dtype              # what the stack gives (its last cast's)
+    exact = gathered_dtype(rows.dtype)
     for kind, op in ops:
         if kind == 'cast':
             dtype = op
@@ -519,19 +528,19 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
             if v is not None:
                 raise ValueError('a head layer stack holds one 3x3 conv, first')
             taps = (patches if patches is not None
-                    else _neighbourhoods(rows, cells, H, W)).float()       # (M, 9 C)
-            w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).float()
+                    else _neighbourhoods(rows, cells, H, W)).to(exact)     # (M, 9 C)
+            w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).to(exact)
             v = taps @ w.t()
             if op.bias is not None:
-                v = v + op.bias.float()
+                v = v + op.bias.to(exact)
         elif isinstance(op, nn.Conv2d):                                  # 1 x 1
             assert v is not None
-            w1 = op.weight.reshape(op.out_channels, -1).float()
-            v = v @ w1.t() + (op.bias.float() if op.bias is not None else 0)
+            w1 = op.weight.reshape(op.out_channels, -1).to(exact)
+            v = v @ w1.t() + (op.bias.to(exact) if op.bias is not None else 0)
         elif isinstance(op, nn.BatchNorm2d):
             assert v is not None and op.running_var is not None and op.running_mean is not None
-            scale = op.weight.float() / torch.sqrt(op.running_var.float() + op.eps)
-            v = (v - op.running_mean.float()) * scale + op.bias.float()
+            scale = op.weight.to(exact) / torch.sqrt(op.running_var.to(exact) + op.eps)
+            v = (v - op.running_mean.to(exact)) * scale + op.bias.to(exact)
         elif isinstance(op, nn.ReLU):
             assert v is not None
             v = torch.relu(v)
