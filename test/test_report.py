@@ -308,3 +308,47 @@ def test_carry_thresholds_take_the_factor_of_best_f1_on_outage_frames():
     assert rows[0.5]['recall'] == 1.0 and rows[0.5]['precision'] == 1.0
     assert rows[0.55]['recall'] == 0.0 and rows[1.0]['f1'] == 0.0
     assert best_carry_factor(list(rows.values())) == 0.5        # 0.35..0.5 tie at F1 1
+
+
+def test_carry_thresholds_count_the_held_boxes_of_ordinary_drives():
+    """The carry factor's precision pools the lost sectors' boxes with the boxes a run of the
+    drives as they are holds where the cloud shows nothing: a held ghost published at the low
+    factors lowers it there, a held box on an object counts as true, a seen box not at all."""
+    from test_outage import box, drive
+
+    from suit_ros.outage import Outage, with_outages
+    from suit_ros.thresholds_cli import best_carry_factor, carry_factor_rows, held_counts
+    o = Outage(0.0, 120.0, 4, 4)
+    frames = drive()
+    played = with_outages(frames, [o])
+    det, carried = [], []
+    for k in range(len(played)):
+        lost = bool(o.active(k))
+        boxes = [box(10.3, 0), box(20, 2)] if lost else [box(10.3, 0)]
+        scores = [0.2, 0.12] if lost else [0.9]
+        det.append(Detections(np.array(boxes), np.zeros((len(boxes), 2)), np.array(scores),
+                              np.zeros(len(boxes), np.int64)))
+        carried.append(np.full(len(boxes), lost))
+    run = ModelRun([f.gt for f in played], det, [f.num_points for f in played],
+                   [0.0] * 12, [0] * 12, {}, [0] * 12, carried=carried)
+    # the drive as it is: the car seen (0.9), the car held in frame 0 (0.25, no seen box of it
+    # then), a ghost held at 0.15 in every frame
+    odet, ocarried = [], []
+    for k in range(len(frames)):
+        boxes, scores = [box(-30, 5)], [0.15]
+        boxes.append(box(10.3, 0))
+        scores.append(0.25 if k == 0 else 0.9)
+        odet.append(Detections(np.array(boxes), np.zeros((2, 2)), np.array(scores),
+                               np.zeros(2, np.int64)))
+        ocarried.append(np.array([True, k == 0]))
+    ordinary = ModelRun([f.gt for f in frames], odet, [f.num_points for f in frames],
+                        [0.0] * 12, [0] * 12, {}, [0] * 12, carried=ocarried)
+    assert held_counts(ordinary, [0.4] * 4, [0.3 * 0.4] * 4) == (13, 1)
+    assert held_counts(ordinary, [0.4] * 4, [0.4 * 0.4] * 4) == (1, 1)     # ghost cut
+    assert held_counts(ordinary, [0.4] * 4, [0.7 * 0.4] * 4) == (0, 0)
+    rows = {r['factor']: r for r in carry_factor_rows(run, [played], [[o]], [0.4] * 4,
+                                                       ordinary)}
+    assert rows[0.3]['sector_precision'] == 0.5 and rows[0.3]['held_boxes'] == 13
+    assert rows[0.3]['precision'] == (2 + 1) / (4 + 13)     # frames 3-4: 2 boxes each
+    assert rows[0.4]['precision'] == 1.0 and rows[0.5]['precision'] == 1.0
+    assert best_carry_factor(list(rows.values())) == 0.5
