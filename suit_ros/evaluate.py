@@ -369,14 +369,24 @@ class ModelRun:
     carried: list[NDArray[np.bool_]] = field(default_factory=list)
     used_memory: list[bool] = field(default_factory=list)   # per frame: a memory was fused
 
+    def held(self) -> list[NDArray[np.bool_]]:
+        """Per frame, which detections are held where the input had no returns (``carried``;
+        none when the run has no such flags)."""
+        return self.carried or [np.zeros(len(d), bool) for d in self.det]
+
+    def published_masks(self, thresholds: Sequence[float], carry_thresholds: Sequence[float]
+                        ) -> list[NDArray[np.bool_]]:
+        """Per frame, which detections are published (:meth:`published`)."""
+        thr, carry = np.asarray(thresholds, np.float32), np.asarray(carry_thresholds, np.float32)
+        return [d.scores >= np.where(c, carry[d.labels], thr[d.labels])
+                for d, c in zip(self.det, self.held())]
+
     def published(self, thresholds: Sequence[float], carry_thresholds: Sequence[float]
                   ) -> list[Detections]:
         """Each frame's detections at per-class published thresholds, the boxes a carry
         branch decoded where the input had no returns at ``carry_thresholds``."""
-        thr, carry = np.asarray(thresholds, np.float32), np.asarray(carry_thresholds, np.float32)
-        carried = self.carried or [np.zeros(len(d), bool) for d in self.det]
-        return [d.select(d.scores >= np.where(c, carry[d.labels], thr[d.labels]))
-                for d, c in zip(self.det, carried)]
+        return [d.select(m) for d, m in zip(self.det, self.published_masks(thresholds,
+                                                                             carry_thresholds))]
 
     def select_frames(self, idx: Sequence[int]) -> ModelRun:
         """The run on the frames ``idx`` only (in that order; ``memory_after`` kept)."""

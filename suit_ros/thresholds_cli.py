@@ -25,8 +25,6 @@ import argparse
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
-
 from suit_ros.report import SWEEP, ClassCounts
 
 TUNE_DRIVES = 16
@@ -165,11 +163,8 @@ def held_counts(run: Any, published: list[float], carry: list[float]) -> tuple[i
     from suit_ros.evaluate import match_frame
     from suit_ros.outage import MATCH_DIST
     boxes = true = 0
-    carried = run.carried or [np.zeros(len(d), bool) for d in run.det]
-    for gt, det, held in zip(run.gt, run.published(published, carry), (
-            c[d.scores >= np.where(c, np.asarray(carry)[d.labels],
-                                   np.asarray(published)[d.labels])]
-            for c, d in zip(carried, run.det))):
+    for gt, d, c, m in zip(run.gt, run.det, run.held(), run.published_masks(published, carry)):
+        det, held = d.select(m), c[m]
         boxes += int(held.sum())
         for k in range(len(published)):
             tp = match_frame(gt, det, k, MATCH_DIST).tp

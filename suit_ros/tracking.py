@@ -202,7 +202,6 @@ class Tracker:
         self.stamp_ns = None
         self.frame_s = 0.0                      # the frame interval, smoothed (s)
         self.coasted = 0                        # the last update's coasted detections
-        self._hit_now = np.zeros(0, bool)       # the tracks the last update's detections took
         # the last update's detections: each velocity's standard deviation per axis (m/s),
         # the filter's for a tracked one, the measurement's for one no track took, widened by
         # ``speed_std_fraction`` of its speed
@@ -362,11 +361,11 @@ class Tracker:
         shape[:, 4] += yaw_frame
         self.shape[rows[tracked]] = shape
         out = Detections(boxes, out_vel, scores, det.labels)
-        self._hit_now = np.zeros(len(self.x), bool)
-        self._hit_now[rows[tracked]] = True
         self.coasted = 0
         if cfg.coast_s and current is not None:
-            coast, coast_ids, coast_std = self._coast(stamp_ns, T, current, sensor)
+            hit_now = np.zeros(len(self.x), bool)   # taken now, a carried box's included
+            hit_now[rows[tracked]] = True
+            coast, coast_ids, coast_std = self._coast(stamp_ns, T, current, sensor, hit_now)
             if len(coast):
                 out = out.concat(coast)
                 ids = np.concatenate([ids, coast_ids])
@@ -388,14 +387,14 @@ class Tracker:
         return missed_s <= limit_s + 0.25 * self.frame_s
 
     def _coast(self, stamp_ns: int, T: NDArray[np.float64], current: NDArray[np.floating[Any]],
-               sensor: NDArray[np.floating[Any]] | None
+               sensor: NDArray[np.floating[Any]] | None, hit_now: NDArray[np.bool_]
                ) -> tuple[Detections, NDArray[np.int64], NDArray[np.float64]]:
-        """The boxes of the confident tracks missed this frame (for at most ``coast_s`` since
-        their last detection, while they live) where the current sweep shows nothing of them,
-        in the frame of ``T`` (see ``coast_s`` and :func:`unseen`), their ids and velocity
-        standard deviations."""
+        """The boxes of the confident tracks missed this frame (not in ``hit_now``, for at
+        most ``coast_s`` since their last detection, while they live) where the current sweep
+        shows nothing of them, in the frame of ``T`` (see ``coast_s`` and :func:`unseen`),
+        their ids and velocity standard deviations."""
         cfg = self.config
-        t = np.nonzero(~self._hit_now
+        t = np.nonzero(~hit_now
                        & self._missed_within(stamp_ns, min(cfg.coast_s, cfg.max_miss_s))
                        & (self.score >= cfg.birth_score))[0]
         if len(t) == 0:

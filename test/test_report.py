@@ -282,20 +282,18 @@ def test_report_command_fails_clearly(tmp_path, capsys):
         capsys.readouterr().err
 
 
-def test_carry_thresholds_take_the_factor_of_best_f1_on_outage_frames():
-    """The carry thresholds: one factor on the published ones, the one of best F1 between
-    the recall of the lost sector's objects and the precision of the boxes published there on
-    outage frames 3+, the highest among ties."""
+def lost_sector_run():
+    """The drive of test_outage with a 120-degree sector lost for 4 frames, and a run on it:
+    the car ahead seen at 0.9, held by the carry at 0.2 while its sector is lost, with a ghost
+    held at 0.12 beside it."""
     from test_outage import box, drive
 
     from suit_ros.outage import Outage, with_outages
-    from suit_ros.thresholds_cli import best_carry_factor, carry_factor_rows
     o = Outage(0.0, 120.0, 4, 4)
     played = with_outages(drive(), [o])
     det, carried = [], []
     for k in range(len(played)):
         lost = bool(o.active(k))
-        # the car ahead, held by the carry at 0.2 while its sector is lost; a ghost at 0.12
         boxes = [box(10.3, 0), box(20, 2)] if lost else [box(10.3, 0)]
         scores = [0.2, 0.12] if lost else [0.9]
         det.append(Detections(np.array(boxes), np.zeros((len(boxes), 2)), np.array(scores),
@@ -303,6 +301,15 @@ def test_carry_thresholds_take_the_factor_of_best_f1_on_outage_frames():
         carried.append(np.full(len(boxes), lost))
     run = ModelRun([f.gt for f in played], det, [f.num_points for f in played],
                    [0.0] * 12, [0] * 12, {}, [0] * 12, carried=carried)
+    return o, played, run
+
+
+def test_carry_thresholds_take_the_factor_of_best_f1_on_outage_frames():
+    """The carry thresholds: one factor on the published ones, the one of best F1 between
+    the recall of the lost sector's objects and the precision of the boxes published there on
+    outage frames 3+, the highest among ties."""
+    from suit_ros.thresholds_cli import best_carry_factor, carry_factor_rows
+    o, played, run = lost_sector_run()
     rows = {r['factor']: r for r in carry_factor_rows(run, [played], [[o]], [0.4] * 4)}
     assert rows[0.3]['recall'] == 1.0 and rows[0.3]['precision'] == 0.5     # the ghost too
     assert rows[0.5]['recall'] == 1.0 and rows[0.5]['precision'] == 1.0
@@ -316,21 +323,9 @@ def test_carry_thresholds_count_the_held_boxes_of_ordinary_drives():
     factors lowers it there, a held box on an object counts as true, a seen box not at all."""
     from test_outage import box, drive
 
-    from suit_ros.outage import Outage, with_outages
     from suit_ros.thresholds_cli import best_carry_factor, carry_factor_rows, held_counts
-    o = Outage(0.0, 120.0, 4, 4)
+    o, played, run = lost_sector_run()
     frames = drive()
-    played = with_outages(frames, [o])
-    det, carried = [], []
-    for k in range(len(played)):
-        lost = bool(o.active(k))
-        boxes = [box(10.3, 0), box(20, 2)] if lost else [box(10.3, 0)]
-        scores = [0.2, 0.12] if lost else [0.9]
-        det.append(Detections(np.array(boxes), np.zeros((len(boxes), 2)), np.array(scores),
-                              np.zeros(len(boxes), np.int64)))
-        carried.append(np.full(len(boxes), lost))
-    run = ModelRun([f.gt for f in played], det, [f.num_points for f in played],
-                   [0.0] * 12, [0] * 12, {}, [0] * 12, carried=carried)
     # the drive as it is: the car seen (0.9), the car held in frame 0 (0.25, no seen box of it
     # then), a ghost held at 0.15 in every frame
     odet, ocarried = [], []

@@ -174,7 +174,7 @@ class FoldedFused:
         a few hundred rows gain nothing from its speed)."""
         B, C, H, W = self.current.shape
         conv = unwrap_conv(self.fusion.current)
-        exact = self.current.dtype if self.current.dtype == torch.float64 else torch.float32
+        exact = gathered_dtype(self.current.dtype)
         x = self.current.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat].to(exact)
         out = x @ conv.weight[:, :, 0, 0].to(exact).t()
         if conv.bias is not None:
@@ -182,6 +182,12 @@ class FoldedFused:
         if self.past is not None and len(self.past.index):
             out += self.past.at(flat).to(exact)
         return out
+
+
+def gathered_dtype(dtype: torch.dtype) -> torch.dtype:
+    """What a gathered product over a few hundred rows computes in: float32 for a low-precision
+    map (bfloat16 saves nothing on so few rows and its conversions cost), else the map's own."""
+    return dtype if dtype in (torch.float32, torch.float64) else torch.float32
 
 
 def _add(out: Tensor, term: Tensor | PastTerm) -> Tensor:

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
 
-from suit_ros.model.fusion import FoldedFused, PastTerm, unwrap_conv
+from suit_ros.model.fusion import FoldedFused, PastTerm, gathered_dtype, unwrap_conv
 from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.nms import batched_nms
 
@@ -267,7 +267,8 @@ class CenterHead(nn.Module):
         if len(flat_needed) == 0:
             return out
         cells = unflatten_cells(flat_needed, H, W)                       # (M, 3): b, y, x
-        feeding = unflatten_cells(dilated_cells(flat_needed, H, W, 1), H, W)
+        flat_feeding = dilated_cells(flat_needed, H, W, 1)
+        feeding = unflatten_cells(flat_feeding, H, W)
         if isinstance(x, FoldedFused) and self.fold is not None:
             shared = self.fold.at(x, feeding)
         else:
@@ -277,8 +278,7 @@ class CenterHead(nn.Module):
         # the computed rows and a zero one; every tap of a needed cell on the map is fed
         rows = torch.cat([shared, shared.new_zeros(1, shared.shape[1])])
         where = torch.full((B * H * W,), len(feeding), dtype=torch.long, device=rows.device)
-        where[(feeding[:, 0] * H + feeding[:, 1]) * W + feeding[:, 2]] = torch.arange(
-            len(feeding), device=rows.device)
+        where[flat_feeding] = torch.arange(len(feeding), device=rows.device)
         patches = _neighbourhoods(rows, cells, H, W, where)              # both branches'
         maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W, patches)}
         reg = _at_cells(self.regression, rows, cells, H, W, patches)
@@ -467,12 +467,6 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
     return (patches * inside[..., None].to(patches.dtype)).view(len(cells), 9 * C)
 
 
-def gathered_dtype(dtype: torch.dtype) -> torch.dtype:
-    """What a gathered product over a few hundred rows computes in: float32 for a low-precision
-    map (bfloat16 saves nothing on so few rows and its conversions cost), else the map's own."""
-    return dtype if dtype in (torch.float32, torch.float64) else torch.float32
-
-
 def unflatten_cells(flat: Tensor, H: int, W: int) -> Tensor:
     """Flat cells ``(b * H + y) * W + x`` as ``(M, 3)`` rows (b, y, x)."""
     return torch.stack([flat // (H * W), flat // W % H, flat % W], dim=1)
@@ -486,7 +480,7 @@ def dilated_cells(flat: Tensor, H: int, W: int, r: int) -> Tensor:
     if len(flat) == 0:
         return flat
     d = torch.arange(-r, r + 1, device=flat.device)
-    b, y, x = flat // (H * W), flat // W % H, flat % W
+    b, y, x = unflatten_cells(flat, H, W).unbind(1)
     ys = y[:, None] + d.repeat_interleave(2 * r + 1)
     xs = x[:, None] + d.repeat(2 * r + 1)
     inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)

@@ -5,7 +5,8 @@ track coasted by the tracker) and counted as matching an object (same class, BEV
 2 m, one box per object, greedy by score) or not. Published: each box at its checkpoint's
 published threshold (carried ones at the carry thresholds, as the node cuts them).
 
-Usage: python carried_precision.py [DRIVES]
+Usage: python carried_precision.py [DRIVES] [OUT] (OUT: the JSON written, default
+carried_precision.json; docs/experiments/carry_default reran it with stop 51's tracker)
 """
 import json
 import sys
@@ -49,4 +50,5 @@ for name in ('suit_default', 'suit_carry'):
                  for k, (b, m) in counts.items()}
     out[name]['per_drive'] = per_drive.tolist()
     print(name, json.dumps({k: v for k, v in out[name].items() if k != 'per_drive'}))
-json.dump(out, open('carried_precision.json', 'w'), indent=1)
+json.dump(out, open(sys.argv[2] if len(sys.argv) > 2 else 'carried_precision.json', 'w'),
+          indent=1)
