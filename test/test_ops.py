@@ -73,18 +73,21 @@ def brute_nms(boxes, scores, thr):
     return keep
 
 
+# float32 boxes on the CPU take the compiled greedy pass, float64 ones the tensor path
+@pytest.mark.parametrize('dtype', [torch.float32, torch.float64])
 @pytest.mark.parametrize('seed', [3, 4])
-def test_rotated_nms_matches_brute_force(seed):
-    boxes = random_boxes(40, seed)
+def test_rotated_nms_matches_brute_force(seed, dtype):
+    boxes = random_boxes(40, seed).to(dtype)
     scores = torch.tensor(np.random.default_rng(seed).uniform(size=40), dtype=torch.float32)
     assert rotated_nms(boxes, scores, 0.2).tolist() == brute_nms(boxes, scores.numpy(), 0.2)
 
 
+@pytest.mark.parametrize('dtype', [torch.float32, torch.float64])
 @pytest.mark.parametrize('seed', [5, 6])
-def test_batched_and_refined_nms_match_brute_force(seed):
+def test_batched_and_refined_nms_match_brute_force(seed, dtype):
     from suit_ros.model.sampling import refined_nms
     rng = np.random.default_rng(seed)
-    boxes = random_boxes(60, seed)
+    boxes = random_boxes(60, seed).to(dtype)
     scores = rng.uniform(size=60)
     labels = rng.integers(0, 3, 60)
     iou = shapely_iou(boxes, boxes)
@@ -106,6 +109,33 @@ def test_batched_and_refined_nms_match_brute_force(seed):
     got = refined_nms(boxes, torch.tensor(scores, dtype=torch.float32), torch.tensor(labels),
                       0.3, 1.5)
     assert got.tolist() == keep
+
+
+def test_compiled_nms_keeps_what_the_tensor_path_keeps_on_crowded_boxes():
+    """A few hundred boxes in clusters (a top-K of a heatmap: neighbouring cells decode
+    nearly the same box), ties in score among them: the compiled greedy pass and the tensor
+    path keep the same boxes in the same order, per class and per frame with a centre
+    distance."""
+    from suit_ros.model.sampling import refined_nms
+    rng = np.random.default_rng(11)
+    centres = rng.uniform(-40, 40, (60, 2))
+    pick = rng.integers(0, 60, 400)
+    boxes = np.zeros((400, 7), np.float32)
+    boxes[:, :2] = centres[pick] + rng.normal(0, 0.6, (400, 2))
+    boxes[:, 3:6] = rng.uniform([0.5, 0.5, 1.0], [5.0, 2.5, 2.0], (400, 3))
+    boxes[:, 6] = rng.uniform(-np.pi, np.pi, 400)
+    b32 = torch.from_numpy(boxes)
+    scores = torch.from_numpy(np.round(rng.uniform(size=400), 2).astype(np.float32))
+    labels = torch.from_numpy(rng.integers(0, 3, 400))
+    for thr in (0.1, 0.2, 0.5):
+        assert (batched_nms(b32, scores, labels, 'rotated', thr).tolist()
+                == batched_nms(b32.double(), scores, labels, 'rotated', thr).tolist())
+        assert rotated_nms(b32, scores, thr).tolist() == rotated_nms(b32.double(), scores,
+                                                                      thr).tolist()
+        assert (refined_nms(b32, scores, labels, thr, 0.8).tolist()
+                == refined_nms(b32.double(), scores, labels, thr, 0.8).tolist())
+    empty = torch.zeros(0, 7)
+    assert batched_nms(empty, torch.zeros(0), torch.zeros(0, dtype=torch.long)).numel() == 0
 
 
 def test_circle_nms_and_class_awareness():

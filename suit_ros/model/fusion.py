@@ -111,6 +111,21 @@ class TemporalFusion(nn.Module):
         self.zero_past = not bool(self.past.weight.detach().any())
         return self.identity_current
 
+    def current_weights(self, dtype: torch.dtype) -> tuple[Tensor, Tensor | None]:
+        """W1 ``(C, C_in)`` and its bias in ``dtype``, for products over a few rows; kept
+        where :func:`~suit_ros.model.inference.keep_gathered_weights` set ``gathered_cache``
+        (an inference copy)."""
+        cache: dict[torch.dtype, tuple[Tensor, Tensor | None]] | None = getattr(
+            self, 'gathered_cache', None)
+        if cache is not None and dtype in cache:
+            return cache[dtype]
+        conv = unwrap_conv(self.current)
+        kept = (conv.weight[:, :, 0, 0].to(dtype),
+                None if conv.bias is None else conv.bias.to(dtype))
+        if cache is not None:
+            cache[dtype] = kept
+        return kept
+
     def _current(self, current: Tensor) -> Tensor:
         """W1 F_t, as a fresh tensor (the past term is added into it in place)."""
         if self.identity_current:
@@ -173,12 +188,12 @@ class FoldedFused:
         (float64 on a float64 map; a low-precision inference copy's dense map rounds them, and
         a few hundred rows gain nothing from its speed)."""
         B, C, H, W = self.current.shape
-        conv = unwrap_conv(self.fusion.current)
         exact = gathered_dtype(self.current.dtype)
+        weight, bias = self.fusion.current_weights(exact)
         x = self.current.permute(0, 2, 3, 1).reshape(B * H * W, C)[flat].to(exact)
-        out = x @ conv.weight[:, :, 0, 0].to(exact).t()
-        if conv.bias is not None:
-            out = out + conv.bias.to(exact)
+        out = x @ weight.t()
+        if bias is not None:
+            out = out + bias
         if self.past is not None and len(self.past.index):
             out += self.past.at(flat).to(exact)
         return out

@@ -23,7 +23,10 @@ class GeoNet(nn.Module):
     def __init__(self, in_channels: int, window: int, bins: int = 7, channels: int = 32,
                  velocity_step: float = 5.0, velocity_input: bool = False) -> None:
         super().__init__()
+        self.window = window
         self.bins = bins
+        # set on an inference copy (:meth:`as_products`): the layers as matrices over the patch
+        self.products = 0
         self.velocity_step = velocity_step
         self.velocity_input = velocity_input
         self.net = nn.Sequential(
@@ -50,8 +53,45 @@ class GeoNet(nn.Module):
             M, _, H, W = patches.shape
             v = (velocities / self.velocity_step)[:, :, None, None].expand(M, 2, H, W)
             patches = torch.cat([patches, v.to(patches)], dim=1)
+        if self.products and patches.shape[-2:] == (self.window, self.window):
+            M, C, Hs, Ws = patches.shape
+            h = patches.reshape(M, C * Hs * Ws)
+            for k in range(self.products):
+                if k:
+                    h = torch.relu(h)
+                h = h.to(self.get_buffer(f'product_weight_{k}').dtype) \
+                    @ self.get_buffer(f'product_weight_{k}') + self.get_buffer(f'product_bias_{k}')
+            return h
         out: Tensor = self.net(patches).flatten(1)
         return out
+
+    def as_products(self) -> int:
+        """For an inference copy: each convolution over a ``window x window`` patch (the
+        only input a memory gives) becomes one matrix product of the flattened patch, composed
+        once (the convolution of an identity basis). On a few dozen 3 x 3 patches the three
+        convolutions cost the framework far more than their arithmetic; the products give the
+        same logits up to float rounding. Returns the number of layers."""
+        convs = [m for m in self.net if isinstance(m, nn.Conv2d)]
+        if (len(convs) + sum(isinstance(m, nn.ReLU) for m in self.net) != len(self.net)
+                or sum(isinstance(m, nn.ReLU) for m in self.net) != len(convs) - 1):
+            return 0
+        first = convs[0]
+        shape = (first.in_channels, self.window, self.window)
+        with torch.no_grad():
+            for k, conv in enumerate(convs):
+                n = shape[0] * shape[1] * shape[2]
+                basis = torch.eye(n, dtype=conv.weight.dtype, device=conv.weight.device)
+                out = F.conv2d(basis.view(n, *shape), conv.weight, None, conv.stride,
+                               conv.padding, conv.dilation, conv.groups)
+                bias = (conv.bias if conv.bias is not None
+                        else conv.weight.new_zeros(conv.out_channels))
+                self.register_buffer(f'product_weight_{k}', out.reshape(n, -1).contiguous(),
+                                     persistent=False)
+                self.register_buffer(f'product_bias_{k}', bias[:, None, None].expand(
+                    out.shape[1:]).reshape(-1).contiguous(), persistent=False)
+                shape = (out.shape[1], out.shape[2], out.shape[3])
+        self.products = len(convs)
+        return self.products
 
     def target_bins(self, velocities: Tensor) -> Tensor:
         """Bin index ``(M,)`` of velocities ``(M, 2)`` (nearest bin, clipped to the window)."""

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
 
-from suit_ros.model.fusion import FoldedFused, PastTerm, gathered_dtype, unwrap_conv
+from suit_ros.model.fusion import FoldedFused, PastTerm, gathered_dtype
 from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.nms import batched_nms
 
@@ -136,12 +136,12 @@ class HeadFold(nn.Module):
         """The layer's output ``(M, hc)`` at ``cells`` ``(M, 3)`` (b, y, x), in float32 on a
         low-precision map (:func:`gathered_dtype`)."""
         B, C, H, W = fused.current.shape
-        conv = unwrap_conv(self.conv)
         rows = fused.current.permute(0, 2, 3, 1).reshape(-1, C)     # a view when channels-last
         exact = gathered_dtype(rows.dtype)
         patches = _neighbourhoods(rows, cells, H, W).to(exact)
-        v = patches @ conv.weight.permute(0, 2, 3, 1).reshape(conv.out_channels, -1).to(exact).t()
-        v = v + typing.cast(Tensor, conv.bias).to(exact)
+        weight, bias = next((a, b) for k, a, b in _cached_ops(self.conv, exact) if k == 'taps')
+        v = patches @ weight.t()
+        v = v + bias
         flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
         return torch.relu(v + self._terms(fused.past, B).at(flat).to(exact))
 
@@ -450,14 +450,26 @@ class CenterHead(nn.Module):
 
 
 
+_TAPS: dict[torch.device, tuple[Tensor, Tensor]] = {}
+
+
+def _tap_offsets(device: torch.device) -> tuple[Tensor, Tensor]:
+    """The row and column offsets ``(9,)`` of a 3 x 3 neighbourhood's taps (row-major)."""
+    if device not in _TAPS:
+        d = torch.arange(-1, 2, device=device)
+        _TAPS[device] = (d.repeat_interleave(3), d.repeat(3))
+    return _TAPS[device]
+
+
 def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
                     where: Tensor | None = None) -> Tensor:
     """The 3 x 3 neighbourhoods ``(M, 9 C)`` (row-major taps) at ``cells`` ``(M, 3)`` (b, y, x)
     of a map given as its ``(B * H * W, C)`` rows (or as some of them: ``where`` ``(B * H * W,)``
     the row of ``rows`` each cell's is), zero off the map as a padded convolution has it."""
     b, y, x = cells[:, 0], cells[:, 1], cells[:, 2]
-    ys = y[:, None] + torch.arange(-1, 2, device=y.device).repeat_interleave(3)
-    xs = x[:, None] + torch.arange(-1, 2, device=x.device).repeat(3)
+    dy, dx = _tap_offsets(y.device)
+    ys = y[:, None] + dy
+    xs = x[:, None] + dx
     inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)                 # (M, 9)
     index = (b[:, None] * H + ys.clamp(0, H - 1)) * W + xs.clamp(0, W - 1)
     if where is not None:
@@ -488,6 +500,65 @@ def dilated_cells(flat: Tensor, H: int, W: int, r: int) -> Tensor:
     return out
 
 
+# ``('taps' | 'linear', weight (out, in), bias or None)``, ``('norm', (mean, scale), bias)``,
+# ``('relu', None, None)`` or ``('cast', dtype, None)``: a head layer stack as gathered products
+GatheredOp = tuple[str, typing.Any, typing.Any]
+
+
+def gathered_ops(layers: nn.Module, exact: torch.dtype) -> list[GatheredOp]:
+    """A head layer stack (a 3 x 3 conv, then norms, ReLUs, 1 x 1 convs, dtype casts: the
+    training module or its inference copy) as the products :func:`_at_cells` runs, its weights
+    in ``exact``; an inference copy keeps them (``gathered_cache``, set by
+    :func:`~suit_ros.model.inference.inference_copy`) instead of converting every step."""
+    from suit_ros.model.inference import Cast
+    ops: list[GatheredOp] = []
+    seen_taps = False
+
+    def add(m: nn.Module) -> None:
+        nonlocal seen_taps
+        if isinstance(m, Cast):
+            ops.append(('cast', m.dtype, None))
+            add(m.inner)
+            ops.append(('cast', m.out_dtype, None))
+        elif isinstance(m, nn.Sequential):
+            for child in m:
+                add(child)
+        elif isinstance(m, nn.Identity):
+            pass
+        elif isinstance(m, nn.Conv2d) and m.kernel_size == (3, 3):
+            if seen_taps or ops and any(k != 'cast' for k, _, _ in ops):
+                raise ValueError('a head layer stack holds one 3x3 conv, first')
+            seen_taps = True
+            ops.append(('taps', m.weight.permute(0, 2, 3, 1).reshape(m.out_channels, -1)
+                        .to(exact), None if m.bias is None else m.bias.to(exact)))
+        elif isinstance(m, nn.Conv2d):                                  # 1 x 1
+            ops.append(('linear', m.weight.reshape(m.out_channels, -1).to(exact),
+                        None if m.bias is None else m.bias.to(exact)))
+        elif isinstance(m, nn.BatchNorm2d):
+            assert m.running_var is not None and m.running_mean is not None
+            scale = m.weight.to(exact) / torch.sqrt(m.running_var.to(exact) + m.eps)
+            ops.append(('norm', (m.running_mean.to(exact), scale), m.bias.to(exact)))
+        elif isinstance(m, nn.ReLU):
+            ops.append(('relu', None, None))
+        else:
+            raise ValueError(f'a head layer of type {type(m).__name__} cannot run at cells')
+    add(layers)
+    if not seen_taps:
+        raise ValueError('a head layer stack holds one 3x3 conv, first')
+    return ops
+
+
+def _cached_ops(layers: nn.Module, exact: torch.dtype) -> list[GatheredOp]:
+    """:func:`gathered_ops`, kept on an inference copy's stack (its weights never change)."""
+    cache = getattr(layers, 'gathered_cache', None)
+    if cache is None:
+        return gathered_ops(layers, exact)
+    if exact not in cache:
+        cache[exact] = gathered_ops(layers, exact)
+    ops: list[GatheredOp] = cache[exact]
+    return ops
+
+
 def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
               patches: Tensor | None = None) -> Tensor:
     """A head layer stack (a 3 x 3 conv, then norms, ReLUs, 1 x 1 convs, dtype casts: the
@@ -498,47 +569,20 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
     :func:`gathered_dtype` whatever the stack's casts: on a few hundred rows low precision
     saves nothing and its conversions cost (a bfloat16 inference copy's gathered head took
     twice the float32 time)."""
-    from suit_ros.model.inference import Cast
-    ops: list[tuple[str, typing.Any]] = []
-
-    def flatten(m: nn.Module) -> None:
-        if isinstance(m, Cast):
-            ops.append(('cast', m.dtype))
-            flatten(m.inner)
-            ops.append(('cast', m.out_dtype))
-        elif isinstance(m, nn.Sequential):
-            for child in m:
-                flatten(child)
-        elif not isinstance(m, nn.Identity):
-            ops.append(('layer', m))
-    flatten(layers)
-    v: Tensor | None = None
-    dtype = rows.dtype              # what the stack gives (its last cast's)
     exact = gathered_dtype(rows.dtype)
-    for kind, op in ops:
+    dtype = rows.dtype              # what the stack gives (its last cast's)
+    v = (patches if patches is not None else _neighbourhoods(rows, cells, H, W)).to(exact)
+    for kind, a, b in _cached_ops(layers, exact):
         if kind == 'cast':
-            dtype = op
-        elif isinstance(op, nn.Conv2d) and op.kernel_size == (3, 3):
-            if v is not None:
-                raise ValueError('a head layer stack holds one 3x3 conv, first')
-            taps = (patches if patches is not None
-                    else _neighbourhoods(rows, cells, H, W)).to(exact)     # (M, 9 C)
-            w = op.weight.permute(0, 2, 3, 1).reshape(op.out_channels, -1).to(exact)
-            v = taps @ w.t()
-            if op.bias is not None:
-                v = v + op.bias.to(exact)
-        elif isinstance(op, nn.Conv2d):                                  # 1 x 1
-            assert v is not None
-            w1 = op.weight.reshape(op.out_channels, -1).to(exact)
-            v = v @ w1.t() + (op.bias.to(exact) if op.bias is not None else 0)
-        elif isinstance(op, nn.BatchNorm2d):
-            assert v is not None and op.running_var is not None and op.running_mean is not None
-            scale = op.weight.to(exact) / torch.sqrt(op.running_var.to(exact) + op.eps)
-            v = (v - op.running_mean.to(exact)) * scale + op.bias.to(exact)
-        elif isinstance(op, nn.ReLU):
-            assert v is not None
-            v = torch.relu(v)
+            dtype = a
+        elif kind == 'taps':
+            v = v @ a.t()
+            if b is not None:
+                v = v + b
+        elif kind == 'linear':
+            v = v @ a.t() + (b if b is not None else 0)
+        elif kind == 'norm':
+            v = (v - a[0]) * a[1] + b
         else:
-            raise ValueError(f'a head layer of type {type(op).__name__} cannot run at cells')
-    assert v is not None
+            v = torch.relu(v)
     return v.to(dtype)

@@ -220,4 +220,29 @@ def inference_copy(model: nn.Module, channels_last: bool = True,
     for m in copied.modules():
         if isinstance(m, TemporalFusion):
             m.mark_identity()
+    keep_gathered_weights(copied)
+    from suit_ros.model.geonet import GeoNet
+    for m in copied.modules():
+        if isinstance(m, GeoNet):
+            m.as_products()
     return copied
+
+
+def keep_gathered_weights(model: nn.Module) -> int:
+    """Let the layer stacks that an inference copy runs as gathered products at a few cells
+    (the heads' layers, a fold's conv, the fusion's W1: :func:`~suit_ros.model.head._at_cells`)
+    keep their weights as those products take them (``gathered_cache``), converted once, not
+    every step; for a copy whose weights no longer change. Returns the number of stacks."""
+    from suit_ros.model.fusion import TemporalFusion
+    stacks: list[nn.Module] = []
+    carry = getattr(model, 'carry', None)
+    for head in (getattr(model, 'head', None), getattr(carry, 'head', None)):
+        if head is None:
+            continue
+        stacks += [getattr(head, name) for name in ('shared', 'heatmap', 'regression')]
+        if getattr(head, 'fold', None) is not None:
+            stacks.append(head.fold.conv)
+    stacks += [m for m in model.modules() if isinstance(m, TemporalFusion)]
+    for m in stacks:
+        m.__dict__['gathered_cache'] = {}     # a plain attribute, not a module or buffer
+    return len(stacks)

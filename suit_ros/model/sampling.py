@@ -25,7 +25,7 @@ from suit_ros.config import SamplingConfig
 from suit_ros.model.fusion import FoldedFused
 from suit_ros.model.grid import BEVGrid
 from suit_ros.model.memory import SparseMemory
-from suit_ros.ops.nms import greedy_suppression, rotated_suppression
+from suit_ros.ops.nms import compiled_rotated_nms, greedy_suppression, rotated_suppression
 
 
 @dataclass
@@ -65,6 +65,9 @@ def refined_nms(boxes: Tensor, scores: Tensor, batch_index: Tensor, iou_threshol
         return torch.zeros(0, dtype=torch.long, device=boxes.device)
     order = torch.argsort(scores, descending=True, stable=True)
     b, bi = boxes[order], batch_index[order]
+    kept = compiled_rotated_nms(b, bi, order, iou_threshold, min_distance)
+    if kept is not None:
+        return kept
     same = bi[:, None] == bi[None, :]
     close = (torch.cdist(b[:, :2].float(), b[:, :2].float()) < min_distance) & same
     close.fill_diagonal_(False)

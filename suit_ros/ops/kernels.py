@@ -316,6 +316,84 @@ def pillar_features(top: NDArray[np.float32], mean: NDArray[np.float32],
                      rows.dtype == np.uint16)
 
 
+@numba.njit(inline='always', nogil=True)
+def _bev_iou(a: Any, b: Any, pts: Any, ang: Any, corners: Any, sx: Any, sy: Any
+             ) -> Any:  # pragma: no cover
+    """The rotated BEV IoU of two float32 boxes (:func:`paired_bev_iou`), in the scratch
+    arrays given."""
+    for m in range(2):
+        bx = a if m == 0 else b
+        x = np.float64(bx[0])
+        y = np.float64(bx[1])
+        hl = np.float64(bx[3]) * 0.5
+        hw = np.float64(bx[4]) * 0.5
+        c = np.cos(np.float64(bx[6]))
+        s = np.sin(np.float64(bx[6]))
+        for i in range(4):
+            dx = sx[i] * hl
+            dy = sy[i] * hw
+            corners[m, i, 0] = x + c * dx - s * dy
+            corners[m, i, 1] = y + s * dx + c * dy
+    n = 0
+    for m in range(2):                    # corners of box m inside the other box
+        ot = b if m == 0 else a
+        ox = np.float64(ot[0])
+        oy = np.float64(ot[1])
+        c = np.cos(np.float64(ot[6]))
+        s = np.sin(np.float64(ot[6]))
+        half_l = np.float64(ot[3]) * 0.5 + 1e-6
+        half_w = np.float64(ot[4]) * 0.5 + 1e-6
+        for i in range(4):
+            d0 = corners[m, i, 0] - ox
+            d1 = corners[m, i, 1] - oy
+            if abs(d0 * c + d1 * s) <= half_l and abs(d1 * c - d0 * s) <= half_w:
+                pts[n, 0] = corners[m, i, 0]
+                pts[n, 1] = corners[m, i, 1]
+                n += 1
+    for i in range(4):                    # edge i of a against edge j of b
+        i1 = (i + 1) % 4
+        r0 = corners[0, i1, 0] - corners[0, i, 0]
+        r1 = corners[0, i1, 1] - corners[0, i, 1]
+        for j in range(4):
+            j1 = (j + 1) % 4
+            v0 = corners[1, j1, 0] - corners[1, j, 0]
+            v1 = corners[1, j1, 1] - corners[1, j, 1]
+            denom = r0 * v1 - r1 * v0
+            if abs(denom) < 1e-12:
+                continue
+            q0 = corners[1, j, 0] - corners[0, i, 0]
+            q1 = corners[1, j, 1] - corners[0, i, 1]
+            t = (q0 * v1 - q1 * v0) / denom
+            u = (q0 * r1 - q1 * r0) / denom
+            if t >= 0.0 and t <= 1.0 and u >= 0.0 and u <= 1.0:
+                pts[n, 0] = corners[0, i, 0] + t * r0
+                pts[n, 1] = corners[0, i, 1] + t * r1
+                n += 1
+    inter = 0.0
+    if n >= 3:
+        mx = 0.0
+        my = 0.0
+        for i in range(n):
+            mx += pts[i, 0]
+            my += pts[i, 1]
+        mx /= n
+        my /= n
+        for i in range(n):
+            ang[i] = np.arctan2(pts[i, 1] - my, pts[i, 0] - mx)
+        order = np.argsort(ang[:n])
+        acc = 0.0
+        for i in range(n):
+            p = order[i]
+            q = order[(i + 1) % n]
+            acc += pts[p, 0] * pts[q, 1] - pts[p, 1] * pts[q, 0]
+        inter = 0.5 * abs(acc)
+    area_a = np.float64(a[3] * a[4])
+    area_b = np.float64(b[3] * b[4])
+    union = area_a + area_b - inter
+    iou = inter / (union if union > 1e-9 else 1e-9)
+    return np.float32(min(max(iou, 0.0), 1.0))
+
+
 @_jit
 def paired_bev_iou(boxes_a: Any, boxes_b: Any) -> Any:  # pragma: no cover
     """Rotated BEV IoU of each pair ``(boxes_a[k], boxes_b[k])`` of ``(K, 7)`` float32 boxes,
@@ -333,78 +411,47 @@ def paired_bev_iou(boxes_a: Any, boxes_b: Any) -> Any:  # pragma: no cover
     sx = np.array([1.0, -1.0, -1.0, 1.0])
     sy = np.array([1.0, 1.0, -1.0, -1.0])
     for k in range(K):
-        for m in range(2):
-            bx = boxes_a[k] if m == 0 else boxes_b[k]
-            x = np.float64(bx[0])
-            y = np.float64(bx[1])
-            hl = np.float64(bx[3]) * 0.5
-            hw = np.float64(bx[4]) * 0.5
-            c = np.cos(np.float64(bx[6]))
-            s = np.sin(np.float64(bx[6]))
-            for i in range(4):
-                dx = sx[i] * hl
-                dy = sy[i] * hw
-                corners[m, i, 0] = x + c * dx - s * dy
-                corners[m, i, 1] = y + s * dx + c * dy
-        n = 0
-        for m in range(2):                    # corners of box m inside the other box
-            ot = boxes_b[k] if m == 0 else boxes_a[k]
-            ox = np.float64(ot[0])
-            oy = np.float64(ot[1])
-            c = np.cos(np.float64(ot[6]))
-            s = np.sin(np.float64(ot[6]))
-            half_l = np.float64(ot[3]) * 0.5 + 1e-6
-            half_w = np.float64(ot[4]) * 0.5 + 1e-6
-            for i in range(4):
-                d0 = corners[m, i, 0] - ox
-                d1 = corners[m, i, 1] - oy
-                if abs(d0 * c + d1 * s) <= half_l and abs(d1 * c - d0 * s) <= half_w:
-                    pts[n, 0] = corners[m, i, 0]
-                    pts[n, 1] = corners[m, i, 1]
-                    n += 1
-        for i in range(4):                    # edge i of a against edge j of b
-            i1 = (i + 1) % 4
-            r0 = corners[0, i1, 0] - corners[0, i, 0]
-            r1 = corners[0, i1, 1] - corners[0, i, 1]
-            for j in range(4):
-                j1 = (j + 1) % 4
-                v0 = corners[1, j1, 0] - corners[1, j, 0]
-                v1 = corners[1, j1, 1] - corners[1, j, 1]
-                denom = r0 * v1 - r1 * v0
-                if abs(denom) < 1e-12:
-                    continue
-                q0 = corners[1, j, 0] - corners[0, i, 0]
-                q1 = corners[1, j, 1] - corners[0, i, 1]
-                t = (q0 * v1 - q1 * v0) / denom
-                u = (q0 * r1 - q1 * r0) / denom
-                if t >= 0.0 and t <= 1.0 and u >= 0.0 and u <= 1.0:
-                    pts[n, 0] = corners[0, i, 0] + t * r0
-                    pts[n, 1] = corners[0, i, 1] + t * r1
-                    n += 1
-        inter = 0.0
-        if n >= 3:
-            mx = 0.0
-            my = 0.0
-            for i in range(n):
-                mx += pts[i, 0]
-                my += pts[i, 1]
-            mx /= n
-            my /= n
-            for i in range(n):
-                ang[i] = np.arctan2(pts[i, 1] - my, pts[i, 0] - mx)
-            order = np.argsort(ang[:n])
-            acc = 0.0
-            for i in range(n):
-                p = order[i]
-                q = order[(i + 1) % n]
-                acc += pts[p, 0] * pts[q, 1] - pts[p, 1] * pts[q, 0]
-            inter = 0.5 * abs(acc)
-        area_a = np.float64(boxes_a[k, 3] * boxes_a[k, 4])
-        area_b = np.float64(boxes_b[k, 3] * boxes_b[k, 4])
-        union = area_a + area_b - inter
-        iou = inter / (union if union > 1e-9 else 1e-9)
-        out[k] = np.float32(min(max(iou, 0.0), 1.0))
+        out[k] = _bev_iou(boxes_a[k], boxes_b[k], pts, ang, corners, sx, sy)
     return out
+
+
+@_jit
+def greedy_bev_nms(boxes: Any, group: Any, iou_threshold: Any, min_distance: float
+                   ) -> Any:  # pragma: no cover
+    """Greedy NMS of ``(N, 7)`` float32 boxes given in descending score order: which stay
+    (``(N,)`` bool). A kept box drops each later box of its ``group`` (``(N,)`` int64: the
+    class, or the frame) whose centre lies closer than ``min_distance`` metres, or whose
+    rotated BEV IoU with it (:func:`paired_bev_iou`, float32) exceeds ``iou_threshold``
+    (float32); the IoU is computed only for pairs whose circumscribed circles meet, and only
+    for boxes not dropped already: the kept set of :func:`suit_ros.ops.nms.rotated_suppression`
+    and :func:`~suit_ros.ops.nms.greedy_suppression`, in one pass (distances in float64)."""
+    N = boxes.shape[0]
+    keep = np.zeros(N, np.bool_)
+    removed = np.zeros(N, np.bool_)
+    r = np.empty(N, np.float64)
+    for i in range(N):
+        r[i] = 0.5 * math.hypot(np.float64(boxes[i, 3]), np.float64(boxes[i, 4]))
+    pts = np.empty((24, 2), np.float64)
+    ang = np.empty(24, np.float64)
+    corners = np.empty((2, 4, 2), np.float64)
+    sx = np.array([1.0, -1.0, -1.0, 1.0])
+    sy = np.array([1.0, 1.0, -1.0, -1.0])
+    for i in range(N):
+        if removed[i]:
+            continue
+        keep[i] = True
+        for j in range(i + 1, N):
+            if removed[j] or group[j] != group[i]:
+                continue
+            dx = np.float64(boxes[j, 0]) - np.float64(boxes[i, 0])
+            dy = np.float64(boxes[j, 1]) - np.float64(boxes[i, 1])
+            d = math.sqrt(dx * dx + dy * dy)
+            if d < min_distance:
+                removed[j] = True
+            elif d < r[i] + r[j] and _bev_iou(boxes[i], boxes[j], pts, ang, corners, sx,
+                                               sy) > iou_threshold:
+                removed[j] = True
+    return keep
 
 
 @numba.njit(inline='always', nogil=True)
@@ -801,5 +848,6 @@ def warm_up() -> None:
                   model_input.copy())
     overhang_keep(model_input, -1.0, -1.0, 0.5, 4, 4, -1.0, 20, 5, 10, 0.5)
     paired_bev_iou(np.ones((1, 7), np.float32), np.ones((1, 7), np.float32))
+    greedy_bev_nms(np.ones((1, 7), np.float32), np.zeros(1, np.int64), np.float32(0.5), 0.0)
     one = np.ones(1)
     rays_through(model_input, np.zeros(3), np.ones((1, 2)), one, one, one, one)

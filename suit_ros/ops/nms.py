@@ -12,6 +12,7 @@ import torch
 from torch import Tensor
 
 from suit_ros.ops.iou import paired_bev_iou
+from suit_ros.ops.kernels import greedy_bev_nms
 from suit_ros.ops.kernels import paired_bev_iou as compiled_iou
 
 
@@ -71,12 +72,30 @@ def pair_iou(a: Tensor, b: Tensor) -> Tensor:
     return paired_bev_iou(a, b)
 
 
+def compiled_rotated_nms(b: Tensor, group: Tensor, order: Tensor, iou_threshold: float,
+                         min_distance: float = 0.0) -> Tensor | None:
+    """Greedy rotated-IoU NMS of boxes ``b`` in score order (``order``: their indices) by
+    the compiled kernel (:func:`suit_ros.ops.kernels.greedy_bev_nms`): boxes of different
+    ``group`` never suppress each other, a kept box drops later ones whose centre lies closer
+    than ``min_distance`` or whose IoU exceeds ``iou_threshold``; returns the kept indices, or
+    None where the kernel does not apply (not float32 boxes on the CPU: the tensor path)."""
+    if b.device.type != 'cpu' or b.dtype != torch.float32:
+        return None
+    keep = greedy_bev_nms(b.detach().contiguous().numpy(),
+                          group.detach().to(torch.int64).contiguous().numpy(),
+                          np.float32(iou_threshold), float(min_distance))
+    return order[torch.from_numpy(keep)]
+
+
 def rotated_nms(boxes: Tensor, scores: Tensor, iou_threshold: float) -> Tensor:
     """Greedy NMS on rotated BEV IoU of ``(N, 7)`` boxes; returns kept indices."""
     if boxes.shape[0] == 0:
         return torch.zeros(0, dtype=torch.long, device=boxes.device)
     order = torch.argsort(scores, descending=True, stable=True)
     b = boxes[order]
+    kept = compiled_rotated_nms(b, torch.zeros_like(order), order, iou_threshold)
+    if kept is not None:
+        return kept
     full = torch.ones((b.shape[0], b.shape[0]), dtype=torch.bool, device=b.device)
     suppress = rotated_suppression(b, full, iou_threshold)
     return greedy_suppression(suppress, order)
@@ -94,6 +113,10 @@ def batched_nms(boxes: Tensor, scores: Tensor, labels: Tensor, kind: str = 'rota
         return torch.zeros(0, dtype=torch.long, device=boxes.device)
     order = torch.argsort(scores, descending=True, stable=True)
     b, lab = boxes[order], labels[order]
+    if kind == 'rotated':
+        kept = compiled_rotated_nms(b, lab, order, iou_threshold)
+        if kept is not None:
+            return kept
     same = lab[:, None] == lab[None, :]
     if kind == 'rotated':
         suppress = rotated_suppression(b, same, iou_threshold)
