@@ -232,11 +232,9 @@ def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: T
     map (:class:`PastTerm`; ``.dense()`` for the map).
 
     Every (sample, cell, bin) triple adds ``p * q * W2 f`` at the current-grid cell that
-    contains ``position + displacement``. Implemented per sample as a small matrix product:
-    the weights of its ``P`` source cells over a local ``D x D`` window of destination cells
-    (``D`` covers the largest displacement) are accumulated first, then multiplied with the
-    ``(P, C)`` features, and only the ``D x D`` results that receive a weight are scattered
-    into the map (the term's rows: where the memory puts something).
+    contains ``position + displacement``. Only the triples of non-zero weight that land on the
+    map are formed (with pruned bins, a few per sample cell): their projected features, times
+    their weights, summed per destination cell, are the term's rows, one per cell it touches.
 
     :param features: ``(M, P, C)`` memory features; ``probs``/``mask``: ``(M, P)``.
     :param positions: ``(M, P, 2)`` cell positions already moved into the current frame.
@@ -254,8 +252,8 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
                       projections: Sequence[tuple[nn.Linear, Tensor | None]], grid: BEVGrid,
                       batch_size: int, prune: float = 0.0) -> list[PastTerm]:
     """:func:`sparse_past_term` for several projections, each of the samples it names (an
-    index into the ``M`` samples, or None for all), with the samples' window weights
-    computed once (a carry branch's own and carry terms)."""
+    index into the ``M`` samples, or None for all), with the triples' cells and weights
+    found once (a carry branch's own and carry terms)."""
     M, P, C = features.shape
     H, W = grid.H, grid.W
     shapes = [(batch_size, proj.out_features, H, W) for proj, _ in projections]
@@ -266,33 +264,25 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
         q = q * (q >= prune)
     cells = torch.floor(grid.xy_to_cell(positions[:, :, None, :]
                                         + displacements[:, None, :, :])).long()   # (M, P, K, 2)
-    centre = torch.floor(grid.xy_to_cell(positions[:, P // 2])).long()[:, None, :]   # (M, 1, 2)
-    reach = int((cells - centre[:, None]).abs().amax().item())
-    D = 2 * reach + 1
-    local = cells - centre[:, None] + reach                                    # in [0, D)
+    col, row = cells[..., 0], cells[..., 1]
     w = (probs * mask.to(probs.dtype))[:, :, None] * q[:, None, :]             # (M, P, K)
-    dest = local[..., 1] * D + local[..., 0]                                   # (M, P, K)
-    Wm = w.new_zeros(M, D * D, P)
-    src = torch.arange(P, device=w.device)[None, :, None].expand_as(dest)
-    flat_idx = (dest * P + src).reshape(M, -1)
-    Wm.view(M, -1).scatter_add_(1, flat_idx, w.reshape(M, -1))
-    offs = torch.arange(D, device=w.device) - reach
-    dr, dc = torch.meshgrid(offs, offs, indexing='ij')
-    col = centre[:, 0, 0, None] + dc.reshape(1, -1)                            # (M, D*D)
-    row = centre[:, 0, 1, None] + dr.reshape(1, -1)
-    # only the window cells that receive a weight: the window spans the largest displacement
-    # of any sample (bins pruned or not), and most of its cells add exactly zero
-    ok = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (Wm.amax(dim=2) > 0)
-    flat = (batch_index[:, None] * H + row) * W + col
+    m, p, k = torch.nonzero((w > 0) & (col >= 0) & (col < W) & (row >= 0) & (row < H),
+                            as_tuple=True)
+    flat = (batch_index[m] * H + row[m, p, k]) * W + col[m, p, k]
+    weight = w[m, p, k]
     terms = []
     for (projection, subset), shape in zip(projections, shapes):
         if subset is None:
-            out_local = torch.bmm(Wm, projection(features))                    # (M, D*D, C)
-            terms.append(PastTerm(flat[ok], out_local[ok], shape))
+            mm, pp, ff, ww = m, p, flat, weight
         else:
-            out_local = torch.bmm(Wm[subset], projection(features[subset]))
-            keep = ok[subset]
-            terms.append(PastTerm(flat[subset][keep], out_local[keep], shape))
+            member = torch.zeros(M, dtype=torch.bool, device=features.device)
+            member[subset] = True
+            take = member[m]
+            mm, pp, ff, ww = m[take], p[take], flat[take], weight[take]
+        values = projection(features)[mm, pp] * ww[:, None]                  # (T, C)
+        cells_hit, where = torch.unique(ff, return_inverse=True)
+        rows = values.new_zeros(len(cells_hit), shape[1]).index_add_(0, where, values)
+        terms.append(PastTerm(cells_hit, rows, shape))
     return terms
 
 

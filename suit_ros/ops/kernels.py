@@ -454,6 +454,28 @@ def greedy_bev_nms(boxes: Any, group: Any, iou_threshold: Any, min_distance: flo
     return keep
 
 
+@_jit
+def suppress_near_kernel(xy: Any, labels: Any, movable: Any, radius: Any
+                         ) -> Any:  # pragma: no cover
+    """:func:`suit_ros.ops.nms.suppress_near` in one pass: boxes in descending score order,
+    ``xy`` ``(N, 2)`` float64 centres, ``labels`` ``(N,)`` int64, ``movable`` ``(N,)`` bool,
+    ``radius`` ``(N,)`` float64 (each box's class radius); a movable box goes when an earlier
+    box of its class that stays lies closer than its radius. Returns ``(N,)`` bool."""
+    N = xy.shape[0]
+    keep = np.ones(N, np.bool_)
+    for i in range(N):
+        if not movable[i]:
+            continue
+        for j in range(i):
+            if keep[j] and labels[j] == labels[i]:
+                dx = xy[i, 0] - xy[j, 0]
+                dy = xy[i, 1] - xy[j, 1]
+                if math.sqrt(dx * dx + dy * dy) < radius[i]:
+                    keep[i] = False
+                    break
+    return keep
+
+
 @numba.njit(inline='always', nogil=True)
 def _in_range(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
     """The rows of ``points`` (and of ``times`` when it has one per point) in range."""
@@ -849,5 +871,7 @@ def warm_up() -> None:
     overhang_keep(model_input, -1.0, -1.0, 0.5, 4, 4, -1.0, 20, 5, 10, 0.5)
     paired_bev_iou(np.ones((1, 7), np.float32), np.ones((1, 7), np.float32))
     greedy_bev_nms(np.ones((1, 7), np.float32), np.zeros(1, np.int64), np.float32(0.5), 0.0)
+    suppress_near_kernel(np.zeros((1, 2)), np.zeros(1, np.int64), np.ones(1, np.bool_),
+                         np.ones(1))
     one = np.ones(1)
     rays_through(model_input, np.zeros(3), np.ones((1, 2)), one, one, one, one)

@@ -12,7 +12,7 @@ import torch
 from torch import Tensor
 
 from suit_ros.ops.iou import paired_bev_iou
-from suit_ros.ops.kernels import greedy_bev_nms
+from suit_ros.ops.kernels import greedy_bev_nms, suppress_near_kernel
 from suit_ros.ops.kernels import paired_bev_iou as compiled_iou
 
 
@@ -144,16 +144,8 @@ def suppress_near(centers: Tensor, labels: Tensor, movable: Tensor, radius: Tens
     keep = torch.ones(n, dtype=torch.bool, device=centers.device)
     if n == 0 or not bool(movable.any()):
         return keep
-    near = ((torch.cdist(centers.double(), centers.double())
-             < radius.to(centers.device).double()[labels][:, None])
-            & (labels[:, None] == labels[None, :]))
-    earlier = torch.ones(n, n, dtype=torch.bool, device=centers.device).tril(-1)
-    sup = (near & earlier & movable[:, None]).cpu().numpy()      # sup[i, j]: j may drop i
-    mov = movable.cpu().numpy()
-    kept = keep.cpu().numpy()
-    kept[(sup & ~mov[None]).any(axis=1)] = False      # a box that always stays drops it
-    # the rest in order: a movable box drops a later one only while it stays itself
-    for i in np.nonzero(kept & (sup & mov[None]).any(axis=1))[0]:
-        if (sup[i] & kept).any():
-            kept[i] = False
+    r = radius.double().cpu()[labels.cpu()]
+    kept = suppress_near_kernel(centers.detach().double().cpu().contiguous().numpy(),
+                                labels.cpu().to(torch.int64).contiguous().numpy(),
+                                movable.cpu().contiguous().numpy(), r.contiguous().numpy())
     return torch.from_numpy(kept).to(centers.device)
