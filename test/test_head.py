@@ -199,3 +199,28 @@ def test_dilated_cells_are_what_a_max_pool_of_their_map_marks(r):
     want = torch.nonzero(F.max_pool2d(marked.view(B, 1, H, W), 2 * r + 1, 1, r).reshape(-1) > 0)
     assert dilated_cells(flat, H, W, r).tolist() == want[:, 0].tolist()
     assert len(dilated_cells(flat[:0], H, W, r)) == 0
+
+
+@pytest.mark.parametrize('dtype', [torch.float32, torch.bfloat16])
+def test_compiled_neighbourhoods_equal_the_tensor_gather(dtype):
+    """The compiled gather of 3 x 3 neighbourhoods (inference) and the tensor one (autograd)
+    give the same values bit for bit, on a batch of two, at the map's edges and corners, from
+    the map's rows and from some of them through a ``where`` map; a bfloat16 map's come back
+    as float32, exactly; a cell off the map is refused, not read."""
+    from suit_ros.model.head import _neighbourhoods
+    torch.manual_seed(3)
+    B, H, W, C = 2, 6, 5, 7
+    full = torch.randn(B * H * W, C).to(dtype)
+    cells = torch.tensor([[0, 0, 0], [0, 5, 4], [1, 0, 4], [1, 5, 0], [1, 2, 3], [0, 3, 1]])
+    picked = torch.tensor([3, 17, 40, 41, 59, 22, 11, 8])
+    where = torch.full((B * H * W,), len(picked), dtype=torch.long)
+    where[picked] = torch.arange(len(picked))
+    some = torch.cat([full[picked], torch.zeros(1, C, dtype=dtype)])
+    for rows, at in ((full, None), (some, where)):
+        fast = _neighbourhoods(rows, cells, H, W, at)
+        slow = _neighbourhoods(rows.clone().float().requires_grad_(), cells, H, W, at)
+        assert fast.dtype == torch.float32 and fast.shape == (len(cells), 9 * C)
+        assert torch.equal(fast, slow.detach())
+    assert torch.equal(_neighbourhoods(full, cells[:0], H, W), torch.zeros(0, 9 * C))
+    with pytest.raises(IndexError, match='where map'):
+        _neighbourhoods(some, torch.tensor([[2, 0, 0]]), H, W, where)

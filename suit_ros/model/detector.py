@@ -162,9 +162,13 @@ class SUITDetector(nn.Module):
                                 self.grid)
             warped = warped * torch.from_numpy(ok).to(warped)[:, None, None, None]
             return self.fusion.past_dense(warped), aux
-        okt = torch.from_numpy(ok).to(memory.batch_index.device)
-        sel = torch.nonzero(okt[memory.batch_index], as_tuple=True)[0]
-        sub = memory.select(sel)
+        if ok.all():        # every frame of the batch fuses its memory (a node's one frame)
+            sel = torch.arange(memory.num_samples, device=memory.batch_index.device)
+            sub = memory
+        else:
+            okt = torch.from_numpy(ok).to(memory.batch_index.device)
+            sel = torch.nonzero(okt[memory.batch_index], as_tuple=True)[0]
+            sub = memory.select(sel)
         bi, feats, probs, mask = sub.batch_index, sub.features, sub.probs, sub.mask
         positions = transform_sample_positions(sub, T_now_prev)
         dts = torch.from_numpy(dt).to(feats)[bi]                               # (M,)
@@ -214,7 +218,7 @@ class SUITDetector(nn.Module):
         # an inference copy whose heads read the fused map through W1 (HeadFold): not formed
         folded = self.head.fold is not None
         if isinstance(past, BranchTerms) and observed is not None:
-            carry = gate_past(past.carry, observed)
+            carry = past.carry_gated = gate_past(past.carry, observed)
             if folded and isinstance(carry, PastTerm):
                 past.carry_input = FoldedFused(current, carry, self.fusion)
                 return FoldedFused(current, past.own, self.fusion)
@@ -256,7 +260,8 @@ class SUITDetector(nn.Module):
             return preds
         seen = observed[:, None]
         if isinstance(past, BranchTerms) and self.carry is not None:
-            carry_term = gate_past(past.carry, observed)
+            carry_term = (past.carry_gated if past.carry_gated is not None
+                          else gate_past(past.carry, observed))
             carry_input = (past.carry_input if past.carry_input is not None
                            else self.fusion(current, carry_term))
             if self.training or not isinstance(carry_term, PastTerm):

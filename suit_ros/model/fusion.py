@@ -222,6 +222,8 @@ class BranchTerms:
     carry: PastTerm
     # the carry head's input (the carry term where the input has no returns), once fused
     carry_input: Tensor | FoldedFused | None = None
+    # the carry term where the input has no returns, once gated
+    carry_gated: Tensor | PastTerm | None = None
 
 
 def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: Tensor,

@@ -8,6 +8,7 @@ from __future__ import annotations
 import math
 import typing
 
+import numpy as np
 import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
@@ -112,15 +113,19 @@ class HeadFold(nn.Module):
     def _terms(self, past: PastTerm | None, batch: int) -> PastTerm:
         """The edge correction and ``K past``, as a sparse term over the pre-activation."""
         H, W, hc = self.H, self.W, self.hc
-        offsets = torch.arange(batch, device=self.edge_index.device) * (H * W)
-        index = [(offsets[:, None] + self.edge_index).reshape(-1)]
-        values = [self.edge_values.repeat(batch, 1)]
+        if batch == 1:
+            index, values = [self.edge_index], [self.edge_values]
+        else:
+            offsets = torch.arange(batch, device=self.edge_index.device) * (H * W)
+            index = [(offsets[:, None] + self.edge_index).reshape(-1)]
+            values = [self.edge_values.repeat(batch, 1)]
         if past is not None and len(past.index):
             spread = (past.values.float() @ self.past_weight).view(-1, 9, hc)
             b, y, x = past.index // (H * W), past.index // W % H, past.index % W
-            # an input row at (y, x) feeds tap (dy, dx) of the output cell (y - dy + 1, x - dx + 1)
-            ys = y[:, None] + 1 - torch.arange(3, device=y.device).repeat_interleave(3)
-            xs = x[:, None] + 1 - torch.arange(3, device=x.device).repeat(3)
+            # an input row at (y, x) feeds tap (dy, dx) of the output cell (y - dy, x - dx)
+            dy, dx = _tap_offsets(y.device)
+            ys = y[:, None] - dy
+            xs = x[:, None] - dx
             inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)
             index.append(((b[:, None] * H + ys) * W + xs)[inside])
             values.append(spread[inside])
@@ -465,7 +470,26 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
                     where: Tensor | None = None) -> Tensor:
     """The 3 x 3 neighbourhoods ``(M, 9 C)`` (row-major taps) at ``cells`` ``(M, 3)`` (b, y, x)
     of a map given as its ``(B * H * W, C)`` rows (or as some of them: ``where`` ``(B * H * W,)``
-    the row of ``rows`` each cell's is), zero off the map as a padded convolution has it."""
+    the row of ``rows`` each cell's is), zero off the map as a padded convolution has it; in
+    :func:`gathered_dtype` (a bfloat16 map's rows come back as float32, exactly). On the CPU
+    without autograd one compiled pass (:func:`suit_ros.ops.kernels.gather_taps`) does the
+    work of a dozen tensor operations."""
+    M, C = len(cells), rows.shape[1]
+    exact = gathered_dtype(rows.dtype)
+    if (rows.device.type == 'cpu' and not (torch.is_grad_enabled() and rows.requires_grad)
+            and rows.dtype in (torch.float32, torch.bfloat16)):
+        from suit_ros.ops.kernels import gather_taps, gather_taps_bf16
+        c = cells.to(torch.int64).contiguous().numpy()
+        w = (where.to(torch.int64).contiguous().numpy() if where is not None
+             else np.zeros(0, np.int64))
+        src = rows.detach().contiguous()
+        if src.dtype == torch.float32:
+            out = np.empty((M, 9 * C), np.float32)
+            gather_taps(src.numpy(), c, H, W, w, out)
+            return torch.from_numpy(out)
+        bits = np.empty((M, 9 * C), np.uint32)
+        gather_taps_bf16(src.view(torch.int16).numpy().view(np.uint16), c, H, W, w, bits)
+        return torch.from_numpy(bits.view(np.float32))
     b, y, x = cells[:, 0], cells[:, 1], cells[:, 2]
     dy, dx = _tap_offsets(y.device)
     ys = y[:, None] + dy
@@ -474,9 +498,8 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
     index = (b[:, None] * H + ys.clamp(0, H - 1)) * W + xs.clamp(0, W - 1)
     if where is not None:
         index = where[index]
-    C = rows.shape[1]
-    patches = torch.index_select(rows, 0, index.view(-1)).view(len(cells), 9, C)
-    return (patches * inside[..., None].to(patches.dtype)).view(len(cells), 9 * C)
+    patches = torch.index_select(rows, 0, index.view(-1)).view(M, 9, C).to(exact)
+    return (patches * inside[..., None].to(patches.dtype)).view(M, 9 * C)
 
 
 def unflatten_cells(flat: Tensor, H: int, W: int) -> Tensor:

@@ -477,6 +477,53 @@ def suppress_near_kernel(xy: Any, labels: Any, movable: Any, radius: Any
 
 
 @numba.njit(inline='always', nogil=True)
+def _tap_row(cells: Any, m: int, t: int, H: int, W: int, where: Any,
+             rows: int) -> Any:  # pragma: no cover
+    """The row of tap ``t`` (row-major 3 x 3) of cell ``m`` (b, y, x), -1 off the map."""
+    y = cells[m, 1] + t // 3 - 1
+    x = cells[m, 2] + t % 3 - 1
+    if y < 0 or y >= H or x < 0 or x >= W:
+        return -1
+    r = (cells[m, 0] * H + y) * W + x
+    if len(where):
+        if r >= len(where):
+            raise IndexError('gather_taps: a cell lies outside the where map')
+        r = where[r]
+    if r < 0 or r >= rows:
+        raise IndexError('gather_taps: a tap reads a row the map does not have')
+    return r
+
+
+@_jit
+def gather_taps(rows: Any, cells: Any, H: int, W: int, where: Any,
+                out: Any) -> None:  # pragma: no cover
+    """The 3 x 3 neighbourhoods of ``cells`` ``(M, 3)`` int64 (b, y, x) of a map given as its
+    ``(R, C)`` float32 rows (row ``(b * H + y) * W + x``, or ``where`` of it when ``where``
+    is not empty), written into ``out`` ``(M, 9 C)`` (row-major taps), zero off the map as a
+    padded convolution has it (:func:`suit_ros.model.head._neighbourhoods`)."""
+    C = rows.shape[1]
+    for m in range(cells.shape[0]):
+        for t in range(9):
+            r = _tap_row(cells, m, t, H, W, where, rows.shape[0])
+            for c in range(C):
+                out[m, t * C + c] = rows[r, c] if r >= 0 else np.float32(0.0)
+
+
+@_jit
+def gather_taps_bf16(rows: Any, cells: Any, H: int, W: int, where: Any,
+                     out: Any) -> None:  # pragma: no cover
+    """:func:`gather_taps` of bfloat16 rows given as their ``uint16`` bits, written as the
+    ``uint32`` bits of the same values in float32 (exact: bfloat16 is float32's upper half)."""
+    C = rows.shape[1]
+    for m in range(cells.shape[0]):
+        for t in range(9):
+            r = _tap_row(cells, m, t, H, W, where, rows.shape[0])
+            for c in range(C):
+                out[m, t * C + c] = np.uint32(rows[r, c]) << np.uint32(16) if r >= 0 \
+                    else np.uint32(0)
+
+
+@numba.njit(inline='always', nogil=True)
 def _in_range(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
     """The rows of ``points`` (and of ``times`` when it has one per point) in range."""
     n, c = points.shape
@@ -873,5 +920,11 @@ def warm_up() -> None:
     greedy_bev_nms(np.ones((1, 7), np.float32), np.zeros(1, np.int64), np.float32(0.5), 0.0)
     suppress_near_kernel(np.zeros((1, 2)), np.zeros(1, np.int64), np.ones(1, np.bool_),
                          np.ones(1))
+    cells1 = np.zeros((1, 3), np.int64)
+    for where in (np.zeros(0, np.int64), np.zeros(1, np.int64)):
+        gather_taps(np.zeros((1, 2), np.float32), cells1, 1, 1, where,
+                    np.zeros((1, 18), np.float32))
+        gather_taps_bf16(np.zeros((1, 2), np.uint16), cells1, 1, 1, where,
+                         np.zeros((1, 18), np.uint32))
     one = np.ones(1)
     rays_through(model_input, np.zeros(3), np.ones((1, 2)), one, one, one, one)
