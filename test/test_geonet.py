@@ -20,6 +20,33 @@ def test_geonet_target_bins():
     assert logits.shape == (5, 49)
 
 
+@pytest.mark.parametrize('velocity_input', [False, True])
+def test_geonet_as_products_gives_the_convolutions_logits(velocity_input):
+    """An inference copy's GeoNet runs its three convolutions over the window x window patch
+    as three matrix products (composed once from the convolutions): the same logits up to
+    float rounding, for no sample, one and many; another patch size still takes the
+    convolutions."""
+    torch.manual_seed(1)
+    g = GeoNet(6, 3, bins=7, channels=8, velocity_step=5.0, velocity_input=velocity_input).eval()
+    with torch.no_grad():
+        for p in g.parameters():
+            p.normal_(0, 0.3)
+    import copy
+    fast = copy.deepcopy(g)
+    assert fast.as_products() == 3
+    with torch.no_grad():
+        for m in (0, 1, 40):
+            patches, v = torch.randn(m, 6, 3, 3), torch.randn(m, 2) * 8
+            want = g(patches, v if velocity_input else None)
+            got = fast(patches, v if velocity_input else None)
+            assert got.shape == want.shape == (m, 49)
+            torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+        big = torch.randn(2, 6, 5, 5)
+        v2 = torch.randn(2, 2)
+        torch.testing.assert_close(fast(big, v2 if velocity_input else None),
+                                   g(big, v2 if velocity_input else None))
+
+
 @pytest.mark.slow
 def test_geonet_learns_bins_from_the_head_velocity():
     """With velocity_input the displacement bin is learnable from the velocity alone."""

@@ -510,17 +510,11 @@ def unflatten_cells(flat: Tensor, H: int, W: int) -> Tensor:
 def dilated_cells(flat: Tensor, H: int, W: int, r: int) -> Tensor:
     """The sorted flat cells within ``r`` cells (a square) of the flat cells ``flat`` (repeats
     allowed), on a ``(B, H, W)`` map: what a ``2 r + 1`` max pool of their map marks, found
-    without forming the map (a few hundred cells of 16k)."""
-    flat = torch.unique(flat)
-    if len(flat) == 0:
-        return flat
-    d = torch.arange(-r, r + 1, device=flat.device)
-    b, y, x = unflatten_cells(flat, H, W).unbind(1)
-    ys = y[:, None] + d.repeat_interleave(2 * r + 1)
-    xs = x[:, None] + d.repeat(2 * r + 1)
-    inside = (ys >= 0) & (ys < H) & (xs >= 0) & (xs < W)
-    out: Tensor = torch.unique(((b[:, None] * H + ys) * W + xs)[inside])
-    return out
+    without forming the map (a few hundred cells of 16k), in one compiled pass
+    (:func:`suit_ros.ops.kernels.dilate_flat_cells`)."""
+    from suit_ros.ops.kernels import dilate_flat_cells
+    out = dilate_flat_cells(flat.detach().cpu().to(torch.int64).contiguous().numpy(), H, W, r)
+    return torch.from_numpy(out).to(flat.device)
 
 
 # ``('taps' | 'linear', weight (out, in), bias or None)``, ``('norm', (mean, scale), bias)``,

@@ -18,6 +18,13 @@ pillar features, the memory's features (gathered as float32), the past term and 
 head's final 1x1 projections and the decoding stay float32, so box parameters and scores come
 from float32 maps and the memory holds float32 features.
 :func:`resolve_precision` picks bfloat16 for ``auto`` only where the CPU has those units.
+
+The layers that run as gathered products at a few hundred cells (the heads' layers where a
+carry head or the regression is read, a fold's conv, the fusion's W1 at the memory's cells)
+keep their weights as those products take them (:func:`keep_gathered_weights`), and GeoNet's
+convolutions over a memory sample's patch become three matrix products
+(:meth:`~suit_ros.model.geonet.GeoNet.as_products`): on a few dozen rows the framework's
+per-operation cost, not arithmetic, was the time.
 """
 from __future__ import annotations
 

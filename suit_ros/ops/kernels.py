@@ -23,8 +23,13 @@ them bit for bit), so outputs do not change:
 - :func:`distinct_values`: the distinct time lags of a model input;
 - :func:`azimuth_counts`: a cloud's returns per azimuth bin (the node's sector-gap check,
   :mod:`suit_ros.coverage`; float64 angles, tested against numpy's in float64);
-- :func:`paired_bev_iou`: rotated BEV IoU of box pairs (the NMS of the head and of the
-  significance sampling), a loop per pair instead of some 60 tensor operations;
+- :func:`paired_bev_iou`: rotated BEV IoU of box pairs, a loop per pair instead of some 60
+  tensor operations, and :func:`greedy_bev_nms`: the greedy rotated-IoU NMS of the head and
+  of the significance sampling in one pass, the IoU computed only for the pairs it reads;
+  :func:`suppress_near_kernel`: the carried boxes dropped near surer ones;
+- :func:`gather_taps` (and :func:`gather_taps_bf16`): the 3 x 3 neighbourhoods of a few
+  hundred cells of a BEV map, where the heads run as gathered products (float32 out, a
+  bfloat16 map's values exactly), and :func:`dilate_flat_cells`: the cells around them;
 - :func:`height_histograms` and :func:`level_heights`: the local ground under a model input
   and the input leveled to it (:mod:`suit_ros.ground`, ``ground: local``; new computations,
   tested against numpy);
@@ -523,6 +528,30 @@ def gather_taps_bf16(rows: Any, cells: Any, H: int, W: int, where: Any,
                     else np.uint32(0)
 
 
+@_jit
+def dilate_flat_cells(flat: Any, H: int, W: int, r: int) -> Any:  # pragma: no cover
+    """The sorted flat cells ``(b * H + y) * W + x`` within ``r`` cells (a square) of the
+    cells ``flat`` (``(N,)`` int64, repeats allowed) on their ``(B, H, W)`` map (B: the last
+    frame they name), marked on a scratch map and read back in order."""
+    if len(flat) == 0:
+        return np.zeros(0, np.int64)
+    HW = H * W
+    top = 0
+    for f in flat:
+        if f < 0:
+            raise IndexError('dilate_flat_cells: a negative cell')
+        top = max(top, f)
+    mark = np.zeros((top // HW + 1) * HW, np.bool_)
+    for f in flat:
+        b = f // HW
+        y = f // W % H
+        x = f % W
+        for yy in range(max(y - r, 0), min(y + r + 1, H)):
+            for xx in range(max(x - r, 0), min(x + r + 1, W)):
+                mark[(b * H + yy) * W + xx] = True
+    return np.nonzero(mark)[0].astype(np.int64)
+
+
 @numba.njit(inline='always', nogil=True)
 def _in_range(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
     """The rows of ``points`` (and of ``times`` when it has one per point) in range."""
@@ -921,6 +950,7 @@ def warm_up() -> None:
     suppress_near_kernel(np.zeros((1, 2)), np.zeros(1, np.int64), np.ones(1, np.bool_),
                          np.ones(1))
     cells1 = np.zeros((1, 3), np.int64)
+    dilate_flat_cells(np.zeros(1, np.int64), 2, 2, 1)
     for where in (np.zeros(0, np.int64), np.zeros(1, np.int64)):
         gather_taps(np.zeros((1, 2), np.float32), cells1, 1, 1, where,
                     np.zeros((1, 18), np.float32))

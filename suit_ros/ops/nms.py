@@ -3,7 +3,9 @@
 Both are greedy in descending score order, like their CUDA counterparts, but vectorised: the
 pairwise suppression matrix is computed once (rotated IoU only for the pairs the greedy pass
 reads: a later box of the same class whose circumscribed circle meets), then a short loop over
-the kept boxes resolves it (N is at most a few hundred after top-K).
+the kept boxes resolves it (N is at most a few hundred after top-K). Float32 boxes on the CPU
+(inference) take a compiled pass instead (:func:`compiled_rotated_nms`): the same boxes kept,
+in one call instead of a few dozen tensor operations.
 """
 from __future__ import annotations
 
