@@ -271,6 +271,14 @@ def test_a_fold_equals_the_formed_map_over_a_batch_at_the_edges():
                                    rtol=1e-5)
         rows = formed.permute(0, 2, 3, 1).reshape(-1, C)
         assert _neighbourhoods(rows, cells, H, W).shape == (B * H * W, 9 * C)
+        # no past term: the edge correction alone
+        bare = FoldedFused(current, None, fusion)
+        torch.testing.assert_close(fold.at(bare, cells[::5]), shared(bare.dense()).permute(
+            0, 2, 3, 1).reshape(-1, hc)[::5], atol=1e-5, rtol=1e-5)
+    # with autograd the tensor path (not the compiled pass) gives the same rows
+    graph = FoldedFused(current.clone().requires_grad_(), past, fusion)
+    torch.testing.assert_close(fold.at(graph, cells).detach(),
+                               want.permute(0, 2, 3, 1).reshape(-1, hc), atol=1e-5, rtol=1e-5)
 
 
 def test_no_fold_where_it_saves_nothing_or_cannot_hold():

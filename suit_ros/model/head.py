@@ -148,7 +148,21 @@ class HeadFold(nn.Module):
         v = patches @ weight.t()
         v = v + bias
         flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
-        return torch.relu(v + self._terms(fused.past, B).at(flat).to(exact))
+        past = fused.past
+        if v.device.type == 'cpu' and v.dtype == torch.float32 and not v.requires_grad:
+            # K past and the edge correction added at the cells in one compiled pass
+            from suit_ros.ops.kernels import add_tap_spread
+            lookup = np.full(B * H * W, -1, np.int64)
+            lookup[flat.numpy()] = np.arange(len(flat))
+            spread = (past.values.float() @ self.past_weight if past is not None
+                      else v.new_zeros(0, 9 * self.hc))
+            index = past.index if past is not None else flat[:0]
+            v = v.contiguous()
+            add_tap_spread(v.numpy(), spread.view(-1, 9, self.hc).numpy(),
+                           index.contiguous().numpy(), self.edge_index.numpy(),
+                           self.edge_values.float().contiguous().numpy(), lookup, H, W)
+            return torch.relu_(v)
+        return torch.relu(v + self._terms(past, B).at(flat).to(exact))
 
 
 class CenterHead(nn.Module):

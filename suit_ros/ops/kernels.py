@@ -29,7 +29,8 @@ them bit for bit), so outputs do not change:
   :func:`suppress_near_kernel`: the carried boxes dropped near surer ones;
 - :func:`gather_taps` (and :func:`gather_taps_bf16`): the 3 x 3 neighbourhoods of a few
   hundred cells of a BEV map, where the heads run as gathered products (float32 out, a
-  bfloat16 map's values exactly), and :func:`dilate_flat_cells`: the cells around them;
+  bfloat16 map's values exactly), :func:`dilate_flat_cells`: the cells around them, and
+  :func:`add_tap_spread`: a sparse past term through a 3 x 3 layer at those cells;
 - :func:`height_histograms` and :func:`level_heights`: the local ground under a model input
   and the input leveled to it (:mod:`suit_ros.ground`, ``ground: local``; new computations,
   tested against numpy);
@@ -552,6 +553,42 @@ def dilate_flat_cells(flat: Any, H: int, W: int, r: int) -> Any:  # pragma: no c
     return np.nonzero(mark)[0].astype(np.int64)
 
 
+@_jit
+def add_tap_spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any,
+                   lookup: Any, H: int, W: int) -> None:  # pragma: no cover
+    """Add to ``out`` ``(M, hc)`` float32 rows of a 3 x 3 layer's pre-activation, at the cells
+    ``lookup`` maps to them (``(B * H * W,)``: a cell's row of ``out``, -1 for none), what a
+    sparse input term gives there: each input row ``r`` at flat cell ``index[r]`` feeds, by
+    its tap ``t`` (row-major, ``spread`` ``(R, 9, hc)``: the taps' products with it), the
+    output cell ``(y - (t // 3 - 1), x - (t % 3 - 1))``; and the edge correction
+    ``edge_values`` ``(E, hc)`` at the cells ``edge_index`` of every frame
+    (:meth:`suit_ros.model.head.HeadFold.at`)."""
+    HW = H * W
+    n = len(lookup)
+    for r in range(len(index)):
+        f = index[r]
+        if f < 0 or f >= n:
+            raise IndexError('add_tap_spread: an input row lies off the map')
+        b = f // HW
+        y = f // W % H
+        x = f % W
+        for t in range(9):
+            ty = y - (t // 3 - 1)
+            tx = x - (t % 3 - 1)
+            if ty < 0 or ty >= H or tx < 0 or tx >= W:
+                continue
+            row = lookup[(b * H + ty) * W + tx]
+            if row >= 0:
+                for c in range(out.shape[1]):
+                    out[row, c] += spread[r, t, c]
+    for b in range(n // HW):
+        for e in range(len(edge_index)):
+            row = lookup[b * HW + edge_index[e]]
+            if row >= 0:
+                for c in range(out.shape[1]):
+                    out[row, c] += edge_values[e, c]
+
+
 @numba.njit(inline='always', nogil=True)
 def _in_range(points: Any, times: Any, r_min: Any, r_max: Any) -> Any:  # pragma: no cover
     """The rows of ``points`` (and of ``times`` when it has one per point) in range."""
@@ -951,6 +988,9 @@ def warm_up() -> None:
                          np.ones(1))
     cells1 = np.zeros((1, 3), np.int64)
     dilate_flat_cells(np.zeros(1, np.int64), 2, 2, 1)
+    add_tap_spread(np.zeros((1, 2), np.float32), np.zeros((1, 9, 2), np.float32),
+                   np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 2), np.float32),
+                   np.zeros(1, np.int64), 1, 1)
     for where in (np.zeros(0, np.int64), np.zeros(1, np.int64)):
         gather_taps(np.zeros((1, 2), np.float32), cells1, 1, 1, where,
                     np.zeros((1, 18), np.float32))
