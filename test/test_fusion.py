@@ -369,3 +369,35 @@ def test_a_carry_branch_on_a_single_frame_base_decodes_its_seen_cells_as_the_bas
             torch.testing.assert_close(gp[key][0, :, seen], sp[key][0, :, seen],
                                        rtol=1e-4, atol=1e-4)
         assert torch.equal(gm.features, rm.features)
+
+
+def test_the_window_and_the_triples_give_the_same_past_terms():
+    """The past term's two ways (the per-sample window of training, the weighted triples of
+    inference) give the same maps, on a batch of two with samples at the map's edge, pruned
+    bins and a projection of a subset of the samples (a carry branch's own term)."""
+    from suit_ros.model.fusion import _triple_terms, _window_terms
+    torch.manual_seed(4)
+    M, P, K, C, B = 7, 9, 5, 6, 2
+    feats = torch.randn(M, P, C)
+    positions = torch.rand(M, P, 2) * 40 - 20
+    positions[0] = torch.tensor([GRID.point_range[0] + 0.05, 0.0])          # on the map's edge
+    disp = torch.randn(M, K, 2) * 1.5
+    q = torch.softmax(torch.randn(M, K), 1)
+    q = q * (q >= 0.15)
+    probs = torch.rand(M, P)
+    mask = torch.rand(M, P) > 0.2
+    batch_index = torch.tensor([0, 1, 0, 1, 1, 0, 0])
+    own, carry = torch.nn.Linear(C, C, bias=False), torch.nn.Linear(C, C + 2, bias=False)
+    projections = [(own, torch.tensor([1, 4, 5])), (carry, None)]
+    shapes = [(B, C, GRID.H, GRID.W), (B, C + 2, GRID.H, GRID.W)]
+    cells = torch.floor(GRID.xy_to_cell(positions[:, :, None, :] + disp[:, None])).long()
+    w = (probs * mask)[:, :, None] * q[:, None, :]
+    with torch.no_grad():
+        window = _window_terms(feats, positions, batch_index, projections, GRID, shapes,
+                               cells, w)
+        triples = _triple_terms(feats, positions, batch_index, projections, GRID, shapes,
+                                cells, w)
+    for a, b in zip(window, triples):
+        torch.testing.assert_close(a.dense(), b.dense(), atol=1e-5, rtol=1e-5)
+        assert b.dense().abs().sum() > 0
+        assert len(torch.unique(b.index)) == len(b.index)      # one row per cell touched

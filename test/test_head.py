@@ -224,3 +224,40 @@ def test_compiled_neighbourhoods_equal_the_tensor_gather(dtype):
     assert torch.equal(_neighbourhoods(full, cells[:0], H, W), torch.zeros(0, 9 * C))
     with pytest.raises(IndexError, match='where map'):
         _neighbourhoods(some, torch.tensor([[2, 0, 0]]), H, W, where)
+
+
+def test_gathered_weights_kept_on_a_copy_follow_its_weights():
+    """An inference copy keeps its head layers', its fusion's and GeoNet's weights as the
+    gathered products take them; a load of other weights (or an in-place update) is seen at
+    the next call, not served from what was kept."""
+    from suit_ros.model.fusion import TemporalFusion
+    from suit_ros.model.geonet import GeoNet
+    from suit_ros.model.head import _at_cells
+    torch.manual_seed(5)
+    H, W, C = 6, 7, 4
+    stack = torch.nn.Sequential(torch.nn.Conv2d(C, 5, 3, padding=1), torch.nn.ReLU(),
+                                torch.nn.Conv2d(5, 3, 1)).eval()
+    stack.__dict__['gathered_cache'] = {}
+    rows = torch.randn(H * W, C)
+    cells = torch.tensor([[0, 0, 0], [0, 3, 4], [0, 5, 6]])
+    fusion = TemporalFusion(C)
+    fusion.__dict__['gathered_cache'] = {}
+    geo = GeoNet(C, 3, bins=3, channels=4).eval()
+    geo.as_products()
+    patches = torch.randn(2, C, 3, 3)
+    other = {k: v + 0.5 for k, v in stack.state_dict().items()}
+    with torch.no_grad():
+        before = _at_cells(stack, rows, cells, H, W)
+        assert torch.equal(before, _at_cells(stack, rows, cells, H, W))   # served as kept
+        stack.load_state_dict(other)
+        after = _at_cells(stack, rows, cells, H, W)
+        fresh = _at_cells(torch.nn.Sequential(*stack), rows, cells, H, W)  # nothing kept
+        assert not torch.allclose(before, after) and torch.equal(after, fresh)
+        w_before = fusion.current_weights(torch.float32)[0].clone()
+        fusion.current.weight.mul_(2.0)
+        torch.testing.assert_close(fusion.current_weights(torch.float32)[0], 2 * w_before)
+        kept = geo(patches)
+        geo.net[0].weight.add_(0.3)
+        moved = geo(patches)
+        assert not torch.allclose(kept, moved)
+        torch.testing.assert_close(moved, geo.net(patches).flatten(1))

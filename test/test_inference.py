@@ -271,6 +271,10 @@ def test_a_fold_equals_the_formed_map_over_a_batch_at_the_edges():
                                    rtol=1e-5)
         rows = formed.permute(0, 2, 3, 1).reshape(-1, C)
         assert _neighbourhoods(rows, cells, H, W).shape == (B * H * W, 9 * C)
+        # a cell asked twice: both rows (the compiled pass takes each cell once)
+        twice = torch.cat([cells[:4], cells[2:3]])
+        torch.testing.assert_close(fold.at(folded, twice), want.permute(0, 2, 3, 1).reshape(
+            -1, hc)[[0, 1, 2, 3, 2]], atol=1e-5, rtol=1e-5)
         # no past term: the edge correction alone
         bare = FoldedFused(current, None, fusion)
         torch.testing.assert_close(fold.at(bare, cells[::5]), shared(bare.dense()).permute(

@@ -115,15 +115,16 @@ class TemporalFusion(nn.Module):
         """W1 ``(C, C_in)`` and its bias in ``dtype``, for products over a few rows; kept
         where :func:`~suit_ros.model.inference.keep_gathered_weights` set ``gathered_cache``
         (an inference copy)."""
-        cache: dict[torch.dtype, tuple[Tensor, Tensor | None]] | None = getattr(
-            self, 'gathered_cache', None)
-        if cache is not None and dtype in cache:
-            return cache[dtype]
+        cache: dict[torch.dtype, typing.Any] | None = getattr(self, 'gathered_cache', None)
+        key = weights_key(self.current, dtype) if cache is not None else None
+        if cache is not None and dtype in cache and cache[dtype][0] == key:
+            kept: tuple[Tensor, Tensor | None] = cache[dtype][1]
+            return kept
         conv = unwrap_conv(self.current)
         kept = (conv.weight[:, :, 0, 0].to(dtype),
                 None if conv.bias is None else conv.bias.to(dtype))
         if cache is not None:
-            cache[dtype] = kept
+            cache[dtype] = (key, kept)
         return kept
 
     def _current(self, current: Tensor) -> Tensor:
@@ -199,6 +200,15 @@ class FoldedFused:
         return out
 
 
+def weights_key(module: nn.Module, dtype: torch.dtype) -> tuple[typing.Any, ...]:
+    """What a module's weights converted for gathered products depend on: the target dtype,
+    inference mode (whose tensors autograd refuses), and each parameter's and buffer's
+    device, storage and in-place version (a load, a move or an update makes them stale)."""
+    return (dtype, torch.is_inference_mode_enabled()) + tuple(
+        (t.device, t.data_ptr(), t._version)
+        for t in (*module.parameters(), *module.buffers()))
+
+
 def gathered_dtype(dtype: torch.dtype) -> torch.dtype:
     """What a gathered product over a few hundred rows computes in: float32 for a low-precision
     map (bfloat16 saves nothing on so few rows and its conversions cost), else the map's own."""
@@ -234,9 +244,8 @@ def sparse_past_term(features: Tensor, probs: Tensor, mask: Tensor, positions: T
     map (:class:`PastTerm`; ``.dense()`` for the map).
 
     Every (sample, cell, bin) triple adds ``p * q * W2 f`` at the current-grid cell that
-    contains ``position + displacement``. Only the triples of non-zero weight that land on the
-    map are formed (with pruned bins, a few per sample cell): their projected features, times
-    their weights, summed per destination cell, are the term's rows, one per cell it touches.
+    contains ``position + displacement``; only the cells that receive a weight become the
+    term's rows (:func:`sparse_past_terms`).
 
     :param features: ``(M, P, C)`` memory features; ``probs``/``mask``: ``(M, P)``.
     :param positions: ``(M, P, 2)`` cell positions already moved into the current frame.
@@ -254,8 +263,15 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
                       projections: Sequence[tuple[nn.Linear, Tensor | None]], grid: BEVGrid,
                       batch_size: int, prune: float = 0.0) -> list[PastTerm]:
     """:func:`sparse_past_term` for several projections, each of the samples it names (an
-    index into the ``M`` samples, or None for all), with the triples' cells and weights
-    found once (a carry branch's own and carry terms)."""
+    index into the ``M`` samples, or None for all), with the samples' destinations and weights
+    found once (a carry branch's own and carry terms).
+
+    Two ways to the same sums, by cost: with every bin weighted (``prune`` 0, training) each
+    sample's weights are accumulated over a local ``D x D`` window of destinations first and
+    multiplied with its ``(P, C)`` projected features (:func:`_window_terms`: ``D^2`` rows a
+    sample where the triples are ``P K``); with pruned bins (inference: a few per sample cell)
+    only the triples of non-zero weight are formed (:func:`_triple_terms`: no window, no
+    host sync for its size). The rows differ only in summation order (tested)."""
     M, P, C = features.shape
     H, W = grid.H, grid.W
     shapes = [(batch_size, proj.out_features, H, W) for proj, _ in projections]
@@ -266,8 +282,60 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
         q = q * (q >= prune)
     cells = torch.floor(grid.xy_to_cell(positions[:, :, None, :]
                                         + displacements[:, None, :, :])).long()   # (M, P, K, 2)
-    col, row = cells[..., 0], cells[..., 1]
     w = (probs * mask.to(probs.dtype))[:, :, None] * q[:, None, :]             # (M, P, K)
+    way = _triple_terms if prune > 0 else _window_terms
+    return way(features, positions, batch_index, projections, grid, shapes, cells, w)
+
+
+def _window_terms(features: Tensor, positions: Tensor, batch_index: Tensor,
+                  projections: Sequence[tuple[nn.Linear, Tensor | None]], grid: BEVGrid,
+                  shapes: list[tuple[int, int, int, int]], cells: Tensor, w: Tensor
+                  ) -> list[PastTerm]:
+    """:func:`sparse_past_terms` per sample as a small matrix product: the weights of its
+    ``P`` source cells over a local ``D x D`` window of destination cells (``D`` covers the
+    largest displacement) accumulated first, then multiplied with the ``(P, C)`` features;
+    only the window cells that receive a weight become rows (repeats across samples)."""
+    M, P, _ = features.shape
+    H, W = grid.H, grid.W
+    centre = torch.floor(grid.xy_to_cell(positions[:, P // 2])).long()[:, None, :]   # (M, 1, 2)
+    reach = int((cells - centre[:, None]).abs().amax().item())
+    D = 2 * reach + 1
+    local = cells - centre[:, None] + reach                                    # in [0, D)
+    dest = local[..., 1] * D + local[..., 0]                                   # (M, P, K)
+    Wm = w.new_zeros(M, D * D, P)
+    src = torch.arange(P, device=w.device)[None, :, None].expand_as(dest)
+    flat_idx = (dest * P + src).reshape(M, -1)
+    Wm.view(M, -1).scatter_add_(1, flat_idx, w.reshape(M, -1))
+    offs = torch.arange(D, device=w.device) - reach
+    dr, dc = torch.meshgrid(offs, offs, indexing='ij')
+    col = centre[:, 0, 0, None] + dc.reshape(1, -1)                            # (M, D*D)
+    row = centre[:, 0, 1, None] + dr.reshape(1, -1)
+    # only the window cells that receive a weight: the window spans the largest displacement
+    # of any sample (bins pruned or not), and most of its cells add exactly zero
+    ok = (col >= 0) & (col < W) & (row >= 0) & (row < H) & (Wm.amax(dim=2) > 0)
+    flat = (batch_index[:, None] * H + row) * W + col
+    terms = []
+    for (projection, subset), shape in zip(projections, shapes):
+        if subset is None:
+            out_local = torch.bmm(Wm, projection(features))                    # (M, D*D, C)
+            terms.append(PastTerm(flat[ok], out_local[ok], shape))
+        else:
+            out_local = torch.bmm(Wm[subset], projection(features[subset]))
+            keep = ok[subset]
+            terms.append(PastTerm(flat[subset][keep], out_local[keep], shape))
+    return terms
+
+
+def _triple_terms(features: Tensor, positions: Tensor, batch_index: Tensor,
+                  projections: Sequence[tuple[nn.Linear, Tensor | None]], grid: BEVGrid,
+                  shapes: list[tuple[int, int, int, int]], cells: Tensor, w: Tensor
+                  ) -> list[PastTerm]:
+    """:func:`sparse_past_terms` from the (sample, cell, bin) triples of non-zero weight that
+    land on the map: their projected features times their weights, summed per destination
+    cell (one row per cell the term touches)."""
+    M = features.shape[0]
+    H, W = grid.H, grid.W
+    col, row = cells[..., 0], cells[..., 1]
     m, p, k = torch.nonzero((w > 0) & (col >= 0) & (col < W) & (row >= 0) & (row < H),
                             as_tuple=True)
     flat = (batch_index[m] * H + row[m, p, k]) * W + col[m, p, k]

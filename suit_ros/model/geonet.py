@@ -12,6 +12,8 @@ patch as two constant channels, so GeoNet can weigh the head's estimate against 
 """
 from __future__ import annotations
 
+import typing
+
 import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
@@ -27,6 +29,7 @@ class GeoNet(nn.Module):
         self.bins = bins
         # set on an inference copy (:meth:`as_products`): the layers as matrices over the patch
         self.products = 0
+        self.product_key: tuple[typing.Any, ...] = ()
         self.velocity_step = velocity_step
         self.velocity_input = velocity_input
         self.net = nn.Sequential(
@@ -53,7 +56,8 @@ class GeoNet(nn.Module):
             M, _, H, W = patches.shape
             v = (velocities / self.velocity_step)[:, :, None, None].expand(M, 2, H, W)
             patches = torch.cat([patches, v.to(patches)], dim=1)
-        if self.products and patches.shape[-2:] == (self.window, self.window):
+        if (self.products and patches.shape[-2:] == (self.window, self.window)
+                and self.product_key == self._weights_key()):
             M, C, Hs, Ws = patches.shape
             h = patches.reshape(M, C * Hs * Ws)
             for k in range(self.products):
@@ -72,8 +76,12 @@ class GeoNet(nn.Module):
         convolutions cost the framework far more than their arithmetic; the products give the
         same logits up to float rounding. Returns the number of layers."""
         convs = [m for m in self.net if isinstance(m, nn.Conv2d)]
-        if (len(convs) + sum(isinstance(m, nn.ReLU) for m in self.net) != len(self.net)
-                or sum(isinstance(m, nn.ReLU) for m in self.net) != len(convs) - 1):
+        # conv, ReLU, conv, ..., conv: plain zero-padded convolutions with a ReLU between
+        if not (len(self.net) == 2 * len(convs) - 1
+                and all(isinstance(m, nn.Conv2d) and m.padding_mode == 'zeros'
+                        for m in list(self.net)[::2])
+                and all(isinstance(m, nn.ReLU) for m in list(self.net)[1::2])):
+            self.products = 0
             return 0
         first = convs[0]
         shape = (first.in_channels, self.window, self.window)
@@ -91,7 +99,13 @@ class GeoNet(nn.Module):
                     out.shape[1:]).reshape(-1).contiguous(), persistent=False)
                 shape = (out.shape[1], out.shape[2], out.shape[3])
         self.products = len(convs)
+        self.product_key = self._weights_key()
         return self.products
+
+    def _weights_key(self) -> tuple[typing.Any, ...]:
+        """The convolutions' weights as they are (:meth:`as_products` composed them from
+        these: a load or an update since, and the convolutions run instead)."""
+        return tuple((t.device, t.data_ptr(), t._version) for t in self.net.parameters())
 
     def target_bins(self, velocities: Tensor) -> Tensor:
         """Bin index ``(M,)`` of velocities ``(M, 2)`` (nearest bin, clipped to the window)."""

@@ -13,7 +13,7 @@ import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
 
-from suit_ros.model.fusion import FoldedFused, PastTerm, gathered_dtype
+from suit_ros.model.fusion import FoldedFused, PastTerm, gathered_dtype, weights_key
 from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.nms import batched_nms
 
@@ -149,19 +149,25 @@ class HeadFold(nn.Module):
         v = v + bias
         flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
         past = fused.past
-        if v.device.type == 'cpu' and v.dtype == torch.float32 and not v.requires_grad:
-            # K past and the edge correction added at the cells in one compiled pass
+        if (H, W) != (self.H, self.W):
+            raise ValueError(f'a fold made for a {self.H} x {self.W} map read at cells of a '
+                             f'{H} x {W} one')
+        if v.device.type == 'cpu' and v.dtype == torch.float32 and not torch.is_grad_enabled():
+            # K past and the edge correction added at the cells in one compiled pass (each
+            # cell one row of the lookup: repeated cells take the tensor path)
             from suit_ros.ops.kernels import add_tap_spread
+            at = flat.numpy()
             lookup = np.full(B * H * W, -1, np.int64)
-            lookup[flat.numpy()] = np.arange(len(flat))
-            spread = (past.values.float() @ self.past_weight if past is not None
-                      else v.new_zeros(0, 9 * self.hc))
-            index = past.index if past is not None else flat[:0]
-            v = v.contiguous()
-            add_tap_spread(v.numpy(), spread.view(-1, 9, self.hc).numpy(),
-                           index.contiguous().numpy(), self.edge_index.numpy(),
-                           self.edge_values.float().contiguous().numpy(), lookup, H, W)
-            return torch.relu_(v)
+            lookup[at] = np.arange(len(at))
+            if (lookup[at] == np.arange(len(at))).all():
+                spread = (past.values.float() @ self.past_weight if past is not None
+                          else v.new_zeros(0, 9 * self.hc))
+                index = past.index if past is not None else flat[:0]
+                v = v.contiguous()
+                add_tap_spread(v.numpy(), spread.view(-1, 9, self.hc).numpy(),
+                               index.contiguous().numpy(), self.edge_index.numpy(),
+                               self.edge_values.float().contiguous().numpy(), lookup, H, W)
+                return torch.relu_(v)
         return torch.relu(v + self._terms(past, B).at(flat).to(exact))
 
 
@@ -580,13 +586,15 @@ def gathered_ops(layers: nn.Module, exact: torch.dtype) -> list[GatheredOp]:
 
 
 def _cached_ops(layers: nn.Module, exact: torch.dtype) -> list[GatheredOp]:
-    """:func:`gathered_ops`, kept on an inference copy's stack (its weights never change)."""
+    """:func:`gathered_ops`, kept on an inference copy's stack while its weights stay as
+    they were (:func:`~suit_ros.model.fusion.weights_key`)."""
     cache = getattr(layers, 'gathered_cache', None)
     if cache is None:
         return gathered_ops(layers, exact)
-    if exact not in cache:
-        cache[exact] = gathered_ops(layers, exact)
-    ops: list[GatheredOp] = cache[exact]
+    key = weights_key(layers, exact)
+    if exact not in cache or cache[exact][0] != key:
+        cache[exact] = (key, gathered_ops(layers, exact))
+    ops: list[GatheredOp] = cache[exact][1]
     return ops
 
 

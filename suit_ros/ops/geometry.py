@@ -6,7 +6,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from suit_ros.ops.kernels import as_float, count_in_box_cells
+from suit_ros.ops.kernels import as_float, count_in_box_cells, rectangle_cells
 
 
 def se3_inverse(T: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -120,27 +120,28 @@ class CellIndex:
         hi_c = np.floor(np.asarray(hi, np.float64).reshape(-1, 2) / cell).astype(np.int64)
         self.points = as_float(xy)
         self.cell = cell
-        self.cells: list[NDArray[np.int64]] = []
+        self.rectangles = len(lo_c)
+        # each rectangle's cells (flat, row-major) and its index, rectangle by rectangle
+        self.flat = np.zeros(0, np.int64)
+        self.owner = np.zeros(0, np.int64)
         self.origin = np.zeros(2, np.int64)
         self.shape = np.zeros(2, np.int64)
         if len(lo_c) == 0 or len(self.points) == 0:
-            self.cells = [np.zeros(0, np.int64)] * len(lo_c)
             return
         origin = lo_c.min(0)
         shape = hi_c.max(0) - origin + 1
-        margin = cell * np.sqrt(0.5)
-        for k, (a, b) in enumerate(zip(lo_c - origin, hi_c - origin)):
-            rows, cols = np.arange(a[0], b[0] + 1), np.arange(a[1], b[1] + 1)
-            flat = (rows[:, None] * shape[1] + cols[None, :]).ravel()
-            if oriented is not None:
-                cx, cy, hl, hw, yaw = (float(v) for v in oriented[k])
-                dx = np.repeat((rows + origin[0] + 0.5) * cell - cx, len(cols))
-                dy = np.tile((cols + origin[1] + 0.5) * cell - cy, len(rows))
-                c, s = np.cos(yaw), np.sin(yaw)
-                flat = flat[(np.abs(dx * c + dy * s) <= hl + margin)
-                            & (np.abs(-dx * s + dy * c) <= hw + margin)]
-            self.cells.append(flat)
+        band = (np.zeros((0, 5)) if oriented is None
+                else np.ascontiguousarray(oriented, np.float64).reshape(-1, 5))
+        self.flat, self.owner = rectangle_cells(lo_c - origin, hi_c - origin, int(shape[1]),
+                                                origin, float(cell), band,
+                                                float(cell * np.sqrt(0.5)))
         self.origin, self.shape = origin, shape
+
+    @property
+    def cells(self) -> list[NDArray[np.int64]]:
+        """Each rectangle's cells (flat, row-major)."""
+        counts = np.bincount(self.owner, minlength=self.rectangles)
+        return np.split(self.flat, np.cumsum(counts)[:-1]) if self.rectangles else []
 
     @property
     def inv_cell(self) -> np.floating[Any]:
@@ -150,10 +151,10 @@ class CellIndex:
     def points_near(self) -> NDArray[np.bool_]:
         """Which points lie in a cell that some rectangle touches."""
         near = np.zeros(len(self.points), bool)
-        if not any(len(c) for c in self.cells):
+        if not len(self.flat):
             return near
         touched = np.zeros(int(self.shape[0]) * int(self.shape[1]), bool)
-        touched[np.concatenate(self.cells)] = True
+        touched[self.flat] = True
         f = self.points[:, :2] * self.inv_cell         # as the kernels scale them
         rows = np.nonzero(np.isfinite(f).all(1))[0]
         ij = np.floor(f[rows]).astype(np.int64) - self.origin
@@ -165,11 +166,9 @@ class CellIndex:
         """For each cell of the grid (row-major), the rectangles that touch it: ``boxes[
         start[k]:start[k + 1]]`` with ``start`` ``(cells + 1,)``."""
         n_cells = int(self.shape[0]) * int(self.shape[1])
-        sizes = [len(c) for c in self.cells]
-        if not sum(sizes):
+        if not len(self.flat):
             return np.zeros(n_cells + 1, np.int64), np.zeros(0, np.int64)
-        flat = np.concatenate(self.cells)
-        owner = np.repeat(np.arange(len(self.cells), dtype=np.int64), sizes)
+        flat, owner = self.flat, self.owner
         order = np.argsort(flat, kind='stable')
         start = np.zeros(n_cells + 1, np.int64)
         np.cumsum(np.bincount(flat, minlength=n_cells), out=start[1:])

@@ -1,11 +1,16 @@
-"""Compiled per-point loops (numba): the work that grows with the points of a sweep.
+"""Compiled loops (numba): the work that grows with the points of a sweep, and small work.
 
 A 64-beam sensor puts about 115k points in a sweep and the model reads three sweeps, so every
 pass over the model input touches 340k points. In numpy or torch each step of such a pass
 (a mask, a gather, a product, a scatter) writes a temporary of the whole cloud; here one loop
-does the step's work without them. Each kernel computes what the array code it replaced
+does the step's work without them. The same goes for the small work of a step that the
+memory and the heads do at a few hundred cells or boxes, where each tensor operation's fixed
+cost, not its arithmetic, was the time. Each kernel computes what the array code it replaced
 computed, in the same floating-point operations and order (test/test_kernels.py compares
-them bit for bit), so outputs do not change:
+them bit for bit), except where a kernel says otherwise (:func:`add_tap_spread` sums in
+another order; :func:`greedy_bev_nms` and :func:`suppress_near_kernel` measure centre
+distances in float64, where the tensor code's ``cdist`` could round a distance at its
+threshold the other way):
 
 - :func:`in_range`: the node's range filter of an incoming cloud;
 - :func:`deskew_points`: a sweep's returns moved to where the sensor was at its stamp
@@ -491,6 +496,8 @@ def _tap_row(cells: Any, m: int, t: int, H: int, W: int, where: Any,
     if y < 0 or y >= H or x < 0 or x >= W:
         return -1
     r = (cells[m, 0] * H + y) * W + x
+    if r < 0:
+        raise IndexError('gather_taps: a cell of a negative frame')
     if len(where):
         if r >= len(where):
             raise IndexError('gather_taps: a cell lies outside the where map')
@@ -587,6 +594,43 @@ def add_tap_spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_valu
             if row >= 0:
                 for c in range(out.shape[1]):
                     out[row, c] += edge_values[e, c]
+
+
+@_jit
+def rectangle_cells(lo: Any, hi: Any, width: int, origin: Any, cell: float, oriented: Any,
+                    margin: float) -> Any:  # pragma: no cover
+    """The cells of a coarse grid each rectangle touches (:class:`suit_ros.ops.geometry.
+    CellIndex`): rectangle ``k`` spans the grid cells ``lo[k]`` to ``hi[k]`` (``(M, 2)``
+    int64, from the grid's ``origin``), row-major flat ``row * width + col``; with
+    ``oriented`` ``(M, 5)`` float64 (centre x, y, half length, half width, yaw; empty: none)
+    only those whose centre lies within ``margin`` of the rotated rectangle. Returns the flat
+    cells and their rectangle's index, rectangle by rectangle, rows then columns."""
+    M = lo.shape[0]
+    total = 0
+    for k in range(M):
+        total += (hi[k, 0] - lo[k, 0] + 1) * (hi[k, 1] - lo[k, 1] + 1)
+    flat = np.empty(total, np.int64)
+    owner = np.empty(total, np.int64)
+    n = 0
+    for k in range(M):
+        if len(oriented):
+            cx = oriented[k, 0]
+            cy = oriented[k, 1]
+            hl = oriented[k, 2] + margin
+            hw = oriented[k, 3] + margin
+            c = np.cos(oriented[k, 4])
+            s = np.sin(oriented[k, 4])
+        for row in range(lo[k, 0], hi[k, 0] + 1):
+            for col in range(lo[k, 1], hi[k, 1] + 1):
+                if len(oriented):
+                    dx = (row + origin[0] + 0.5) * cell - cx
+                    dy = (col + origin[1] + 0.5) * cell - cy
+                    if abs(dx * c + dy * s) > hl or abs(-dx * s + dy * c) > hw:
+                        continue
+                flat[n] = row * width + col
+                owner[n] = k
+                n += 1
+    return flat[:n], owner[:n]
 
 
 @numba.njit(inline='always', nogil=True)
@@ -988,6 +1032,9 @@ def warm_up() -> None:
                          np.ones(1))
     cells1 = np.zeros((1, 3), np.int64)
     dilate_flat_cells(np.zeros(1, np.int64), 2, 2, 1)
+    for band in (np.zeros((0, 5)), np.ones((1, 5))):
+        rectangle_cells(np.zeros((1, 2), np.int64), np.ones((1, 2), np.int64), 2,
+                        np.zeros(2, np.int64), 2.0, band, 1.0)
     add_tap_spread(np.zeros((1, 2), np.float32), np.zeros((1, 9, 2), np.float32),
                    np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 2), np.float32),
                    np.zeros(1, np.int64), 1, 1)

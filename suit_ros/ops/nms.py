@@ -4,8 +4,10 @@ Both are greedy in descending score order, like their CUDA counterparts, but vec
 pairwise suppression matrix is computed once (rotated IoU only for the pairs the greedy pass
 reads: a later box of the same class whose circumscribed circle meets), then a short loop over
 the kept boxes resolves it (N is at most a few hundred after top-K). Float32 boxes on the CPU
-(inference) take a compiled pass instead (:func:`compiled_rotated_nms`): the same boxes kept,
-in one call instead of a few dozen tensor operations.
+(inference, and training on the CPU) take a compiled pass instead
+(:func:`compiled_rotated_nms`): the same boxes kept (centre distances in float64, where the
+tensor path's float32 ``cdist`` could round one at its threshold the other way), in one call
+instead of a few dozen tensor operations.
 """
 from __future__ import annotations
 
