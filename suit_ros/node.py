@@ -37,7 +37,12 @@ from suit_ros.errors import ConfigError, SuitRosError
 from suit_ros.health import Reasons, health_report
 from suit_ros.params import DetectorParams, parameter_descriptions
 from suit_ros.points_subscription import PointsSubscription
-from suit_ros.ros_params import declare_detector_parameters, ignored_overrides, torch_threads
+from suit_ros.ros_params import (
+    declare_detector_parameters,
+    ignored_overrides,
+    limit_threads,
+    torch_threads,
+)
 from suit_ros.worker import FrameWorker, Received, stamp_ns
 
 REASON_LOG_PERIOD_S = 30.0   # between two log lines of the same input-contract reason
@@ -100,17 +105,15 @@ class DetectorNode(Node):
                 f"the README's parameter table lists them): {self.ignored_parameters}")
 
     def _load_model(self, params: DetectorParams) -> Any:
-        import torch
-
         from suit_ros.checkpoint import resolve_checkpoint
         from suit_ros.pipeline import load_detector
-        torch.set_num_threads(torch_threads(params.threads))
+        threads = limit_threads(torch_threads(params.threads))
         runner, cfg, meta = load_detector(params)
         self.get_logger().info(
             f'loaded {resolve_checkpoint(params.checkpoint)} (temporal={cfg.temporal}'
             f', classes={list(cfg.class_names)}, code {meta.get("code_version")}) on '
-            f'{runner.device.type}, {runner.precision}, {torch.get_num_threads()} torch '
-            f'threads; suit_ros from {os.path.dirname(os.path.abspath(__file__))}')
+            f'{runner.device.type}, {runner.precision}, {threads}; suit_ros from '
+            f'{os.path.dirname(os.path.abspath(__file__))}')
         return runner
 
     # ------------------------------------------------------------------ callbacks

@@ -451,10 +451,15 @@ class DetectionPipeline:
     def _in_ego_box(self, points: NDArray[np.float32]) -> NDArray[np.bool_]:
         """Points (LiDAR frame) that fall inside the ego crop box (base_link)."""
         T = self.T_base_lidar
-        base = points[:, :3].astype(np.float64) @ T[:3, :3].T + T[:3, 3]
         lo = np.asarray(self.params.ego_box_min)
         hi = np.asarray(self.params.ego_box_max)
-        inside: NDArray[np.bool_] = ((base >= lo) & (base <= hi)).all(axis=1)
+        xyz = [points[:, k].astype(np.float64) for k in range(3)]
+        inside = np.ones(len(points), bool)
+        # each base_link axis as a sum of products, not a matrix product: numpy's BLAS would
+        # wake its threads for a 100k-point cloud, and they spin after it (a core lost)
+        for i in range(3):
+            axis = xyz[0] * T[i, 0] + xyz[1] * T[i, 1] + xyz[2] * T[i, 2] + T[i, 3]
+            inside &= (axis >= lo[i]) & (axis <= hi[i])
         return inside
 
     def _check_intensity(self, intensity: NDArray[np.float32], out: PipelineOutput) -> None:

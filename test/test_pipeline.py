@@ -799,3 +799,42 @@ def test_state_survives_what_should_not_touch_it(model, classes):
     odometry(T0 + 14 * S // 10, T0 + 21 * S // 10, 130.0)
     out = pipe.process(cloud(classes, T0 + 20 * S // 10))
     assert out.reset_reason.startswith('no cloud placed for 0.70 s'), out.reset_reason
+
+
+def test_limit_threads_bounds_torch_and_numpys_blas():
+    """The node's ``threads`` bound numpy's BLAS pool too: its idle workers spin after each
+    large product (the node at 114k points used a core more); restored after the test."""
+    import torch
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    from suit_ros.ros_params import limit_threads
+    torch_before = torch.get_num_threads()
+    blas_before = {p['filepath']: p['num_threads'] for p in threadpool_info()
+                   if p['user_api'] == 'blas'}
+    try:
+        said = limit_threads(1)
+        assert torch.get_num_threads() == 1 and 'BLAS threads 1' in said
+        blas = [p['num_threads'] for p in threadpool_info() if p['user_api'] == 'blas']
+        assert blas and all(n == 1 for n in blas)
+    finally:
+        torch.set_num_threads(torch_before)
+        for path, n in blas_before.items():
+            threadpool_limits(limits={path: n})
+
+
+def test_the_ego_crop_is_the_box_in_base_link():
+    """The crop of the vehicle's own returns tests each point in base_link (the extrinsic's
+    rotation and translation applied), inclusive at the box's faces."""
+    from suit_ros.params import DetectorParams
+    from suit_ros.pipeline import DetectionPipeline
+    p = DetectorParams(ego_box_min=(-1.0, -1.0, -1.0), ego_box_max=(2.0, 1.0, 1.0))
+    pipe = DetectionPipeline.__new__(DetectionPipeline)
+    pipe.params = p
+    T = np.eye(4)
+    T[:3, :3] = [[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]     # yaw +90 degrees
+    T[:3, 3] = [0.5, 0.0, 0.0]
+    pipe.T_base_lidar = T
+    pts = np.array([[0.0, -1.5, 0.0, 0], [0.0, -1.4, 0.0, 0], [1.0, 0.0, 0.0, 0],
+                    [0.0, 0.0, 1.0, 0], [0.0, 0.0, 1.5, 0]], np.float32)
+    # base_link x = 0.5 - y, y = x: (2.0, 0), (1.9, 0), (0.5, 1.0), (0.5, 0) z 1, z 1.5
+    assert pipe._in_ego_box(pts).tolist() == [True, True, True, True, False]
