@@ -60,8 +60,8 @@ class DetectorParams:
     device: Device = field(default='auto', metadata=_spec(
         'auto | cpu | cuda', read_only=True, choices=get_args(Device)))
     threads: int = field(default=0, metadata=_spec(
-        'torch CPU threads; 0: all cores but one, so DDS I/O keeps a core', read_only=True,
-        lo=0, hi=256))
+        'torch and BLAS CPU threads; 0: all cores but one, so DDS I/O keeps a core',
+        read_only=True, lo=0, hi=256))
     precision: PrecisionParam = field(default='auto', metadata=_spec(
         'auto | float32 | bfloat16: bfloat16 runs the backbone and head convolutions in '
         'bfloat16; auto: bfloat16 on a CPU with bfloat16 units (AMX, AVX512-BF16), else '

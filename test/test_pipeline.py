@@ -804,8 +804,8 @@ def test_state_survives_what_should_not_touch_it(model, classes):
 def test_limit_threads_bounds_torch_and_numpys_blas():
     """The node's ``threads`` bound numpy's BLAS pool too: its idle workers spin after each
     large product (the node at 114k points used a core more); restored after the test."""
-    import torch
     from threadpoolctl import threadpool_info, threadpool_limits
+    import torch
 
     from suit_ros.ros_params import limit_threads
     torch_before = torch.get_num_threads()
