@@ -328,6 +328,15 @@ def pillar_features(top: NDArray[np.float32], mean: NDArray[np.float32],
 
 
 @numba.njit(inline='always', nogil=True)
+def _iou_scratch() -> Any:  # pragma: no cover
+    """:func:`_bev_iou`'s scratch: candidate points, their angles, the two boxes' corners, and
+    the corners' signs along length and width."""
+    return (np.empty((24, 2), np.float64), np.empty(24, np.float64),
+            np.empty((2, 4, 2), np.float64), np.array([1.0, -1.0, -1.0, 1.0]),
+            np.array([1.0, 1.0, -1.0, -1.0]))
+
+
+@numba.njit(inline='always', nogil=True)
 def _bev_iou(a: Any, b: Any, pts: Any, ang: Any, corners: Any, sx: Any, sy: Any
              ) -> Any:  # pragma: no cover
     """The rotated BEV IoU of two float32 boxes (:func:`paired_bev_iou`), in the scratch
@@ -416,11 +425,7 @@ def paired_bev_iou(boxes_a: Any, boxes_b: Any) -> Any:  # pragma: no cover
     float64 geometry (the tests bound it)."""
     K = boxes_a.shape[0]
     out = np.empty(K, np.float32)
-    pts = np.empty((24, 2), np.float64)
-    ang = np.empty(24, np.float64)
-    corners = np.empty((2, 4, 2), np.float64)
-    sx = np.array([1.0, -1.0, -1.0, 1.0])
-    sy = np.array([1.0, 1.0, -1.0, -1.0])
+    pts, ang, corners, sx, sy = _iou_scratch()
     for k in range(K):
         out[k] = _bev_iou(boxes_a[k], boxes_b[k], pts, ang, corners, sx, sy)
     return out
@@ -442,11 +447,7 @@ def greedy_bev_nms(boxes: Any, group: Any, iou_threshold: Any, min_distance: flo
     r = np.empty(N, np.float64)
     for i in range(N):
         r[i] = 0.5 * math.hypot(np.float64(boxes[i, 3]), np.float64(boxes[i, 4]))
-    pts = np.empty((24, 2), np.float64)
-    ang = np.empty(24, np.float64)
-    corners = np.empty((2, 4, 2), np.float64)
-    sx = np.array([1.0, -1.0, -1.0, 1.0])
-    sy = np.array([1.0, 1.0, -1.0, -1.0])
+    pts, ang, corners, sx, sy = _iou_scratch()
     for i in range(N):
         if removed[i]:
             continue
