@@ -87,8 +87,11 @@ def limit_threads(threads: int) -> str:
     import torch
     torch.set_num_threads(threads)
     try:
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import threadpool_info, threadpool_limits
     except ImportError:         # an install without it: torch bound, BLAS as it comes
         return f'{threads} torch threads (BLAS threads not bound: no threadpoolctl)'
+    import numpy  # noqa: F401 - loaded: the limit reaches only libraries loaded already
     threadpool_limits(limits=threads, user_api='blas')   # for the process's lifetime
-    return f'{threads} torch threads, BLAS threads {threads}'
+    found = [p for p in threadpool_info() if p['user_api'] == 'blas']
+    return (f'{threads} torch threads, BLAS threads {threads}' if found
+            else f'{threads} torch threads (no BLAS library found to bound)')

@@ -804,10 +804,12 @@ def test_state_survives_what_should_not_touch_it(model, classes):
 def test_limit_threads_bounds_torch_and_numpys_blas():
     """The node's ``threads`` bound numpy's BLAS pool too: its idle workers spin after each
     large product (the node at 114k points used a core more); restored after the test."""
-    from threadpoolctl import threadpool_info, threadpool_limits
+    threadpoolctl = pytest.importorskip('threadpoolctl')
     import torch
 
     from suit_ros.ros_params import limit_threads
+    threadpool_info, threadpool_limits = threadpoolctl.threadpool_info, \
+        threadpoolctl.threadpool_limits
     torch_before = torch.get_num_threads()
     blas_before = {p['filepath']: p['num_threads'] for p in threadpool_info()
                    if p['user_api'] == 'blas'}
@@ -827,7 +829,7 @@ def test_the_ego_crop_is_the_box_in_base_link():
     rotation and translation applied), inclusive at the box's faces."""
     from suit_ros.params import DetectorParams
     from suit_ros.pipeline import DetectionPipeline
-    p = DetectorParams(ego_box_min=(-1.0, -1.0, -1.0), ego_box_max=(2.0, 1.0, 1.0))
+    p = DetectorParams(ego_box_min=(-1.0, -0.5, -1.0), ego_box_max=(2.0, 1.0, 1.0))
     pipe = DetectionPipeline.__new__(DetectionPipeline)
     pipe.params = p
     T = np.eye(4)
@@ -835,6 +837,8 @@ def test_the_ego_crop_is_the_box_in_base_link():
     T[:3, 3] = [0.5, 0.0, 0.0]
     pipe.T_base_lidar = T
     pts = np.array([[0.0, -1.5, 0.0, 0], [0.0, -1.4, 0.0, 0], [1.0, 0.0, 0.0, 0],
-                    [0.0, 0.0, 1.0, 0], [0.0, 0.0, 1.5, 0]], np.float32)
-    # base_link x = 0.5 - y, y = x: (2.0, 0), (1.9, 0), (0.5, 1.0), (0.5, 0) z 1, z 1.5
-    assert pipe._in_ego_box(pts).tolist() == [True, True, True, True, False]
+                    [0.0, 0.0, 1.0, 0], [0.0, 0.0, 1.5, 0], [0.9, 0.0, 0.0, 0],
+                    [0.0, -1.7, 0.0, 0]], np.float32)
+    # base_link x = 0.5 - y, y = x: (2.0, 0), (1.9, 0), (0.5, 1.0), (0.5, 0) z 1, z 1.5,
+    # (0.5, 0.9) (the rotation transposed: y -0.9, out), (2.2, 0) (no translation: 1.7, in)
+    assert pipe._in_ego_box(pts).tolist() == [True, True, True, True, False, True, False]

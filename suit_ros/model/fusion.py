@@ -266,7 +266,8 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
     index into the ``M`` samples, or None for all), with the samples' destinations and weights
     found once (a carry branch's own and carry terms).
 
-    Two ways to the same sums, by cost: with every bin weighted (``prune`` 0, training) each
+    Two ways to the same sums, by cost: with every bin weighted (``prune`` 0: training, or a
+    model without GeoNet, whose single bin is the whole displacement) each
     sample's weights are accumulated over a local ``D x D`` window of destinations first and
     multiplied with its ``(P, C)`` projected features (:func:`_window_terms`: ``D^2`` rows a
     sample where the triples are ``P K``); with pruned bins (inference: a few per sample cell)
@@ -344,6 +345,9 @@ def _triple_terms(features: Tensor, positions: Tensor, batch_index: Tensor,
     for (projection, subset), shape in zip(projections, shapes):
         if subset is None:
             mm, pp, ff, ww = m, p, flat, weight
+        elif len(subset) == 0:          # no sample of its own (a zero W2): nothing to project
+            terms.append(PastTerm(flat[:0], features.new_zeros(0, shape[1]), shape))
+            continue
         else:
             member = torch.zeros(M, dtype=torch.bool, device=features.device)
             member[subset] = True

@@ -141,6 +141,9 @@ class HeadFold(nn.Module):
         """The layer's output ``(M, hc)`` at ``cells`` ``(M, 3)`` (b, y, x), in float32 on a
         low-precision map (:func:`gathered_dtype`)."""
         B, C, H, W = fused.current.shape
+        if (H, W) != (self.H, self.W):
+            raise ValueError(f'a fold made for a {self.H} x {self.W} map read at cells of a '
+                             f'{H} x {W} one')
         rows = fused.current.permute(0, 2, 3, 1).reshape(-1, C)     # a view when channels-last
         exact = gathered_dtype(rows.dtype)
         patches = _neighbourhoods(rows, cells, H, W).to(exact)
@@ -149,9 +152,6 @@ class HeadFold(nn.Module):
         v = v + bias
         flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
         past = fused.past
-        if (H, W) != (self.H, self.W):
-            raise ValueError(f'a fold made for a {self.H} x {self.W} map read at cells of a '
-                             f'{H} x {W} one')
         if v.device.type == 'cpu' and v.dtype == torch.float32 and not torch.is_grad_enabled():
             # K past and the edge correction added at the cells in one compiled pass (each
             # cell one row of the lookup: repeated cells take the tensor path)
@@ -159,7 +159,7 @@ class HeadFold(nn.Module):
             at = flat.numpy()
             lookup = np.full(B * H * W, -1, np.int64)
             lookup[at] = np.arange(len(at))
-            if (lookup[at] == np.arange(len(at))).all():
+            if len(at) and at.min() >= 0 and (lookup[at] == np.arange(len(at))).all():
                 spread = (past.values.float() @ self.past_weight if past is not None
                           else v.new_zeros(0, 9 * self.hc))
                 index = past.index if past is not None else flat[:0]
