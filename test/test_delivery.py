@@ -7,6 +7,7 @@ publishers, as LiDAR drivers use.
 """
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
@@ -89,3 +90,6 @@ def test_default_node_gets_the_clouds_of_a_played_bag(big_bag, checkpoint, relia
     assert frames_in + int(last['lost_before_callback']) >= FRAMES - 1, node_out[-2000:]
     assert frames_out + dropped == frames_in
     assert len(dets) == frames_out
+    # the node bounds numpy's BLAS pool to its threads as it does torch's (idle, its workers
+    # spun on the core left to DDS: the node at 114k points took 1.6 cores)
+    assert re.search(r'\d+ torch threads, BLAS threads \d+', node_out), node_out[-2000:]
