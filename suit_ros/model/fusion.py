@@ -115,17 +115,11 @@ class TemporalFusion(nn.Module):
         """W1 ``(C, C_in)`` and its bias in ``dtype``, for products over a few rows; kept
         where :func:`~suit_ros.model.inference.keep_gathered_weights` set ``gathered_cache``
         (an inference copy)."""
-        cache: dict[torch.dtype, typing.Any] | None = getattr(self, 'gathered_cache', None)
-        key = weights_key(self.current, dtype) if cache is not None else None
-        if cache is not None and dtype in cache and cache[dtype][0] == key:
-            kept: tuple[Tensor, Tensor | None] = cache[dtype][1]
-            return kept
-        conv = unwrap_conv(self.current)
-        kept = (conv.weight[:, :, 0, 0].to(dtype),
-                None if conv.bias is None else conv.bias.to(dtype))
-        if cache is not None:
-            cache[dtype] = (key, kept)
-        return kept
+        def build() -> tuple[Tensor, Tensor | None]:
+            conv = unwrap_conv(self.current)
+            return (conv.weight[:, :, 0, 0].to(dtype),
+                    None if conv.bias is None else conv.bias.to(dtype))
+        return kept(self, self.current, dtype, build)
 
     def _current(self, current: Tensor) -> Tensor:
         """W1 F_t, as a fresh tensor (the past term is added into it in place)."""
@@ -200,13 +194,36 @@ class FoldedFused:
         return out
 
 
+def state_key(module: nn.Module) -> tuple[typing.Any, ...]:
+    """Each parameter's and buffer's device, storage and in-place version: what a load, a
+    move or an update of a module's weights changes."""
+    return tuple((t.device, t.data_ptr(), t._version)
+                 for t in (*module.parameters(), *module.buffers()))
+
+
 def weights_key(module: nn.Module, dtype: torch.dtype) -> tuple[typing.Any, ...]:
     """What a module's weights converted for gathered products depend on: the target dtype,
-    inference mode (whose tensors autograd refuses), and each parameter's and buffer's
-    device, storage and in-place version (a load, a move or an update makes them stale)."""
-    return (dtype, torch.is_inference_mode_enabled()) + tuple(
-        (t.device, t.data_ptr(), t._version)
-        for t in (*module.parameters(), *module.buffers()))
+    inference mode (whose tensors autograd refuses) and :func:`state_key`."""
+    return (dtype, torch.is_inference_mode_enabled()) + state_key(module)
+
+
+Built = typing.TypeVar('Built')
+
+
+def kept(owner: nn.Module, source: nn.Module, dtype: torch.dtype,
+         build: typing.Callable[[], Built]) -> Built:
+    """``build()``, kept per ``dtype`` in ``owner``'s ``gathered_cache`` (set on inference
+    copies by :func:`~suit_ros.model.inference.keep_gathered_weights`) while ``source``'s
+    weights stay as they were (:func:`weights_key`); built every call without a cache."""
+    cache: dict[torch.dtype, tuple[typing.Any, typing.Any]] | None = getattr(
+        owner, 'gathered_cache', None)
+    if cache is None:
+        return build()
+    key = weights_key(source, dtype)
+    if dtype not in cache or cache[dtype][0] != key:
+        cache[dtype] = (key, build())
+    value: Built = cache[dtype][1]
+    return value
 
 
 def gathered_dtype(dtype: torch.dtype) -> torch.dtype:

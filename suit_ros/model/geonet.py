@@ -18,6 +18,8 @@ import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
 
+from suit_ros.model.fusion import state_key
+
 
 class GeoNet(nn.Module):
     """``(M, C, Hs, Ws)`` patches (+ velocities) -> ``(M, Hw * Hw)`` displacement-bin logits."""
@@ -57,7 +59,7 @@ class GeoNet(nn.Module):
             v = (velocities / self.velocity_step)[:, :, None, None].expand(M, 2, H, W)
             patches = torch.cat([patches, v.to(patches)], dim=1)
         if (self.products and patches.shape[-2:] == (self.window, self.window)
-                and self.product_key == self._weights_key()):
+                and self.product_key == state_key(self.net)):
             M, C, Hs, Ws = patches.shape
             h = patches.reshape(M, C * Hs * Ws)
             for k in range(self.products):
@@ -99,13 +101,10 @@ class GeoNet(nn.Module):
                     out.shape[1:]).reshape(-1).contiguous(), persistent=False)
                 shape = (out.shape[1], out.shape[2], out.shape[3])
         self.products = len(convs)
-        self.product_key = self._weights_key()
+        # a load or an update of the convolutions since, and they run instead
+        self.product_key = state_key(self.net)
         return self.products
 
-    def _weights_key(self) -> tuple[typing.Any, ...]:
-        """The convolutions' weights as they are (:meth:`as_products` composed them from
-        these: a load or an update since, and the convolutions run instead)."""
-        return tuple((t.device, t.data_ptr(), t._version) for t in self.net.parameters())
 
     def target_bins(self, velocities: Tensor) -> Tensor:
         """Bin index ``(M,)`` of velocities ``(M, 2)`` (nearest bin, clipped to the window)."""

@@ -13,7 +13,7 @@ import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
 
-from suit_ros.model.fusion import FoldedFused, PastTerm, gathered_dtype, weights_key
+from suit_ros.model.fusion import FoldedFused, PastTerm, gathered_dtype, kept
 from suit_ros.model.grid import BEVGrid
 from suit_ros.ops.nms import batched_nms
 
@@ -146,7 +146,7 @@ class HeadFold(nn.Module):
                              f'{H} x {W} one')
         rows = fused.current.permute(0, 2, 3, 1).reshape(-1, C)     # a view when channels-last
         exact = gathered_dtype(rows.dtype)
-        patches = _neighbourhoods(rows, cells, H, W).to(exact)
+        patches = _neighbourhoods(rows, cells, H, W)                 # in ``exact`` already
         weight, bias = next((a, b) for k, a, b in _cached_ops(self.conv, exact) if k == 'taps')
         v = patches @ weight.t()
         v = v + bias
@@ -587,15 +587,8 @@ def gathered_ops(layers: nn.Module, exact: torch.dtype) -> list[GatheredOp]:
 
 def _cached_ops(layers: nn.Module, exact: torch.dtype) -> list[GatheredOp]:
     """:func:`gathered_ops`, kept on an inference copy's stack while its weights stay as
-    they were (:func:`~suit_ros.model.fusion.weights_key`)."""
-    cache = getattr(layers, 'gathered_cache', None)
-    if cache is None:
-        return gathered_ops(layers, exact)
-    key = weights_key(layers, exact)
-    if exact not in cache or cache[exact][0] != key:
-        cache[exact] = (key, gathered_ops(layers, exact))
-    ops: list[GatheredOp] = cache[exact][1]
-    return ops
+    they were (:func:`~suit_ros.model.fusion.kept`)."""
+    return kept(layers, layers, exact, lambda: gathered_ops(layers, exact))
 
 
 def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
@@ -610,7 +603,7 @@ def _at_cells(layers: nn.Module, rows: Tensor, cells: Tensor, H: int, W: int,
     twice the float32 time)."""
     exact = gathered_dtype(rows.dtype)
     dtype = rows.dtype              # what the stack gives (its last cast's)
-    v = (patches if patches is not None else _neighbourhoods(rows, cells, H, W)).to(exact)
+    v = patches if patches is not None else _neighbourhoods(rows, cells, H, W)  # in exact
     for kind, a, b in _cached_ops(layers, exact):
         if kind == 'cast':
             dtype = a

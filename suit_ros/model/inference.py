@@ -224,14 +224,13 @@ def inference_copy(model: nn.Module, channels_last: bool = True,
             if isinstance(m, nn.Conv2d | nn.ConvTranspose2d):
                 m.weight.data = m.weight.data.contiguous(memory_format=torch.channels_last)
     from suit_ros.model.fusion import TemporalFusion
+    from suit_ros.model.geonet import GeoNet
     for m in copied.modules():
         if isinstance(m, TemporalFusion):
             m.mark_identity()
-    keep_gathered_weights(copied)
-    from suit_ros.model.geonet import GeoNet
-    for m in copied.modules():
-        if isinstance(m, GeoNet):
+        elif isinstance(m, GeoNet):
             m.as_products()
+    keep_gathered_weights(copied)
     return copied
 
 
