@@ -353,6 +353,10 @@ def _triple_terms(features: Tensor, positions: Tensor, batch_index: Tensor,
     cell (one row per cell the term touches)."""
     M = features.shape[0]
     H, W = grid.H, grid.W
+    if (features.device.type == 'cpu' and not torch.is_grad_enabled()
+            and features.dtype == torch.float32 and w.dtype == torch.float32):
+        return _compiled_triple_terms(features, batch_index, projections, grid, shapes, cells,
+                                      w)
     col, row = cells[..., 0], cells[..., 1]
     m, p, k = torch.nonzero((w > 0) & (col >= 0) & (col < W) & (row >= 0) & (row < H),
                             as_tuple=True)
@@ -374,6 +378,35 @@ def _triple_terms(features: Tensor, positions: Tensor, batch_index: Tensor,
         cells_hit, where = torch.unique(ff, return_inverse=True)
         rows = values.new_zeros(len(cells_hit), shape[1]).index_add_(0, where, values)
         terms.append(PastTerm(cells_hit, rows, shape))
+    return terms
+
+
+def _compiled_triple_terms(features: Tensor, batch_index: Tensor,
+                           projections: Sequence[tuple[nn.Linear, Tensor | None]],
+                           grid: BEVGrid, shapes: list[tuple[int, int, int, int]],
+                           cells: Tensor, w: Tensor) -> list[PastTerm]:
+    """:func:`_triple_terms` on the CPU without autograd: the weighted features summed per
+    destination cell in one compiled pass (:func:`suit_ros.ops.kernels.sum_triples`), then
+    each cell's sum projected once (``W2 sum w f`` where the tensor code sums ``w W2 f``: the
+    same up to float rounding, tested), each projection over the samples it names."""
+    from suit_ros.ops.kernels import sum_triples
+    M = features.shape[0]
+    member = np.zeros((len(projections), M), np.bool_)
+    for s, (_, subset) in enumerate(projections):
+        if subset is None:
+            member[s] = True
+        else:
+            member[s, subset.cpu().numpy()] = True
+    flat, sums, counts = sum_triples(cells.contiguous().numpy(), w.contiguous().numpy(),
+                                     batch_index.to(torch.int64).contiguous().numpy(),
+                                     features.contiguous().numpy(), member, grid.H, grid.W)
+    terms = []
+    start = 0
+    for (projection, _), shape, n in zip(projections, shapes, counts.tolist()):
+        rows = F.linear(torch.from_numpy(sums[start:start + n]), projection.weight,
+                        projection.bias)
+        terms.append(PastTerm(torch.from_numpy(flat[start:start + n]), rows, shape))
+        start += n
     return terms
 
 

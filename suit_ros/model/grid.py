@@ -61,13 +61,21 @@ class BEVGrid:
         return self.cell_to_xy(torch.stack([cols, rows], dim=-1))
 
 
-def pooled_occupancy(occupied: Tensor, stride: int, radius: int) -> Tensor:
+def pooled_occupancy(occupied: Tensor, stride: int, radius: int, compiled: bool = True
+                     ) -> Tensor:
     """``(B, ny, nx)`` bool pillar occupancy -> ``(B, ny // stride, nx // stride)`` bool: a head
     cell holding an occupied pillar, grown by ``radius`` cells (a square): what a max pool of
     ``stride`` then one of ``2 radius + 1`` (padded) give, as bool reductions and shifts (the
-    float max pools of the 512 x 512 map took 0.8 ms a frame, these 0.2)."""
+    float max pools of the 512 x 512 map took 0.8 ms a frame, these 0.2; on the CPU one
+    compiled pass, :func:`suit_ros.ops.kernels.pool_occupancy`: 0.02 ms on a 256 x 256 grid
+    at stride 2, where these took 0.09)."""
     B, ny, nx = occupied.shape
     H, W = ny // stride, nx // stride
+    if compiled and occupied.device.type == 'cpu' and occupied.dtype == torch.bool:
+        from suit_ros.ops.kernels import pool_occupancy
+        pooled = pool_occupancy(occupied.contiguous().view(-1).numpy(), B, ny, nx, stride,
+                                radius)
+        return torch.from_numpy(pooled)
     occ = occupied[:, :H * stride, :W * stride].reshape(B, H, stride, W, stride)
     out = occ.any(dim=4).any(dim=2)
     if radius:

@@ -132,9 +132,31 @@ class HeadFold(nn.Module):
         return PastTerm(torch.cat(index), torch.cat(values), (batch, hc, H, W))
 
     def dense(self, fused: FoldedFused) -> Tensor:
-        """The layer's output ``(B, hc, H, W)`` over the whole map."""
+        """The layer's output ``(B, hc, H, W)`` over the whole map. On the CPU without autograd,
+        on a channels-last map (an inference copy's), ``K past`` and the edge correction are
+        added in one compiled pass (:func:`suit_ros.ops.kernels.add_tap_spread_dense`; each
+        added value rounded to a bfloat16 map's precision as it is added)."""
         pre: Tensor = self.conv(fused.current)          # in an inference copy's conv dtype
-        self._terms(fused.past, pre.shape[0]).add_to(pre)
+        B = pre.shape[0]
+        if (pre.device.type == 'cpu' and not torch.is_grad_enabled()
+                and pre.dtype in (torch.float32, torch.bfloat16)
+                and pre.is_contiguous(memory_format=torch.channels_last)
+                and pre.shape[1:] == (self.hc, self.H, self.W)):
+            from suit_ros.ops.kernels import add_tap_spread_dense, add_tap_spread_dense_bf16
+            past = fused.past
+            rows = pre.permute(0, 2, 3, 1).view(B * self.H * self.W, self.hc)
+            spread = (past.values.float() @ self.past_weight
+                      if past is not None and len(past.index)
+                      else self.past_weight.new_zeros(0, 9 * self.hc))
+            index = past.index if past is not None and len(past.index) else self.edge_index[:0]
+            low = pre.dtype == torch.bfloat16
+            (add_tap_spread_dense_bf16 if low else add_tap_spread_dense)(
+                rows.view(torch.int16).numpy().view(np.uint16) if low else rows.numpy(),
+                spread.view(-1, 9, self.hc).contiguous().numpy(),
+                index.contiguous().numpy(), self.edge_index.numpy(),
+                self.edge_values.float().contiguous().numpy(), self.H, self.W)
+            return torch.relu_(pre)
+        self._terms(fused.past, B).add_to(pre)
         return torch.relu_(pre)
 
     def at(self, fused: FoldedFused, cells: Tensor) -> Tensor:

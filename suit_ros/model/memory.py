@@ -112,6 +112,12 @@ class DenseMemory:
                 + 8 * len(self.stamps_ns))
 
 
+def _compiled(memory: SparseMemory) -> bool:
+    """Whether the memory moves in a compiled pass (:mod:`suit_ros.ops.kernels`): on the
+    CPU, without autograd (inference)."""
+    return memory.cell_xy.device.type == 'cpu' and not torch.is_grad_enabled()
+
+
 def ego_transforms(poses_now: NDArray[np.float64], poses_prev: NDArray[np.float64]
                    ) -> NDArray[np.float64]:
     """Batch of ``T_now_prev = inv(T_odom_now) @ T_odom_prev``, ``(B, 4, 4)`` float64."""
@@ -127,6 +133,14 @@ def transform_sample_positions(memory: SparseMemory, T_now_prev: NDArray[np.floa
     M, P, _ = memory.cell_xy.shape
     if M == 0:
         return memory.cell_xy.new_zeros((0, P, 2))
+    if _compiled(memory):
+        from suit_ros.ops.kernels import move_cells
+        out = np.empty((M, P, 2), np.float32)
+        move_cells(memory.cell_xy.float().contiguous().numpy(),
+                   memory.boxes[:, 2].float().contiguous().numpy(),
+                   np.ascontiguousarray(T_now_prev, np.float64),
+                   memory.batch_index.to(torch.int64).contiguous().numpy(), out)
+        return torch.from_numpy(out)
     T = torch.from_numpy(np.ascontiguousarray(T_now_prev)).to(memory.cell_xy.device)
     T = T[memory.batch_index]                                              # (M, 4, 4) f64
     xyz = torch.cat([memory.cell_xy.double(),
@@ -140,6 +154,11 @@ def rotate_velocities(velocities: Tensor, batch_index: Tensor,
     """Rotate ``(M, 2)`` velocities from the previous frame's axes into the current frame's."""
     if velocities.shape[0] == 0:
         return velocities
+    if (velocities.device.type == 'cpu' and not torch.is_grad_enabled()
+            and velocities.dtype == torch.float32):
+        # a few dozen rows: numpy's per-operation cost is a fraction of torch's
+        Rn = np.ascontiguousarray(T_now_prev[:, :2, :2]).astype(np.float32)[batch_index.numpy()]
+        return torch.from_numpy(np.einsum('mij,mj->mi', Rn, velocities.numpy()))
     R = torch.from_numpy(np.ascontiguousarray(T_now_prev[:, :2, :2])).to(velocities.device)
     R = R[batch_index].to(velocities.dtype)
     return torch.einsum('mij,mj->mi', R, velocities)
@@ -159,6 +178,20 @@ def moved_memory(memory: SparseMemory, positions: Tensor, shift: Tensor,
         current frames'.
     """
     M = memory.num_samples
+    if _compiled(memory) and memory.boxes.dtype == memory.velocities.dtype == torch.float32:
+        from suit_ros.ops.kernels import move_boxes
+        boxes = torch.empty_like(memory.boxes)
+        velocities = torch.empty_like(memory.velocities)
+        move_boxes(memory.boxes.contiguous().numpy(), memory.velocities.contiguous().numpy(),
+                   shift.float().contiguous().numpy(),
+                   np.ascontiguousarray(T_now_prev, np.float64),
+                   memory.batch_index.to(torch.int64).contiguous().numpy(), boxes.numpy(),
+                   velocities.numpy())
+        return SparseMemory(memory.batch_index,
+                            positions + shift[:, None, :].to(positions.dtype),
+                            memory.features, memory.probs, memory.mask, boxes, velocities,
+                            list(stamps_ns), np.asarray(poses, np.float64).copy(),
+                            memory.window, memory.age() + 1)
     T = torch.from_numpy(np.ascontiguousarray(T_now_prev)).to(memory.boxes.device)
     T = T[memory.batch_index]                                               # (M, 4, 4) f64
     boxes = memory.boxes.clone()

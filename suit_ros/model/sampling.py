@@ -18,6 +18,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -49,6 +50,10 @@ def coarse_topk(prob: Tensor, alpha: float, k: int) -> tuple[Tensor, Tensor, Ten
     flat = prob.reshape(B, -1)
     scores, idx = flat.topk(min(k, H * W), dim=1)
     keep = scores >= alpha
+    if B == 1:          # a node's frame
+        idx, scores = idx[0][keep[0]], scores[0][keep[0]]
+        b = torch.zeros(len(idx), dtype=torch.long, device=prob.device)
+        return b, torch.stack([idx % W, idx // W], dim=1), scores
     b = torch.arange(B, device=prob.device)[:, None].expand_as(idx)[keep]
     idx, scores = idx[keep], scores[keep]
     cells = torch.stack([idx % W, idx // W], dim=1)
@@ -76,6 +81,20 @@ def refined_nms(boxes: Tensor, scores: Tensor, batch_index: Tensor, iou_threshol
     return greedy_suppression(suppress, order)
 
 
+_OFFSETS: dict[tuple[int, torch.device], Tensor] = {}
+
+
+def _window_offsets(window: int, device: torch.device) -> Tensor:
+    """The ``(window^2, 2)`` (col, row) offsets of a square window's cells, row-major."""
+    key = (window, device)
+    if key not in _OFFSETS:
+        R = window // 2
+        rng = torch.arange(-R, R + 1, device=device)
+        dr, dc = torch.meshgrid(rng, rng, indexing='ij')
+        _OFFSETS[key] = torch.stack([dc.reshape(-1), dr.reshape(-1)], dim=1)
+    return _OFFSETS[key]
+
+
 def relaxation_window(samples: Samples, cfg: SamplingConfig, grid: BEVGrid
                       ) -> tuple[Tensor, Tensor]:
     """The relaxed neighbourhood of each sample.
@@ -85,16 +104,13 @@ def relaxation_window(samples: Samples, cfg: SamplingConfig, grid: BEVGrid
         neighbourhood: all of the square, the disc of radius ``cfg.radius`` cells, or the cells
         whose centre lies inside the decoded box (the centre cell always), and inside the map.
     """
-    R = cfg.window // 2
-    rng = torch.arange(-R, R + 1, device=samples.cells.device)
-    dr, dc = torch.meshgrid(rng, rng, indexing='ij')
-    offsets = torch.stack([dc.reshape(-1), dr.reshape(-1)], dim=1)            # (P, 2)
+    offsets = _window_offsets(cfg.window, samples.cells.device)                # (P, 2)
     cells = samples.cells[:, None, :] + offsets[None]                          # (M, P, 2)
     inside = ((cells[..., 0] >= 0) & (cells[..., 0] < grid.W) & (cells[..., 1] >= 0)
               & (cells[..., 1] < grid.H))
     if cfg.relaxation == 'square':
-        member = torch.ones_like(inside)
-    elif cfg.relaxation == 'circle':
+        return cells, inside
+    if cfg.relaxation == 'circle':
         member = (offsets.pow(2).sum(-1) <= cfg.radius ** 2)[None].expand_as(inside)
     else:   # rectangle: cell centres inside the decoded box footprint
         xy = grid.cell_to_xy(cells)                                             # (M, P, 2)
@@ -151,6 +167,12 @@ def gather_window(features: Tensor | FoldedFused, prob: Tensor, batch_index: Ten
 def cell_flags(flags: Tensor, batch_index: Tensor, xy: Tensor, grid: BEVGrid) -> Tensor:
     """``flags[b, row, col]`` (``(B, H, W)`` bool) at metric positions ``xy`` ``(M, 2)``;
     False outside the map."""
+    if flags.device.type == 'cpu' and not torch.is_grad_enabled() and xy.dtype == torch.float32:
+        from suit_ros.ops.kernels import flags_at
+        return torch.from_numpy(flags_at(
+            flags.contiguous().numpy(), batch_index.to(torch.int64).contiguous().numpy(),
+            xy.contiguous().numpy(), np.asarray(grid.point_range[:2], np.float32),
+            np.float32(grid.cell)))
     cr = torch.floor(grid.xy_to_cell(xy)).long()
     inside = (cr[:, 0] >= 0) & (cr[:, 0] < grid.W) & (cr[:, 1] >= 0) & (cr[:, 1] < grid.H)
     col, row = cr[:, 0].clamp(0, grid.W - 1), cr[:, 1].clamp(0, grid.H - 1)

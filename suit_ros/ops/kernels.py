@@ -597,6 +597,267 @@ def add_tap_spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_valu
                     out[row, c] += edge_values[e, c]
 
 
+@numba.njit(inline='always', nogil=True)
+def _bf16_add(bits: Any, value: Any, scratch: Any, view: Any) -> Any:  # pragma: no cover
+    """``bits`` (a bfloat16's uint16) plus the float32 ``value``, rounded to the nearest
+    bfloat16 (ties to even; NaN stays NaN), as bits (``scratch``/``view``: one uint32 and its
+    float32 view)."""
+    scratch[0] = np.uint32(bits) << np.uint32(16)
+    view[0] = view[0] + value
+    u = scratch[0]
+    if view[0] != view[0]:
+        return np.uint16(0x7FC0)
+    u = u + np.uint32(0x7FFF) + ((u >> np.uint32(16)) & np.uint32(1))
+    return np.uint16(u >> np.uint32(16))
+
+
+@numba.njit(inline='always', nogil=True)
+def _add_f32(out: Any, row: int, c: int, value: Any, scratch: Any,
+             view: Any) -> None:  # pragma: no cover
+    out[row, c] += value
+
+
+@numba.njit(inline='always', nogil=True)
+def _add_bf16(out: Any, row: int, c: int, value: Any, scratch: Any,
+              view: Any) -> None:  # pragma: no cover
+    out[row, c] = _bf16_add(out[row, c], value, scratch, view)
+
+
+@numba.njit(inline='always', nogil=True)
+def _spread_dense(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any,
+                  H: int, W: int, add: Any) -> None:  # pragma: no cover
+    HW = H * W
+    n = out.shape[0]
+    hc = out.shape[1]
+    scratch = np.zeros(1, np.uint32)
+    view = scratch.view(np.float32)
+    for r in range(len(index)):
+        f = index[r]
+        if f < 0 or f >= n:
+            raise IndexError('add_tap_spread_dense: an input row lies off the map')
+        b = f // HW
+        y = f // W % H
+        x = f % W
+        for t in range(9):
+            ty = y - (t // 3 - 1)
+            tx = x - (t % 3 - 1)
+            if ty < 0 or ty >= H or tx < 0 or tx >= W:
+                continue
+            row = (b * H + ty) * W + tx
+            for c in range(hc):
+                add(out, row, c, spread[r, t, c], scratch, view)
+    for b in range(n // HW):
+        for e in range(len(edge_index)):
+            row = b * HW + edge_index[e]
+            for c in range(hc):
+                add(out, row, c, edge_values[e, c], scratch, view)
+
+
+@_jit
+def add_tap_spread_dense(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any,
+                         H: int, W: int) -> None:  # pragma: no cover
+    """:func:`add_tap_spread` into a whole ``(B * H * W, hc)`` float32 map's rows
+    (channels-last; row = flat cell) (:meth:`suit_ros.model.head.HeadFold.dense`)."""
+    _spread_dense(out, spread, index, edge_index, edge_values, H, W, _add_f32)
+
+
+@_jit
+def add_tap_spread_dense_bf16(out: Any, spread: Any, index: Any, edge_index: Any,
+                              edge_values: Any, H: int, W: int) -> None:  # pragma: no cover
+    """:func:`add_tap_spread_dense` into a bfloat16 map given as its ``uint16`` bits, each
+    added value rounded to bfloat16 (to nearest, ties to even) as it is added."""
+    _spread_dense(out, spread, index, edge_index, edge_values, H, W, _add_bf16)
+
+
+@_jit
+def sum_triples(cells: Any, w: Any, batch_index: Any, features: Any, member: Any, H: int,
+                W: int) -> Any:  # pragma: no cover
+    """The sparse past term's weighted sums before its projection
+    (:func:`suit_ros.model.fusion.sparse_past_terms`): every (sample m, cell p, bin k) of
+    weight ``w[m, p, k] > 0`` whose destination ``cells[m, p, k]`` (col, row) lies on the
+    ``H x W`` map adds ``w * features[m, p]`` to its flat cell ``(b * H + row) * W + col``;
+    per subset ``s`` (``member`` ``(S, M)`` bool: the samples it takes) the cells it touches
+    in increasing order and their sums. Sums run over the triples in (m, p, k) order per cell.
+
+    :return: flat cells ``(R,)`` int64, sums ``(R, C)`` float32 and ``(S,)`` counts (the
+        subsets' rows one after another).
+    """
+    M, P, K = w.shape
+    C = features.shape[2]
+    S = member.shape[0]
+    T = 0
+    for m in range(M):
+        for p in range(P):
+            for k in range(K):
+                if w[m, p, k] > 0:
+                    T += 1
+    flat = np.empty(T, np.int64)
+    who = np.empty((T, 2), np.int64)
+    weight = np.empty(T, np.float32)
+    n = 0
+    for m in range(M):
+        for p in range(P):
+            for k in range(K):
+                col = cells[m, p, k, 0]
+                row = cells[m, p, k, 1]
+                if w[m, p, k] > 0 and 0 <= col < W and 0 <= row < H:
+                    flat[n] = (batch_index[m] * H + row) * W + col
+                    who[n, 0] = m
+                    who[n, 1] = p
+                    weight[n] = w[m, p, k]
+                    n += 1
+    # in (m, p, k) order within a cell: the position breaks ties, so the sort needs no
+    # stability (numba's mergesort took three times its quicksort here)
+    key = np.empty(n, np.int64)
+    for i in range(n):
+        key[i] = flat[i] * n + i
+    order = np.argsort(key)
+    counts = np.zeros(S, np.int64)
+    total = 0
+    for s in range(S):
+        last = -1
+        for i in order:
+            if member[s, who[i, 0]] and flat[i] != last:
+                last = flat[i]
+                counts[s] += 1
+        total += counts[s]
+    out_flat = np.empty(total, np.int64)
+    sums = np.zeros((total, C), np.float32)
+    r = -1
+    for s in range(S):
+        last = -1
+        for i in order:
+            m = who[i, 0]
+            if not member[s, m]:
+                continue
+            if flat[i] != last:
+                last = flat[i]
+                r += 1
+                out_flat[r] = last
+            p = who[i, 1]
+            for c in range(C):
+                sums[r, c] += weight[i] * features[m, p, c]
+    return out_flat, sums, counts
+
+
+@_jit
+def pool_occupancy(occupied: Any, B: int, ny: int, nx: int, stride: int,
+                   radius: int) -> Any:  # pragma: no cover
+    """:func:`suit_ros.model.grid.pooled_occupancy` of ``(B * ny * nx,)`` bool pillars: the
+    ``(B, ny // stride, nx // stride)`` head cells holding an occupied pillar, grown by
+    ``radius`` cells (a square, clipped at the map's edge)."""
+    H = ny // stride
+    W = nx // stride
+    coarse = np.zeros((B, H, W), np.bool_)
+    for b in range(B):
+        for y in range(H * stride):
+            base = (b * ny + y) * nx
+            row = y // stride
+            for x in range(W * stride):
+                if occupied[base + x]:
+                    coarse[b, row, x // stride] = True
+    if radius == 0:
+        return coarse
+    # grown along rows, then along columns: a sliding count of the cells in the window
+    wide = np.zeros((B, H, W), np.bool_)
+    for b in range(B):
+        for y in range(H):
+            count = 0
+            for x in range(min(radius, W)):
+                count += coarse[b, y, x]
+            for x in range(W):
+                if x + radius < W:
+                    count += coarse[b, y, x + radius]
+                if x - radius - 1 >= 0:
+                    count -= coarse[b, y, x - radius - 1]
+                wide[b, y, x] = count > 0
+    out = np.zeros((B, H, W), np.bool_)
+    counts = np.zeros(W, np.int64)          # per column, row by row (in memory order)
+    for b in range(B):
+        counts[:] = 0
+        for y in range(min(radius, H)):
+            for x in range(W):
+                counts[x] += wide[b, y, x]
+        for y in range(H):
+            if y + radius < H:
+                for x in range(W):
+                    counts[x] += wide[b, y + radius, x]
+            if y - radius - 1 >= 0:
+                for x in range(W):
+                    counts[x] -= wide[b, y - radius - 1, x]
+            for x in range(W):
+                out[b, y, x] = counts[x] > 0
+    return out
+
+
+@_jit
+def flags_at(flags: Any, batch_index: Any, xy: Any, origin: Any, cell: Any
+             ) -> Any:  # pragma: no cover
+    """``flags[b, row, col]`` (``(B, H, W)`` bool) at the cells of metric positions ``xy``
+    ``(M, 2)`` float32 (``floor((xy - origin) / cell)``, float32 as the tensor code), False
+    off the map (:func:`suit_ros.model.sampling.cell_flags`)."""
+    B, H, W = flags.shape
+    out = np.zeros(xy.shape[0], np.bool_)
+    for m in range(xy.shape[0]):
+        col = np.floor((xy[m, 0] - origin[0]) / cell)
+        row = np.floor((xy[m, 1] - origin[1]) / cell)
+        b = batch_index[m]
+        if b < 0 or b >= B:
+            raise IndexError('flags_at: a position of a frame the flags do not have')
+        if 0 <= col < W and 0 <= row < H:
+            out[m] = flags[b, int(row), int(col)]
+    return out
+
+
+@_jit
+def move_cells(cell_xy: Any, z: Any, T: Any, batch_index: Any, out: Any
+               ) -> None:  # pragma: no cover
+    """Memory sample cells ``(M, P, 2)`` float32 lifted to 3D at their sample's height ``z``
+    ``(M,)``, moved by their frame's ``T`` ``(B, 4, 4)`` float64 and projected back to BEV,
+    written into ``out`` ``(M, P, 2)`` float32 (float64 arithmetic;
+    :func:`suit_ros.model.memory.transform_sample_positions`)."""
+    for m in range(cell_xy.shape[0]):
+        b = batch_index[m]
+        if b < 0 or b >= T.shape[0]:
+            raise IndexError('move_cells: a sample of a frame without a transform')
+        h = np.float64(z[m])
+        for p in range(cell_xy.shape[1]):
+            x = np.float64(cell_xy[m, p, 0])
+            y = np.float64(cell_xy[m, p, 1])
+            for i in range(2):
+                out[m, p, i] = np.float32(T[b, i, 0] * x + T[b, i, 1] * y + T[b, i, 2] * h
+                                          + T[b, i, 3])
+
+
+@_jit
+def move_boxes(boxes: Any, velocities: Any, shift: Any, T: Any, batch_index: Any,
+               out_boxes: Any, out_velocities: Any) -> None:  # pragma: no cover
+    """Memory samples' boxes ``(M, 7)`` and velocities ``(M, 2)`` (float32) moved into the
+    current frame by their frame's ``T`` ``(B, 4, 4)`` float64 (the centres in float64), the
+    boxes' centres further by ``shift`` ``(M, 2)`` (:func:`suit_ros.model.memory.
+    moved_memory`)."""
+    for m in range(boxes.shape[0]):
+        b = batch_index[m]
+        if b < 0 or b >= T.shape[0]:
+            raise IndexError('move_boxes: a sample of a frame without a transform')
+        x = np.float64(boxes[m, 0])
+        y = np.float64(boxes[m, 1])
+        h = np.float64(boxes[m, 2])
+        for k in range(7):
+            out_boxes[m, k] = boxes[m, k]
+        for i in range(3):
+            v = T[b, i, 0] * x + T[b, i, 1] * y + T[b, i, 2] * h + T[b, i, 3]
+            out_boxes[m, i] = np.float32(v)
+        # the shift, the turn and the velocities' rotation in float32, as the tensor code
+        out_boxes[m, 0] = out_boxes[m, 0] + np.float32(shift[m, 0])
+        out_boxes[m, 1] = out_boxes[m, 1] + np.float32(shift[m, 1])
+        out_boxes[m, 6] = boxes[m, 6] + np.float32(np.arctan2(T[b, 1, 0], T[b, 0, 0]))
+        vx = velocities[m, 0]
+        vy = velocities[m, 1]
+        out_velocities[m, 0] = np.float32(T[b, 0, 0]) * vx + np.float32(T[b, 0, 1]) * vy
+        out_velocities[m, 1] = np.float32(T[b, 1, 0]) * vx + np.float32(T[b, 1, 1]) * vy
+
+
 @_jit
 def rectangle_cells(lo: Any, hi: Any, width: int, origin: Any, cell: float, oriented: Any,
                     margin: float) -> Any:  # pragma: no cover
@@ -1039,6 +1300,22 @@ def warm_up() -> None:
     add_tap_spread(np.zeros((1, 2), np.float32), np.zeros((1, 9, 2), np.float32),
                    np.zeros(1, np.int64), np.zeros(1, np.int64), np.zeros((1, 2), np.float32),
                    np.zeros(1, np.int64), 1, 1)
+    for dense, spread_into in ((np.zeros((1, 2), np.float32), add_tap_spread_dense),
+                               (np.zeros((1, 2), np.uint16), add_tap_spread_dense_bf16)):
+        spread_into(dense, np.zeros((1, 9, 2), np.float32), np.zeros(1, np.int64),
+                    np.zeros(1, np.int64), np.zeros((1, 2), np.float32), 1, 1)
+    sum_triples(np.zeros((1, 1, 1, 2), np.int64), np.zeros((1, 1, 1), np.float32),
+                np.zeros(1, np.int64), np.zeros((1, 1, 2), np.float32),
+                np.ones((1, 1), np.bool_), 1, 1)
+    pool_occupancy(np.zeros(4, np.bool_), 1, 2, 2, 2, 1)
+    flags_at(np.zeros((1, 2, 2), np.bool_), np.zeros(1, np.int64), np.zeros((1, 2), np.float32),
+             np.zeros(2, np.float32), np.float32(1.0))
+    T1 = np.eye(4)[None]
+    move_cells(np.zeros((1, 1, 2), np.float32), np.zeros(1, np.float32), T1,
+               np.zeros(1, np.int64), np.zeros((1, 1, 2), np.float32))
+    move_boxes(np.zeros((1, 7), np.float32), np.zeros((1, 2), np.float32),
+               np.zeros((1, 2), np.float32), T1, np.zeros(1, np.int64),
+               np.zeros((1, 7), np.float32), np.zeros((1, 2), np.float32))
     for where in (np.zeros(0, np.int64), np.zeros(1, np.int64)):
         gather_taps(np.zeros((1, 2), np.float32), cells1, 1, 1, where,
                     np.zeros((1, 18), np.float32))
