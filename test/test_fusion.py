@@ -395,9 +395,25 @@ def test_the_window_and_the_triples_give_the_same_past_terms():
     with torch.no_grad():
         window = _window_terms(feats, positions, batch_index, projections, GRID, shapes,
                                cells, w)
+        # on the CPU without autograd: the compiled sums, projected once per cell
         triples = _triple_terms(feats, positions, batch_index, projections, GRID, shapes,
                                 cells, w)
-    for a, b in zip(window, triples):
+    with torch.enable_grad():               # the tensor code (autograd on)
+        tensors = _triple_terms(feats, positions, batch_index, projections, GRID, shapes,
+                                cells, w)
+    for a, b, c in zip(window, triples, tensors):
         torch.testing.assert_close(a.dense(), b.dense(), atol=1e-5, rtol=1e-5)
+        torch.testing.assert_close(c.dense().detach(), b.dense(), atol=1e-5, rtol=1e-5)
+        assert torch.equal(b.index, c.index)                   # the same cells, in order
+        assert b.distinct and c.distinct
+        some = torch.cat([b.index[::2], torch.tensor([0, 5, b.index[-1] + 1])])
+        plain = type(b)(b.index, b.values, b.shape)           # read as if it had repeats
+        assert torch.equal(b.at(some), plain.at(some))
         assert b.dense().abs().sum() > 0
         assert len(torch.unique(b.index)) == len(b.index)      # one row per cell touched
+    with torch.no_grad():                   # a subset with no sample: no row
+        none = _triple_terms(feats, positions, batch_index,
+                             [(own, torch.zeros(0, dtype=torch.long)), (carry, None)], GRID,
+                             shapes, cells, w)
+    assert len(none[0].index) == 0 and none[0].values.shape == (0, C)
+    assert torch.equal(none[1].index, triples[1].index)

@@ -41,6 +41,14 @@ def test_geonet_as_products_gives_the_convolutions_logits(velocity_input):
             got = fast(patches, v if velocity_input else None)
             assert got.shape == want.shape == (m, 49)
             torch.testing.assert_close(got, want, rtol=1e-5, atol=1e-5)
+            # a memory's samples as stored: (M, P, C) rows, zero off their mask
+            feats, mask = torch.randn(m, 9, 6), torch.rand(m, 9) > 0.3
+            want = g(feats.mul(mask[..., None]).permute(0, 2, 1).reshape(m, 6, 3, 3),
+                     v if velocity_input else None)
+            for net in (g, fast):
+                torch.testing.assert_close(net.memory_logits(feats, mask,
+                                                             v if velocity_input else None),
+                                           want, rtol=1e-5, atol=1e-5)
         big = torch.randn(2, 6, 5, 5)
         v2 = torch.randn(2, 2)
         torch.testing.assert_close(fast(big, v2 if velocity_input else None),

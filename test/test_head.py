@@ -221,6 +221,12 @@ def test_compiled_neighbourhoods_equal_the_tensor_gather(dtype):
         slow = _neighbourhoods(rows.clone().float().requires_grad_(), cells, H, W, at)
         assert fast.dtype == torch.float32 and fast.shape == (len(cells), 9 * C)
         assert torch.equal(fast, slow.detach())
+    # -1 in the where map: a cell the rows do not hold reads as zero, both ways
+    holes = where.clone()
+    holes[holes == len(picked)] = -1
+    for rows in (some[:-1], some[:-1].clone().float().requires_grad_()):
+        got = _neighbourhoods(rows, cells, H, W, holes)
+        assert torch.equal(got.detach(), _neighbourhoods(some, cells, H, W, where))
     assert torch.equal(_neighbourhoods(full, cells[:0], H, W), torch.zeros(0, 9 * C))
     with pytest.raises(IndexError, match='where map'):
         _neighbourhoods(some, torch.tensor([[2, 0, 0]]), H, W, where)

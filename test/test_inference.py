@@ -275,6 +275,12 @@ def test_a_fold_equals_the_formed_map_over_a_batch_at_the_edges():
         twice = torch.cat([cells[:4], cells[2:3]])
         torch.testing.assert_close(fold.at(folded, twice), want.permute(0, 2, 3, 1).reshape(
             -1, hc)[[0, 1, 2, 3, 2]], atol=1e-5, rtol=1e-5)
+        # a channels-last map (an inference copy's): the compiled spread into the whole map
+        last = FoldedFused(current.contiguous(memory_format=torch.channels_last), past, fusion)
+        torch.testing.assert_close(fold.dense(last), want, atol=1e-5, rtol=1e-5)
+        lone = FoldedFused(last.current, None, fusion)
+        torch.testing.assert_close(fold.dense(lone), shared(lone.dense()), atol=1e-5,
+                                   rtol=1e-5)
         # no past term: the edge correction alone
         bare = FoldedFused(current, None, fusion)
         torch.testing.assert_close(fold.at(bare, cells[::5]), shared(bare.dense()).permute(

@@ -351,3 +351,144 @@ def test_the_compiled_pair_iou_equals_the_tensor_one():
     assert pair_iou(torch.from_numpy(a).double(), torch.from_numpy(b).double()).dtype == \
         torch.float64                               # float64 boxes keep the tensor code
     assert len(kernels.paired_bev_iou(a[:0], b[:0])) == 0
+
+
+def test_the_memory_moves_the_same_compiled_as_in_tensors():
+    """Inference moves a memory's cells, boxes and velocities in compiled passes
+    (``move_cells``, ``move_boxes``); with autograd the tensor code runs: both give the same
+    positions, boxes, velocities and ages on a batch of two frames with turning transforms."""
+    from suit_ros.model.memory import (
+        SparseMemory,
+        moved_memory,
+        rotate_velocities,
+        transform_sample_positions,
+    )
+    rng = np.random.default_rng(3)
+    M, P = 6, 9
+    T = np.stack([np.eye(4), np.eye(4)])
+    for b, yaw in enumerate((0.3, -1.2)):
+        T[b, :2, :2] = [[np.cos(yaw), -np.sin(yaw)], [np.sin(yaw), np.cos(yaw)]]
+        T[b, :3, 3] = rng.uniform(-5, 5, 3)
+    T[1, :3, :3] = T[1, :3, :3] @ np.array([[1, 0, 0], [0, np.cos(0.05), -np.sin(0.05)],
+                                           [0, np.sin(0.05), np.cos(0.05)]])   # a roll
+    mem = SparseMemory(torch.tensor([0, 1, 1, 0, 1, 0]),
+                       torch.from_numpy(rng.uniform(-50, 50, (M, P, 2)).astype(np.float32)),
+                       torch.zeros(M, P, 4), torch.ones(M, P), torch.ones(M, P, dtype=torch.bool),
+                       torch.from_numpy(rng.uniform(-3, 3, (M, 7)).astype(np.float32)),
+                       torch.from_numpy(rng.uniform(-9, 9, (M, 2)).astype(np.float32)),
+                       [0, 0], np.stack([np.eye(4)] * 2), 3)
+    shift = torch.from_numpy(rng.uniform(-1, 1, (M, 2)).astype(np.float32))
+    results = []
+    for grad in (False, True):
+        with torch.set_grad_enabled(grad):
+            pos = transform_sample_positions(mem, T)
+            moved = moved_memory(mem, pos, shift, T, np.stack([np.eye(4)] * 2), [5, 5])
+            results.append((pos, moved, rotate_velocities(mem.velocities, mem.batch_index, T)))
+    (pos_c, mov_c, vel_c), (pos_t, mov_t, vel_t) = results
+    torch.testing.assert_close(pos_c, pos_t, rtol=0, atol=2e-6)
+    torch.testing.assert_close(mov_c.cell_xy, mov_t.cell_xy, rtol=0, atol=2e-6)
+    torch.testing.assert_close(mov_c.boxes, mov_t.boxes, rtol=0, atol=2e-6)
+    torch.testing.assert_close(mov_c.velocities, mov_t.velocities, rtol=0, atol=2e-6)
+    torch.testing.assert_close(vel_c, vel_t, rtol=0, atol=2e-6)
+    assert mov_c.age().tolist() == mov_t.age().tolist() == [1] * M
+    with pytest.raises(IndexError, match='without a transform'):
+        kernels.move_cells(mem.cell_xy.numpy(), mem.boxes[:, 2].numpy().copy(), T[:1],
+                           mem.batch_index.numpy(), np.empty((M, P, 2), np.float32))
+
+
+def test_the_cell_flags_and_the_carry_cells_are_the_tensor_code_s():
+    """The flags at the cells of metric positions (on the map's edges, off it, on cell
+    borders) and the cells a carry head answers (within two cells of the carry term, less
+    the observed ones) and those that feed them, compiled and as the tensor code finds them."""
+    from suit_ros.model.grid import BEVGrid
+    from suit_ros.model.head import dilated_cells, unflatten_cells
+    from suit_ros.model.sampling import cell_flags
+    grid = BEVGrid((-51.2, -51.2, -2.0, 51.2, 51.2, 4.5), 0.4, 2)
+    g = torch.Generator().manual_seed(2)
+    B, H, W = 2, grid.H, grid.W
+    flags = torch.rand(B, H, W, generator=g) < 0.5
+    xy = torch.rand(400, 2, generator=g) * 120 - 60
+    xy[:8] = torch.tensor([[-51.2, -51.2], [51.2, 0.0], [0.0, 51.2], [51.19, 51.19],
+                           [-51.21, 3.0], [0.8, 0.8], [0.0, 0.0], [-0.4, 0.4]])
+    bi = torch.randint(0, B, (400,), generator=g)
+    with torch.no_grad():
+        fast = cell_flags(flags, bi, xy, grid)
+    with torch.enable_grad():
+        slow = cell_flags(flags, bi, xy, grid)
+    assert torch.equal(fast, slow) and fast.any() and not fast.all()
+    observed = torch.rand(B * H * W, generator=g) < 0.6
+    index = torch.randint(0, B * H * W, (60,), generator=g)
+    index = torch.cat([index, index[:4], torch.tensor([0, H * W - 1, B * H * W - 1])])
+    near = dilated_cells(index, H, W, 2)
+    want = near[~observed[near]]
+    got = torch.from_numpy(kernels.dilate_unobserved(index.numpy(), observed.numpy(), H, W, 2))
+    assert torch.equal(got, want)
+    cells, flat, feeding, where = kernels.feeding_map(want.numpy(), B, H, W)
+    assert torch.equal(torch.from_numpy(cells), unflatten_cells(want, H, W))
+    assert torch.equal(torch.from_numpy(flat), dilated_cells(want, H, W, 1))
+    assert torch.equal(torch.from_numpy(feeding), unflatten_cells(torch.from_numpy(flat), H, W))
+    assert (where[flat] == np.arange(len(flat))).all()
+    assert (np.delete(where, flat) == -1).all()
+    with pytest.raises(IndexError, match='off the map'):
+        kernels.feeding_map(np.array([B * H * W]), B, H, W)
+
+
+@pytest.mark.parametrize('low', [False, True])
+def test_the_dense_spread_adds_what_the_sparse_term_adds(low):
+    """A fold's ``K past`` and edge correction added into a whole channels-last map in one
+    pass equal the term's rows added by ``index_add_`` (float32: to rounding; bfloat16: each
+    add rounded to nearest even, within a bfloat16 step of the tensor code's)."""
+    from suit_ros.model.fusion import PastTerm
+    rng = np.random.default_rng(5)
+    B, H, W, hc = 2, 7, 9, 4
+    index = np.array([0, W - 1, H * W - 1, H * W, 2 * H * W - 1, 3 * W + 4, 3 * W + 4])
+    spread = rng.normal(size=(len(index), 9, hc)).astype(np.float32)
+    edge_index = np.array([0, 1, W, H * W - 1])
+    edge_values = rng.normal(size=(len(edge_index), hc)).astype(np.float32)
+    base = torch.from_numpy(rng.normal(size=(B * H * W, hc)).astype(np.float32))
+    # the tensor code: each input row's taps as a term at the output cells they feed
+    rows, cells = [], []
+    for r, f in enumerate(index):
+        b, y, x = f // (H * W), f // W % H, f % W
+        for t in range(9):
+            ty, tx = y - (t // 3 - 1), x - (t % 3 - 1)
+            if 0 <= ty < H and 0 <= tx < W:
+                cells.append((b * H + ty) * W + tx)
+                rows.append(spread[r, t])
+    for b in range(B):
+        cells += list(b * H * W + edge_index)
+        rows += list(edge_values)
+    term = PastTerm(torch.tensor(cells), torch.from_numpy(np.stack(rows)), (B, hc, H, W))
+    want = base.to(torch.bfloat16) if low else base.clone()
+    want.index_add_(0, term.index, term.values.to(want.dtype))
+    got = base.to(torch.bfloat16) if low else base.clone()
+    if low:
+        kernels.add_tap_spread_dense_bf16(got.view(torch.int16).numpy().view(np.uint16), spread,
+                                          index, edge_index, edge_values, H, W)
+        exact = base.double().index_add(0, term.index, term.values.double())
+        assert ((got.double() - exact).abs() <= 2 * (exact.abs() + 1) / 128).all()
+        torch.testing.assert_close(got.float(), want.float(), rtol=2 ** -6, atol=2 ** -6)
+        assert not torch.equal(got, base.to(torch.bfloat16))
+    else:
+        kernels.add_tap_spread_dense(got.numpy(), spread, index, edge_index, edge_values, H, W)
+        torch.testing.assert_close(got, want, rtol=1e-6, atol=1e-6)
+    nan = torch.zeros(1, 1, dtype=torch.bfloat16)
+    kernels.add_tap_spread_dense_bf16(nan.view(torch.int16).numpy().view(np.uint16),
+                                      np.full((0, 9, 1), 0, np.float32), np.zeros(0, np.int64),
+                                      np.zeros(1, np.int64), np.full((1, 1), np.nan, np.float32),
+                                      1, 1)
+    assert torch.isnan(nan).all()
+
+
+def test_a_bfloat16_sum_rounds_to_nearest_even_as_torch_converts():
+    """Each value added into a bfloat16 map is rounded as torch rounds a float32 to bfloat16
+    (to nearest, ties to even): ties both ways, a carry into the exponent, a negative."""
+    for start, add in ((1.0, 2 ** -8), (1.0 + 2 ** -7, 2 ** -8), (1.0, 2 ** -8 + 2 ** -20),
+                       (2.0 - 2 ** -7, 2 ** -8), (-3.0, -0.01), (0.0, 1e-30)):
+        got = torch.tensor([[start]], dtype=torch.bfloat16)
+        kernels.add_tap_spread_dense_bf16(
+            got.view(torch.int16).numpy().view(np.uint16), np.zeros((0, 9, 1), np.float32),
+            np.zeros(0, np.int64), np.zeros(1, np.int64), np.full((1, 1), add, np.float32), 1, 1)
+        want = (torch.tensor([[start]], dtype=torch.bfloat16).float()
+                + torch.tensor(add, dtype=torch.float32)).to(torch.bfloat16)
+        assert torch.equal(got, want), (start, add)

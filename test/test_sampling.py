@@ -95,3 +95,19 @@ def test_cell_flags_outside_the_map_are_false():
     xy = torch.tensor([[0.0, 0.0], [GRID.W * GRID.cell, 0.0], [0.0, -30.0]])
     assert cell_flags(flags, torch.zeros(3, dtype=torch.long), xy, GRID).tolist() == [
         True, False, False]
+
+
+def test_the_coarse_top_k_of_one_frame_is_that_of_a_batch():
+    """A node's one frame takes a shorter way through the coarse top-K: the same cells,
+    scores and order as the same frame in a batch of two; nothing when no cell reaches alpha."""
+    from suit_ros.model.sampling import coarse_topk
+    g = torch.Generator().manual_seed(1)
+    prob = torch.rand(2, 20, 30, generator=g) ** 4
+    b, cells, scores = coarse_topk(prob, 0.3, 25)
+    one = coarse_topk(prob[1:], 0.3, 25)
+    mine = b == 1
+    assert torch.equal(one[0], torch.zeros(int(mine.sum()), dtype=torch.long))
+    assert torch.equal(one[1], cells[mine]) and torch.equal(one[2], scores[mine])
+    assert 0 < len(one[2]) <= 25 and (one[2] >= 0.3).all()
+    empty = coarse_topk(prob[:1] * 0, 0.3, 25)
+    assert all(len(t) == 0 for t in empty) and empty[1].shape == (0, 2)

@@ -147,7 +147,8 @@ class SUITDetector(nn.Module):
             a sparse one, two of them as :class:`BranchTerms` with a carry branch) and aux
             outputs (``geo_logits``, ``sample_index``, ``T_now_prev``) for the GeoNet loss;
             with a carry (``sampling.carry_frames``) also ``carry_index``,
-            ``carry_positions`` and ``carry_shift`` for :meth:`carried`.
+            ``carry_positions`` and ``carry_shift`` for :meth:`carried` (and ``carry_all``
+            when the index is every sample).
         """
         aux: dict[str, Tensor] = {}
         if self.fusion is None or memory is None:
@@ -174,11 +175,9 @@ class SUITDetector(nn.Module):
         dts = torch.from_numpy(dt).to(feats)[bi]                               # (M,)
         M = feats.shape[0]
         if self.geonet is not None:
-            win = memory.window
-            # channels named: a memory may hold no sample (no cell scored alpha or more)
-            patches = (feats * mask[..., None]).permute(0, 2, 1).reshape(
-                M, feats.shape[-1], win, win)
-            logits = self.geonet(patches, rotate_velocities(sub.velocities, bi, T_now_prev))
+            logits = self.geonet.memory_logits(
+                feats, mask, rotate_velocities(sub.velocities, bi, T_now_prev)
+                if self.geonet.velocity_input else None)
             q = torch.softmax(logits, dim=1)
             bins = typing.cast(Tensor, self.geonet.bin_velocities)
             disp = bins[None] * dts[:, None, None]
@@ -194,6 +193,8 @@ class SUITDetector(nn.Module):
             # the object's own expected displacement since the memory's frame
             shift = disp[:, 0] if q.shape[1] == 1 else (q[:, :, None] * disp).sum(dim=1)
             aux.update(carry_index=sel, carry_positions=positions, carry_shift=shift)
+            if sub is memory:
+                aux['carry_all'] = sel
         if self.carry is None:
             return sparse_past_term(feats, probs, mask, positions, bi, disp, q,
                                     self.fusion.past, self.grid, B, prune), aux
@@ -239,7 +240,9 @@ class SUITDetector(nn.Module):
         carry of :meth:`sample_memory` (None without a carry or a usable memory)."""
         if not isinstance(memory, SparseMemory) or 'carry_index' not in aux:
             return None
-        return moved_memory(memory.select(aux['carry_index']), aux['carry_positions'],
+        # every sample (a node's frame fuses its whole memory): no copy
+        held = memory if 'carry_all' in aux else memory.select(aux['carry_index'])
+        return moved_memory(held, aux['carry_positions'],
                             aux['carry_shift'], aux['T_now_prev'].numpy(), poses,
                             list(stamps_ns))
 
@@ -273,8 +276,14 @@ class SUITDetector(nn.Module):
                 # receptive field of the carry term), gathered; the own outputs elsewhere
                 # (the observed cells among them)
                 _, _, H, W = carry_input.shape
-                near = dilated_cells(carry_term.index, H, W, 2)
-                needed = near[~observed.reshape(-1)[near]]
+                if observed.device.type == 'cpu':
+                    from suit_ros.ops.kernels import dilate_unobserved
+                    needed = torch.from_numpy(dilate_unobserved(
+                        carry_term.index.to(torch.int64).contiguous().numpy(),
+                        observed.reshape(-1).contiguous().numpy(), H, W, 2))
+                else:
+                    near = dilated_cells(carry_term.index, H, W, 2)
+                    needed = near[~observed.reshape(-1)[near]]
                 merged = self.carry.head.forward_at(carry_input, needed, preds)
             merged.update({OWN + k: v for k, v in preds.items()})
             return merged
@@ -421,7 +430,7 @@ def gate_past(past: Tensor | PastTerm, observed: Tensor) -> Tensor | PastTerm:
     """The past term without its entries at ``observed`` cells (``(B, H, W)`` bool)."""
     if isinstance(past, PastTerm):
         keep = ~observed.reshape(-1)[past.index]
-        return PastTerm(past.index[keep], past.values[keep], past.shape)
+        return PastTerm(past.index[keep], past.values[keep], past.shape, past.distinct)
     gated: Tensor = past * (~observed)[:, None].to(past.dtype)
     return gated
 

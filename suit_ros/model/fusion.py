@@ -40,6 +40,8 @@ class PastTerm:
     index: Tensor
     values: Tensor
     shape: tuple[int, int, int, int]
+    # the index sorted, without repeats (one row per cell, as the sparse past terms give it)
+    distinct: bool = False
 
     def rows(self) -> Tensor:
         """The term summed per cell, as the ``(B * H * W, C)`` rows of the map."""
@@ -51,9 +53,12 @@ class PastTerm:
     def at(self, flat: Tensor) -> Tensor:
         """The term summed per cell at the flat cells ``flat`` ``(N,)``: ``(N, C)`` rows (zero
         where it adds nothing), without forming the map's rows."""
-        cells, where = torch.unique(self.index, return_inverse=True)
-        summed = self.values.new_zeros(len(cells), self.values.shape[1])
-        summed.index_add_(0, where, self.values)
+        if self.distinct:
+            cells, summed = self.index, self.values
+        else:
+            cells, where = torch.unique(self.index, return_inverse=True)
+            summed = self.values.new_zeros(len(cells), self.values.shape[1])
+            summed.index_add_(0, where, self.values)
         out = self.values.new_zeros(len(flat), self.values.shape[1])
         if len(cells):
             at = torch.searchsorted(cells, flat).clamp(max=len(cells) - 1)
@@ -377,7 +382,7 @@ def _triple_terms(features: Tensor, positions: Tensor, batch_index: Tensor,
         values = projection(features)[mm, pp] * ww[:, None]                  # (T, C)
         cells_hit, where = torch.unique(ff, return_inverse=True)
         rows = values.new_zeros(len(cells_hit), shape[1]).index_add_(0, where, values)
-        terms.append(PastTerm(cells_hit, rows, shape))
+        terms.append(PastTerm(cells_hit, rows, shape, distinct=True))
     return terms
 
 
@@ -405,7 +410,8 @@ def _compiled_triple_terms(features: Tensor, batch_index: Tensor,
     for (projection, _), shape, n in zip(projections, shapes, counts.tolist()):
         rows = F.linear(torch.from_numpy(sums[start:start + n]), projection.weight,
                         projection.bias)
-        terms.append(PastTerm(torch.from_numpy(flat[start:start + n]), rows, shape))
+        terms.append(PastTerm(torch.from_numpy(flat[start:start + n]), rows, shape,
+                              distinct=True))
         start += n
     return terms
 

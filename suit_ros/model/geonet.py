@@ -71,6 +71,32 @@ class GeoNet(nn.Module):
         out: Tensor = self.net(patches).flatten(1)
         return out
 
+    def memory_logits(self, features: Tensor, mask: Tensor, velocities: Tensor | None = None
+                      ) -> Tensor:
+        """:meth:`forward` on a memory's samples as they are stored: ``features`` ``(M, P, C)``
+        (``P = window^2`` cells, row-major), zero where ``mask`` ``(M, P)`` is False. An
+        inference copy (:meth:`as_products`) multiplies the rows as they lie (its first product
+        reordered to the memory's layout, the velocity's constant channels summed over the
+        window once); otherwise they are laid out as patches for :meth:`forward`."""
+        M, P, C = features.shape
+        rows = features * mask[..., None].to(features.dtype)
+        if (self.products and P == self.window * self.window and hasattr(self, 'memory_weight')
+                and self.product_key == state_key(self.net)):
+            weight = self.get_buffer('memory_weight')
+            h = rows.reshape(M, P * C).to(weight.dtype) @ weight \
+                + self.get_buffer('product_bias_0')
+            if self.velocity_input:
+                if velocities is None:
+                    raise ValueError("this GeoNet takes the samples' velocities")
+                h = h + velocities.to(h.dtype) @ self.get_buffer('velocity_weight')
+            for k in range(1, self.products):
+                h = torch.relu(h) @ self.get_buffer(f'product_weight_{k}') \
+                    + self.get_buffer(f'product_bias_{k}')
+            return h
+        patches = rows.permute(0, 2, 1).reshape(M, C, self.window, self.window)
+        logits: Tensor = self(patches, velocities)
+        return logits
+
     def as_products(self) -> int:
         """For an inference copy: each convolution over a ``window x window`` patch (the
         only input a memory gives) becomes one matrix product of the flattened patch, composed
@@ -101,6 +127,17 @@ class GeoNet(nn.Module):
                     out.shape[1:]).reshape(-1).contiguous(), persistent=False)
                 shape = (out.shape[1], out.shape[2], out.shape[3])
         self.products = len(convs)
+        # the first product over a memory's (P, C) rows; the velocity channels' rows summed
+        # over the window (a constant there), in units of m/s
+        weight0 = self.get_buffer('product_weight_0')                # ((C + v) * P, out)
+        P = self.window * self.window
+        C = weight0.shape[0] // P - (2 if self.velocity_input else 0)
+        by_channel = weight0.view(-1, P, weight0.shape[1])           # (C + v, P, out)
+        self.register_buffer('memory_weight', by_channel[:C].permute(1, 0, 2)
+                             .reshape(P * C, -1).contiguous(), persistent=False)
+        if self.velocity_input:
+            self.register_buffer('velocity_weight', by_channel[C:].sum(dim=1)
+                                 / self.velocity_step, persistent=False)
         # a load or an update of the convolutions since, and they run instead
         self.product_key = state_key(self.net)
         return self.products

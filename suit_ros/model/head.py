@@ -159,9 +159,10 @@ class HeadFold(nn.Module):
         self._terms(fused.past, B).add_to(pre)
         return torch.relu_(pre)
 
-    def at(self, fused: FoldedFused, cells: Tensor) -> Tensor:
+    def at(self, fused: FoldedFused, cells: Tensor, where: Tensor | None = None) -> Tensor:
         """The layer's output ``(M, hc)`` at ``cells`` ``(M, 3)`` (b, y, x), in float32 on a
-        low-precision map (:func:`gathered_dtype`)."""
+        low-precision map (:func:`gathered_dtype`); ``where`` ``(B * H * W,)``: each cell's
+        row among ``cells`` (-1: none), when the caller has it."""
         B, C, H, W = fused.current.shape
         if (H, W) != (self.H, self.W):
             raise ValueError(f'a fold made for a {self.H} x {self.W} map read at cells of a '
@@ -179,8 +180,11 @@ class HeadFold(nn.Module):
             # cell one row of the lookup: repeated cells take the tensor path)
             from suit_ros.ops.kernels import add_tap_spread
             at = flat.numpy()
-            lookup = np.full(B * H * W, -1, np.int64)
-            lookup[at] = np.arange(len(at))
+            if where is not None and len(where) == B * H * W:
+                lookup = where.to(torch.int64).contiguous().numpy()
+            else:
+                lookup = np.full(B * H * W, -1, np.int64)
+                lookup[at] = np.arange(len(at))
             if len(at) and at.min() >= 0 and (lookup[at] == np.arange(len(at))).all():
                 spread = (past.values.float() @ self.past_weight if past is not None
                           else v.new_zeros(0, 9 * self.hc))
@@ -313,22 +317,28 @@ class CenterHead(nn.Module):
                        else needed)
         if len(flat_needed) == 0:
             return out
-        cells = unflatten_cells(flat_needed, H, W)                       # (M, 3): b, y, x
-        flat_feeding = dilated_cells(flat_needed, H, W, 1)
-        feeding = unflatten_cells(flat_feeding, H, W)
+        if flat_needed.device.type == 'cpu':
+            from suit_ros.ops.kernels import feeding_map
+            # (M, 3) b, y, x; the cells feeding them; each cell's row among those, or -1
+            c, f, fc, w = feeding_map(flat_needed.to(torch.int64).contiguous().numpy(), B, H, W)
+            cells, flat_feeding = torch.from_numpy(c), torch.from_numpy(f)
+            feeding, where = torch.from_numpy(fc), torch.from_numpy(w)
+        else:
+            cells = unflatten_cells(flat_needed, H, W)
+            flat_feeding = dilated_cells(flat_needed, H, W, 1)
+            feeding = unflatten_cells(flat_feeding, H, W)
+            where = torch.full((B * H * W,), -1, dtype=torch.long, device=flat_needed.device)
+            where[flat_feeding] = torch.arange(len(feeding), device=flat_needed.device)
         if isinstance(x, FoldedFused) and self.fold is not None:
-            shared = self.fold.at(x, feeding)
+            shared = self.fold.at(x, feeding, where)
         else:
             x = x.dense() if isinstance(x, FoldedFused) else x
             # the map's rows as they lie (a view of a channels-last map: no copy)
             shared = _at_cells(self.shared, x.permute(0, 2, 3, 1).reshape(-1, C), feeding, H, W)
-        # the computed rows and a zero one; every tap of a needed cell on the map is fed
-        rows = torch.cat([shared, shared.new_zeros(1, shared.shape[1])])
-        where = torch.full((B * H * W,), len(feeding), dtype=torch.long, device=rows.device)
-        where[flat_feeding] = torch.arange(len(feeding), device=rows.device)
-        patches = _neighbourhoods(rows, cells, H, W, where)              # both branches'
-        maps = {'heatmap': _at_cells(self.heatmap, rows, cells, H, W, patches)}
-        reg = _at_cells(self.regression, rows, cells, H, W, patches)
+        # every tap of a needed cell on the map is fed (the others read as zero)
+        patches = _neighbourhoods(shared, cells, H, W, where)            # both branches'
+        maps = {'heatmap': _at_cells(self.heatmap, shared, cells, H, W, patches)}
+        reg = _at_cells(self.regression, shared, cells, H, W, patches)
         if SHARED in elsewhere:         # forward_lazy's outputs: the rows where it answered
             out[CARRY_CELLS] = flat_needed
             out[CARRY_REG] = reg
@@ -336,11 +346,15 @@ class CenterHead(nn.Module):
             for name, (a, b) in REG_SLICES.items():
                 maps[name] = reg[:, a:b]
         for b in range(B):
-            mine = cells[:, 0] == b
-            flat = cells[mine, 1] * W + cells[mine, 2]
+            if B == 1:              # a node's frame: every needed cell is its own
+                flat, mine = flat_needed, None
+            else:
+                mine = cells[:, 0] == b
+                flat = cells[mine, 1] * W + cells[mine, 2]
             for name, v in maps.items():
                 o = out[name][b]
-                o.view(o.shape[0], H * W).index_copy_(1, flat, v[mine].t().to(o.dtype))
+                o.view(o.shape[0], H * W).index_copy_(
+                    1, flat, (v if mine is None else v[mine]).t().to(o.dtype))
         return out
 
     # ------------------------------------------------------------------ targets and loss
@@ -512,7 +526,8 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
                     where: Tensor | None = None) -> Tensor:
     """The 3 x 3 neighbourhoods ``(M, 9 C)`` (row-major taps) at ``cells`` ``(M, 3)`` (b, y, x)
     of a map given as its ``(B * H * W, C)`` rows (or as some of them: ``where`` ``(B * H * W,)``
-    the row of ``rows`` each cell's is), zero off the map as a padded convolution has it; in
+    the row of ``rows`` each cell's is, -1 for a cell they do not hold, read as zero), zero
+    off the map as a padded convolution has it; in
     :func:`gathered_dtype` (a bfloat16 map's rows come back as float32, exactly). On the CPU
     without autograd one compiled pass (:func:`suit_ros.ops.kernels.gather_taps`) does the
     work of a dozen tensor operations."""
@@ -540,6 +555,8 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
     index = (b[:, None] * H + ys.clamp(0, H - 1)) * W + xs.clamp(0, W - 1)
     if where is not None:
         index = where[index]
+        inside = inside & (index >= 0)
+        index = index.clamp(min=0)
     patches = torch.index_select(rows, 0, index.view(-1)).view(M, 9, C).to(exact)
     return (patches * inside[..., None].to(patches.dtype)).view(M, 9 * C)
 

@@ -503,6 +503,8 @@ def _tap_row(cells: Any, m: int, t: int, H: int, W: int, where: Any,
         if r >= len(where):
             raise IndexError('gather_taps: a cell lies outside the where map')
         r = where[r]
+        if r < 0:                       # a cell the rows do not hold: zero, as off the map
+            return -1
     if r < 0 or r >= rows:
         raise IndexError('gather_taps: a tap reads a row the map does not have')
     return r
@@ -513,8 +515,9 @@ def gather_taps(rows: Any, cells: Any, H: int, W: int, where: Any,
                 out: Any) -> None:  # pragma: no cover
     """The 3 x 3 neighbourhoods of ``cells`` ``(M, 3)`` int64 (b, y, x) of a map given as its
     ``(R, C)`` float32 rows (row ``(b * H + y) * W + x``, or ``where`` of it when ``where``
-    is not empty), written into ``out`` ``(M, 9 C)`` (row-major taps), zero off the map as a
-    padded convolution has it (:func:`suit_ros.model.head._neighbourhoods`)."""
+    is not empty; -1 there: a cell the rows do not hold, read as zero), written into ``out``
+    ``(M, 9 C)`` (row-major taps), zero off the map as a padded convolution has it
+    (:func:`suit_ros.model.head._neighbourhoods`)."""
     C = rows.shape[1]
     for m in range(cells.shape[0]):
         for t in range(9):
@@ -558,6 +561,70 @@ def dilate_flat_cells(flat: Any, H: int, W: int, r: int) -> Any:  # pragma: no c
         for yy in range(max(y - r, 0), min(y + r + 1, H)):
             for xx in range(max(x - r, 0), min(x + r + 1, W)):
                 mark[(b * H + yy) * W + xx] = True
+    return np.nonzero(mark)[0].astype(np.int64)
+
+
+@_jit
+def feeding_map(needed: Any, B: int, H: int, W: int) -> Any:  # pragma: no cover
+    """For the sorted distinct flat cells ``needed`` ``(M,)`` of a ``(B, H, W)`` map, where a
+    3 x 3 layer over a 3 x 3 layer is read (:meth:`suit_ros.model.head.CenterHead.forward_at`):
+    their ``(M, 3)`` (b, y, x) rows, the sorted flat cells that feed them (within one cell),
+    those as ``(F, 3)`` rows, and the ``(B * H * W,)`` map of each cell's row among the
+    feeding ones (-1: not feeding)."""
+    HW = H * W
+    cells = np.empty((len(needed), 3), np.int64)
+    where = np.full(B * HW, -1, np.int64)
+    for i in range(len(needed)):
+        f = needed[i]
+        if f < 0 or f >= B * HW:
+            raise IndexError('feeding_map: a needed cell lies off the map')
+        b = f // HW
+        y = f // W % H
+        x = f % W
+        cells[i, 0] = b
+        cells[i, 1] = y
+        cells[i, 2] = x
+        for yy in range(max(y - 1, 0), min(y + 2, H)):
+            for xx in range(max(x - 1, 0), min(x + 2, W)):
+                where[(b * H + yy) * W + xx] = 0
+    F = 0
+    for f in range(B * HW):
+        if where[f] == 0:
+            F += 1
+    flat = np.empty(F, np.int64)
+    feeding = np.empty((F, 3), np.int64)
+    n = 0
+    for f in range(B * HW):
+        if where[f] == 0:
+            where[f] = n
+            flat[n] = f
+            feeding[n, 0] = f // HW
+            feeding[n, 1] = f // W % H
+            feeding[n, 2] = f % W
+            n += 1
+    return cells, flat, feeding, where
+
+
+@_jit
+def dilate_unobserved(flat: Any, observed: Any, H: int, W: int, r: int
+                      ) -> Any:  # pragma: no cover
+    """:func:`dilate_flat_cells` of ``flat`` on the ``(B * H * W,)`` map ``observed`` (bool),
+    less the observed cells (the cells a carry head answers,
+    :meth:`suit_ros.model.detector.SUITDetector.predict`)."""
+    HW = H * W
+    n = len(observed)
+    mark = np.zeros(n, np.bool_)
+    for f in flat:
+        if f < 0 or f >= n:
+            raise IndexError('dilate_unobserved: a cell lies off the map')
+        b = f // HW
+        y = f // W % H
+        x = f % W
+        for yy in range(max(y - r, 0), min(y + r + 1, H)):
+            for xx in range(max(x - r, 0), min(x + r + 1, W)):
+                c = (b * H + yy) * W + xx
+                if not observed[c]:
+                    mark[c] = True
     return np.nonzero(mark)[0].astype(np.int64)
 
 
@@ -1308,6 +1375,8 @@ def warm_up() -> None:
                 np.zeros(1, np.int64), np.zeros((1, 1, 2), np.float32),
                 np.ones((1, 1), np.bool_), 1, 1)
     pool_occupancy(np.zeros(4, np.bool_), 1, 2, 2, 2, 1)
+    feeding_map(np.zeros(1, np.int64), 1, 2, 2)
+    dilate_unobserved(np.zeros(1, np.int64), np.zeros(4, np.bool_), 2, 2, 2)
     flags_at(np.zeros((1, 2, 2), np.bool_), np.zeros(1, np.int64), np.zeros((1, 2), np.float32),
              np.zeros(2, np.float32), np.float32(1.0))
     T1 = np.eye(4)[None]
