@@ -375,15 +375,15 @@ def test_the_window_and_the_triples_give_the_same_past_terms():
     """The past term's two ways (the per-sample window of training, the weighted triples of
     inference) give the same maps, on a batch of two with samples at the map's edge, pruned
     bins and a projection of a subset of the samples (a carry branch's own term)."""
-    from suit_ros.model.fusion import _triple_terms, _window_terms
+    from suit_ros.model.fusion import _triple_terms, _window_terms, sparse_past_terms
     torch.manual_seed(4)
     M, P, K, C, B = 7, 9, 5, 6, 2
     feats = torch.randn(M, P, C)
     positions = torch.rand(M, P, 2) * 40 - 20
     positions[0] = torch.tensor([GRID.point_range[0] + 0.05, 0.0])          # on the map's edge
     disp = torch.randn(M, K, 2) * 1.5
-    q = torch.softmax(torch.randn(M, K), 1)
-    q = q * (q >= 0.15)
+    q0 = torch.softmax(torch.randn(M, K), 1)
+    q = q0 * (q0 >= 0.15)
     probs = torch.rand(M, P)
     mask = torch.rand(M, P) > 0.2
     batch_index = torch.tensor([0, 1, 0, 1, 1, 0, 0])
@@ -395,12 +395,16 @@ def test_the_window_and_the_triples_give_the_same_past_terms():
     with torch.no_grad():
         window = _window_terms(feats, positions, batch_index, projections, GRID, shapes,
                                cells, w)
-        # on the CPU without autograd: the compiled sums, projected once per cell
-        triples = _triple_terms(feats, positions, batch_index, projections, GRID, shapes,
-                                cells, w)
+        # on the CPU without autograd: the compiled pass, each cell's sum projected once
+        triples = sparse_past_terms(feats, probs, mask, positions, batch_index, disp, q0,
+                                    projections, GRID, B, prune=0.15)
     with torch.enable_grad():               # the tensor code (autograd on)
         tensors = _triple_terms(feats, positions, batch_index, projections, GRID, shapes,
                                 cells, w)
+        assert all(torch.equal(a.index, b.index) and torch.equal(a.values, b.values)
+                   for a, b in zip(tensors, sparse_past_terms(
+                       feats, probs, mask, positions, batch_index, disp, q0, projections,
+                       GRID, B, prune=0.15)))
     for a, b, c in zip(window, triples, tensors):
         torch.testing.assert_close(a.dense(), b.dense(), atol=1e-5, rtol=1e-5)
         torch.testing.assert_close(c.dense().detach(), b.dense(), atol=1e-5, rtol=1e-5)
@@ -412,8 +416,8 @@ def test_the_window_and_the_triples_give_the_same_past_terms():
         assert b.dense().abs().sum() > 0
         assert len(torch.unique(b.index)) == len(b.index)      # one row per cell touched
     with torch.no_grad():                   # a subset with no sample: no row
-        none = _triple_terms(feats, positions, batch_index,
-                             [(own, torch.zeros(0, dtype=torch.long)), (carry, None)], GRID,
-                             shapes, cells, w)
+        none = sparse_past_terms(feats, probs, mask, positions, batch_index, disp, q0,
+                                 [(own, torch.zeros(0, dtype=torch.long)), (carry, None)],
+                                 GRID, B, prune=0.15)
     assert len(none[0].index) == 0 and none[0].values.shape == (0, C)
     assert torch.equal(none[1].index, triples[1].index)

@@ -294,13 +294,20 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
     multiplied with its ``(P, C)`` projected features (:func:`_window_terms`: ``D^2`` rows a
     sample where the triples are ``P K``); with pruned bins (inference: a few per sample cell)
     only the triples of non-zero weight are formed (:func:`_triple_terms`: no window, no
-    host sync for its size). The rows differ only in summation order (tested)."""
+    host sync for its size; on the CPU without autograd in one compiled pass that sums the
+    weighted features per cell before projecting them, :func:`_compiled_triple_terms`). The
+    rows differ only in summation order (tested)."""
     M, P, C = features.shape
     H, W = grid.H, grid.W
     shapes = [(batch_size, proj.out_features, H, W) for proj, _ in projections]
     if M == 0:
         return [PastTerm(torch.zeros(0, dtype=torch.long, device=features.device),
                          features.new_zeros(0, shape[1]), shape) for shape in shapes]
+    if (prune > 0 and features.device.type == 'cpu' and not torch.is_grad_enabled()
+            and features.dtype == positions.dtype == displacements.dtype == probs.dtype
+            == q.dtype == torch.float32):
+        return _compiled_triple_terms(features, positions, displacements, probs, mask, q,
+                                      prune, batch_index, projections, grid, shapes)
     if prune > 0:
         q = q * (q >= prune)
     cells = torch.floor(grid.xy_to_cell(positions[:, :, None, :]
@@ -358,10 +365,6 @@ def _triple_terms(features: Tensor, positions: Tensor, batch_index: Tensor,
     cell (one row per cell the term touches)."""
     M = features.shape[0]
     H, W = grid.H, grid.W
-    if (features.device.type == 'cpu' and not torch.is_grad_enabled()
-            and features.dtype == torch.float32 and w.dtype == torch.float32):
-        return _compiled_triple_terms(features, batch_index, projections, grid, shapes, cells,
-                                      w)
     col, row = cells[..., 0], cells[..., 1]
     m, p, k = torch.nonzero((w > 0) & (col >= 0) & (col < W) & (row >= 0) & (row < H),
                             as_tuple=True)
@@ -386,14 +389,17 @@ def _triple_terms(features: Tensor, positions: Tensor, batch_index: Tensor,
     return terms
 
 
-def _compiled_triple_terms(features: Tensor, batch_index: Tensor,
+def _compiled_triple_terms(features: Tensor, positions: Tensor, displacements: Tensor,
+                           probs: Tensor, mask: Tensor, q: Tensor, prune: float,
+                           batch_index: Tensor,
                            projections: Sequence[tuple[nn.Linear, Tensor | None]],
-                           grid: BEVGrid, shapes: list[tuple[int, int, int, int]],
-                           cells: Tensor, w: Tensor) -> list[PastTerm]:
-    """:func:`_triple_terms` on the CPU without autograd: the weighted features summed per
-    destination cell in one compiled pass (:func:`suit_ros.ops.kernels.sum_triples`), then
-    each cell's sum projected once (``W2 sum w f`` where the tensor code sums ``w W2 f``: the
-    same up to float rounding, tested), each projection over the samples it names."""
+                           grid: BEVGrid, shapes: list[tuple[int, int, int, int]]
+                           ) -> list[PastTerm]:
+    """:func:`_triple_terms` on the CPU without autograd: the triples' destinations and
+    weights found and the weighted features summed per destination cell in one compiled pass
+    (:func:`suit_ros.ops.kernels.sum_triples`), then each cell's sum projected once
+    (``W2 sum w f`` where the tensor code sums ``w W2 f``: the same up to float rounding,
+    tested), each projection over the samples it names."""
     from suit_ros.ops.kernels import sum_triples
     M = features.shape[0]
     member = np.zeros((len(projections), M), np.bool_)
@@ -402,9 +408,13 @@ def _compiled_triple_terms(features: Tensor, batch_index: Tensor,
             member[s] = True
         else:
             member[s, subset.cpu().numpy()] = True
-    flat, sums, counts = sum_triples(cells.contiguous().numpy(), w.contiguous().numpy(),
-                                     batch_index.to(torch.int64).contiguous().numpy(),
-                                     features.contiguous().numpy(), member, grid.H, grid.W)
+    flat, sums, counts = sum_triples(
+        positions.contiguous().numpy(), displacements.contiguous().numpy(),
+        probs.contiguous().numpy(), mask.to(torch.bool).contiguous().numpy(),
+        q.contiguous().numpy(), np.float32(prune),
+        np.asarray(grid.point_range[:2], np.float32), np.float32(grid.cell),
+        batch_index.to(torch.int64).contiguous().numpy(), features.contiguous().numpy(),
+        member, grid.H, grid.W)
     terms = []
     start = 0
     for (projection, _), shape, n in zip(projections, shapes, counts.tolist()):

@@ -7,8 +7,10 @@ does the step's work without them. The same goes for the small work of a step th
 memory and the heads do at a few hundred cells or boxes, where each tensor operation's fixed
 cost, not its arithmetic, was the time. Each kernel computes what the array code it replaced
 computed, in the same floating-point operations and order (test/test_kernels.py compares
-them bit for bit), except where a kernel says otherwise (:func:`add_tap_spread` sums in
-another order; :func:`greedy_bev_nms` and :func:`suppress_near_kernel` measure centre
+them bit for bit), except where a kernel says otherwise (:func:`add_tap_spread`,
+:func:`sum_triples`, :func:`move_cells` and :func:`move_boxes` sum in another order;
+:func:`add_tap_spread_dense_bf16` rounds each sum to bfloat16 where ``index_add_`` rounds the
+addend first; :func:`greedy_bev_nms` and :func:`suppress_near_kernel` measure centre
 distances in float64, where the tensor code's ``cdist`` could round a distance at its
 threshold the other way):
 
@@ -34,8 +36,16 @@ threshold the other way):
   :func:`suppress_near_kernel`: the carried boxes dropped near surer ones;
 - :func:`gather_taps` (and :func:`gather_taps_bf16`): the 3 x 3 neighbourhoods of a few
   hundred cells of a BEV map, where the heads run as gathered products (float32 out, a
-  bfloat16 map's values exactly), :func:`dilate_flat_cells`: the cells around them, and
-  :func:`add_tap_spread`: a sparse past term through a 3 x 3 layer at those cells;
+  bfloat16 map's values exactly), :func:`dilate_flat_cells`: the cells around them,
+  :func:`dilate_unobserved` and :func:`feeding_map`: the cells a carry head answers and those
+  that feed them, and :func:`add_tap_spread` (:func:`add_tap_spread_dense` and
+  :func:`add_tap_spread_dense_bf16` over a whole map): a sparse past term through a 3 x 3
+  layer at those cells;
+- :func:`sum_triples`: the sparse past term's weighted features summed per destination cell
+  (projected afterwards, once per cell: the same sums up to float rounding);
+  :func:`move_cells` and :func:`move_boxes`: a memory's samples moved by ego motion;
+  :func:`flags_at`: a flag map read at metric positions; :func:`pool_occupancy`: the head
+  cells with returns, grown by the gate's radius;
 - :func:`height_histograms` and :func:`level_heights`: the local ground under a model input
   and the input leveled to it (:mod:`suit_ros.ground`, ``ground: local``; new computations,
   tested against numpy);
@@ -737,41 +747,46 @@ def add_tap_spread_dense_bf16(out: Any, spread: Any, index: Any, edge_index: Any
 
 
 @_jit
-def sum_triples(cells: Any, w: Any, batch_index: Any, features: Any, member: Any, H: int,
+def sum_triples(positions: Any, displacements: Any, probs: Any, mask: Any, q: Any, prune: Any,
+                origin: Any, cell: Any, batch_index: Any, features: Any, member: Any, H: int,
                 W: int) -> Any:  # pragma: no cover
     """The sparse past term's weighted sums before its projection
-    (:func:`suit_ros.model.fusion.sparse_past_terms`): every (sample m, cell p, bin k) of
-    weight ``w[m, p, k] > 0`` whose destination ``cells[m, p, k]`` (col, row) lies on the
-    ``H x W`` map adds ``w * features[m, p]`` to its flat cell ``(b * H + row) * W + col``;
-    per subset ``s`` (``member`` ``(S, M)`` bool: the samples it takes) the cells it touches
-    in increasing order and their sums. Sums run over the triples in (m, p, k) order per cell.
+    (:func:`suit_ros.model.fusion.sparse_past_terms`, pruned bins): every (sample m, cell p,
+    bin k) of weight ``w = probs[m, p] * mask[m, p] * q[m, k]`` (``q`` below ``prune``: 0) over
+    0, whose destination ``floor((positions[m, p] + displacements[m, k] - origin) / cell)``
+    (col, row; float32, as the tensor code) lies on the ``H x W`` map, adds
+    ``w * features[m, p]`` to its flat cell ``(b * H + row) * W + col``; per subset ``s``
+    (``member`` ``(S, M)`` bool: the samples it takes) the cells it touches in increasing order
+    and their sums. Sums run over the triples in (m, p, k) order per cell.
 
     :return: flat cells ``(R,)`` int64, sums ``(R, C)`` float32 and ``(S,)`` counts (the
         subsets' rows one after another).
     """
-    M, P, K = w.shape
+    M, P, _ = positions.shape
+    K = q.shape[1]
     C = features.shape[2]
     S = member.shape[0]
-    T = 0
-    for m in range(M):
-        for p in range(P):
-            for k in range(K):
-                if w[m, p, k] > 0:
-                    T += 1
-    flat = np.empty(T, np.int64)
-    who = np.empty((T, 2), np.int64)
-    weight = np.empty(T, np.float32)
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    flat = np.empty(M * P * K, np.int64)
+    who = np.empty((M * P * K, 2), np.int64)
+    weight = np.empty(M * P * K, np.float32)
     n = 0
     for m in range(M):
         for p in range(P):
+            pw = probs[m, p] * (one if mask[m, p] else zero)
             for k in range(K):
-                col = cells[m, p, k, 0]
-                row = cells[m, p, k, 1]
-                if w[m, p, k] > 0 and 0 <= col < W and 0 <= row < H:
-                    flat[n] = (batch_index[m] * H + row) * W + col
+                qk = q[m, k] * (one if q[m, k] >= prune else zero)
+                w = pw * qk
+                if not w > 0:
+                    continue
+                col = np.floor((positions[m, p, 0] + displacements[m, k, 0] - origin[0]) / cell)
+                row = np.floor((positions[m, p, 1] + displacements[m, k, 1] - origin[1]) / cell)
+                if 0 <= col < W and 0 <= row < H:
+                    flat[n] = (batch_index[m] * H + int(row)) * W + int(col)
                     who[n, 0] = m
                     who[n, 1] = p
-                    weight[n] = w[m, p, k]
+                    weight[n] = w
                     n += 1
     # in (m, p, k) order within a cell: the position breaks ties, so the sort needs no
     # stability (numba's mergesort took three times its quicksort here)
@@ -1371,9 +1386,10 @@ def warm_up() -> None:
                                (np.zeros((1, 2), np.uint16), add_tap_spread_dense_bf16)):
         spread_into(dense, np.zeros((1, 9, 2), np.float32), np.zeros(1, np.int64),
                     np.zeros(1, np.int64), np.zeros((1, 2), np.float32), 1, 1)
-    sum_triples(np.zeros((1, 1, 1, 2), np.int64), np.zeros((1, 1, 1), np.float32),
-                np.zeros(1, np.int64), np.zeros((1, 1, 2), np.float32),
-                np.ones((1, 1), np.bool_), 1, 1)
+    f32 = np.zeros((1, 1, 2), np.float32)
+    sum_triples(f32, f32, np.zeros((1, 1), np.float32), np.ones((1, 1), np.bool_),
+                np.zeros((1, 1), np.float32), np.float32(0.1), np.zeros(2, np.float32),
+                np.float32(1.0), np.zeros(1, np.int64), f32, np.ones((1, 1), np.bool_), 1, 1)
     pool_occupancy(np.zeros(4, np.bool_), 1, 2, 2, 2, 1)
     feeding_map(np.zeros(1, np.int64), 1, 2, 2)
     dilate_unobserved(np.zeros(1, np.int64), np.zeros(4, np.bool_), 2, 2, 2)
