@@ -160,3 +160,45 @@ def test_a_memory_with_no_sample_fuses_nothing(temporal):
         assert torch.equal(torch.from_numpy(a.detections.boxes),
                            torch.from_numpy(b.detections.boxes)), t
     assert empty.memory is not None and len(empty.memory.batch_index) == 0
+
+
+def test_the_past_term_beside_the_encoder_gives_the_same_steps():
+    """The past term computed in a second thread while the encoder runs (``beside``) gives
+    the serial step's boxes, scores, memory and carried flags bit for bit, frame by frame (a
+    carry branch, a lost half of the sweep, a frame without a pose); an error there reaches
+    the caller, and the next step runs."""
+    from dataclasses import replace
+
+    import numpy as np
+    torch.manual_seed(0)
+    cfg = replace(small_config('suit'), fusion_gate='carry_branch',
+                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
+    model = SUITDetector(cfg).eval()
+    with torch.no_grad():
+        model.carry.past.weight.normal_(0, 0.2)
+        model.fusion.past.weight.normal_(0, 0.2)
+    serial = StreamingDetector(model, beside=False)
+    beside = StreamingDetector(model, beside=True)
+    assert not serial.beside and beside.beside
+    for t in range(6):
+        f = frame(t)
+        pts = f.points if t not in (3, 4) else f.points[f.points[:, 0] < 0]
+        pose = None if t == 5 else f.pose
+        a, b = serial.step(pts, f.stamp_ns, pose), beside.step(pts, f.stamp_ns, pose)
+        assert np.array_equal(a.detections.boxes, b.detections.boxes)
+        assert np.array_equal(a.detections.scores, b.detections.scores)
+        assert np.array_equal(a.carried, b.carried)
+        assert a.used_memory == b.used_memory and a.memory_bytes == b.memory_bytes
+        assert (a.used_memory, t) != (False, 2)            # the memory was fused
+    assert beside._worker is not None                    # the second thread ran
+
+    def broken(*args):
+        raise RuntimeError('past term failed')
+    f = frame(6)
+    beside.step(f.points, f.stamp_ns, f.pose)
+    beside.model.past_term = broken
+    with pytest.raises(RuntimeError, match='past term failed'):
+        beside.step(frame(7).points, frame(7).stamp_ns, frame(7).pose)
+    del beside.model.past_term
+    # the memory of frame 6 is still there, and fused again
+    assert beside.step(frame(8).points, frame(8).stamp_ns, frame(8).pose).used_memory

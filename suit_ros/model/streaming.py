@@ -5,9 +5,12 @@ detections for the same frames.
 """
 from __future__ import annotations
 
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+import os
 import time
-from typing import Any, cast
+from typing import Any, TypeVar, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,7 +34,8 @@ class StepResult:
 
     :param model_points: points in the model input (all accumulated sweeps).
     :param timings: seconds per stage: ``sweeps`` (accumulation), ``encode`` (pillars +
-        backbone), ``fusion`` (GeoNet + fusion), ``head_decode``, ``sampling``, ``tracking``
+        backbone), ``fusion`` (GeoNet and the past term, or the wait for them where they run
+        beside the encoder, and the fusion), ``head_decode``, ``sampling``, ``tracking``
         (detections to numpy, the tracker, the published cut, the returns in each box,
         boxes into the LiDAR frame), ``total``.
     :param track_ids: per detection, its velocity-filter track (0: no filter, or no pose).
@@ -53,6 +57,15 @@ class StepResult:
     num_points: NDArray[np.uint32] = field(default_factory=lambda: np.zeros(0, np.uint32))
     carried: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     velocity_std: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
+
+
+Result = TypeVar('Result')
+
+
+def _in_inference_mode(fn: Callable[..., Result], *args: Any) -> Result:
+    """``fn(*args)`` in inference mode (a thread's own: it is not inherited)."""
+    with torch.inference_mode():
+        return fn(*args)
 
 
 def _as_points(points: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
@@ -85,6 +98,13 @@ class StreamingDetector:
         None: as the checkpoint's config says (``pillars.overhang``).
     :param box_fit: ``faces``: car boxes moved onto the returns of the faces the sensor sees
         (:mod:`suit_ros.box_fit`); ``off``: as the model places them.
+    :param beside: compute the past term (the last memory moved into this frame and
+        projected: GeoNet, the sparse terms) in a second thread while the encoder runs on this
+        cloud; it needs the memory and the pose, not the cloud. The same results; the step's
+        latency shorter by about the past term's time (1-2 ms), its CPU time the same. None:
+        where this process may use more than one core (on the CPU). The next memory's sampling
+        stays in the step's own thread: beside the tracker (both mostly interpreter work) it
+        lengthened the step (docs/experiments/step_beside).
     """
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
@@ -92,8 +112,12 @@ class StreamingDetector:
                  nms_iou_threshold: float | None = None, max_detections: int | None = None,
                  candidates: int | None = None, precision: PrecisionChoice = 'float32',
                  tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
-                 overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off') -> None:
+                 overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
+                 beside: bool | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
+        self.beside = (self.device.type == 'cpu' and len(os.sched_getaffinity(0)) > 1
+                       if beside is None else bool(beside))
+        self._worker: ThreadPoolExecutor | None = None
         self.precision = resolve_precision(precision, self.device)
         # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
         self.model = cast(SUITDetector, inference_copy(model.to(self.device),
@@ -247,6 +271,15 @@ class StreamingDetector:
         """Bytes held by the temporal feature memory now (the sweep buffer not included)."""
         return self._memory.nbytes if self._memory is not None else 0
 
+    def _start(self, fn: Callable[..., Result], *args: Any) -> Future[Result] | None:
+        """``fn(*args)`` started in the step's second thread (:attr:`beside`; in inference
+        mode), or None: the caller runs it itself."""
+        if not self.beside:
+            return None
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix='suit_memory')
+        return self._worker.submit(_in_inference_mode, fn, *args)
+
     def _sync(self) -> float:
         if self.device.type == 'cuda':
             torch.cuda.synchronize(self.device)
@@ -286,54 +319,15 @@ class StreamingDetector:
         self.reset(reason, sweeps=False)
         return reason
 
-    @torch.inference_mode()
-    def step(self, points: NDArray[np.float32], stamp_ns: int,
-             T_odom_base: NDArray[np.float64] | None,
-             T_base_lidar: NDArray[np.float64] | None = None) -> StepResult:
-        """Detect in one sweep.
-
-        :param points: ``(N, 4)`` x, y, z, intensity (0..1) (or ``(N, 5)`` with a time lag) in
-            the LiDAR frame.
-        :param T_odom_base: the vehicle pose at the stamp, or None: the frame runs single-frame
-            and the memory and sweep buffer are reset (no way to move them without a pose).
-        :param T_base_lidar: the LiDAR extrinsic (identity when None: points in base_link).
-        :return: detections in the LiDAR frame (the input cloud's frame).
-        """
-        m = self.model
-        t0 = self._sync()
-        pts = _as_points(points)
-        T_bl = np.eye(4) if T_base_lidar is None else np.asarray(T_base_lidar, np.float64)
-        if T_odom_base is None and (self.memory is not None or len(self.sweeps)):
-            self.reset('no pose')
-        T_ol = None if T_odom_base is None else np.asarray(T_odom_base, np.float64) @ T_bl
-        model_points = self.sweeps.push(pts, T_ol, stamp_ns, T_bl)
-        if self._ground is not None:
-            model_points = self._ground.level(model_points)
-        tensor = torch.from_numpy(model_points).to(self.device)
-        t1 = self._sync()
-        current, observed = m.encode_observed([tensor])
-        t2 = self._sync()
-        poses = np.asarray(T_odom_base if T_odom_base is not None else np.eye(4),
-                           np.float64)[None]
-        past, aux = m.past_term(self.memory, poses, [stamp_ns])
-        used = past is not None
-        fused = m.fuse(current, past, observed)
-        if self.keep_terms:
-            own = m.fusion.current(current) if m.fusion is not None else current
-            shown = past.own if isinstance(past, BranchTerms) else past
-            self.last_terms = (own.float(),
-                               shown.dense() if isinstance(shown, PastTerm) else shown)
-        t3 = self._sync()
-        preds = m.predict(current, past, fused, observed)
-        out = m.decode(preds, observed, self.candidates, self.decode_thresholds,
-                       self.nms_iou_threshold, self.max_detections)
-        t4 = self._sync()
-        if T_odom_base is not None:
-            memory = m.sample_memory(fused, preds, poses, [stamp_ns],
-                                     m.carried(self.memory, aux, poses, [stamp_ns]), observed)
-            if memory is not None:
-                self._memory = memory
-        t5 = self._sync()
+    def _published(self, out: dict[str, torch.Tensor], pts: NDArray[np.float32],
+                   model_points: NDArray[np.float32], stamp_ns: int,
+                   poses: NDArray[np.float64], posed: bool, T_bl: NDArray[np.float64]
+                   ) -> tuple[Detections, NDArray[np.int64], NDArray[np.bool_],
+                              NDArray[np.float32], NDArray[np.uint32]]:
+        """A step's decoded boxes as published: fitted to their faces, tracked (with a pose:
+        ``posed``), back on the road, cut at the published thresholds, in the LiDAR frame,
+        with this cloud's returns in each; and their track ids, carried flags, velocity
+        standard deviations and returns."""
         det = Detections(out['boxes'].float().cpu().numpy(),
                          out['velocities'].float().cpu().numpy(),
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
@@ -346,7 +340,7 @@ class StreamingDetector:
         if self.box_fit == 'faces' and len(det):
             det.boxes[:] = fit_to_faces(det.boxes, det.labels, det.scores, model_points[now],
                                         T_bl[:2, 3], tuple(self.cfg.class_names))
-        if self.tracks is not None and T_odom_base is not None:
+        if self.tracks is not None and posed:
             # in the frame of the model input (leveled or not): the sweep velocities read
             # the boxes' returns from the input's heights; coasting, the current sweep's
             det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points,
@@ -370,6 +364,63 @@ class StreamingDetector:
         # the returns of this cloud in each box, counted on the input as it came (LiDAR
         # frame), not on the accumulated sweeps
         num_points = count_points_in_boxes(pts[now, :3], det.boxes)
+        return det, ids, carried, vel_std, num_points
+
+    @torch.inference_mode()
+    def step(self, points: NDArray[np.float32], stamp_ns: int,
+             T_odom_base: NDArray[np.float64] | None,
+             T_base_lidar: NDArray[np.float64] | None = None) -> StepResult:
+        """Detect in one sweep.
+
+        :param points: ``(N, 4)`` x, y, z, intensity (0..1) (or ``(N, 5)`` with a time lag) in
+            the LiDAR frame.
+        :param T_odom_base: the vehicle pose at the stamp, or None: the frame runs single-frame
+            and the memory and sweep buffer are reset (no way to move them without a pose).
+        :param T_base_lidar: the LiDAR extrinsic (identity when None: points in base_link).
+        :return: detections in the LiDAR frame (the input cloud's frame).
+        """
+        m = self.model
+        t0 = self._sync()
+        pts = _as_points(points)
+        T_bl = np.eye(4) if T_base_lidar is None else np.asarray(T_base_lidar, np.float64)
+        if T_odom_base is None and (self.memory is not None or len(self.sweeps)):
+            self.reset('no pose')
+        T_ol = None if T_odom_base is None else np.asarray(T_odom_base, np.float64) @ T_bl
+        poses = np.asarray(T_odom_base if T_odom_base is not None else np.eye(4),
+                           np.float64)[None]
+        model_points = self.sweeps.push(pts, T_ol, stamp_ns, T_bl)
+        if self._ground is not None:
+            model_points = self._ground.level(model_points)
+        tensor = torch.from_numpy(model_points).to(self.device)
+        t1 = self._sync()
+        # the past term needs the last memory and this pose, not this cloud: it is computed
+        # beside the encoder (whose convolutions leave the interpreter to it)
+        past_term = (self._start(m.past_term, self.memory, poses, [stamp_ns])
+                     if self.memory is not None else None)
+        current, observed = m.encode_observed([tensor])
+        t2 = self._sync()
+        past, aux = (past_term.result() if past_term is not None
+                     else m.past_term(self.memory, poses, [stamp_ns]))
+        used = past is not None
+        fused = m.fuse(current, past, observed)
+        if self.keep_terms:
+            own = m.fusion.current(current) if m.fusion is not None else current
+            shown = past.own if isinstance(past, BranchTerms) else past
+            self.last_terms = (own.float(),
+                               shown.dense() if isinstance(shown, PastTerm) else shown)
+        t3 = self._sync()
+        preds = m.predict(current, past, fused, observed)
+        out = m.decode(preds, observed, self.candidates, self.decode_thresholds,
+                       self.nms_iou_threshold, self.max_detections)
+        t4 = self._sync()
+        if T_odom_base is not None:
+            memory = m.sample_memory(fused, preds, poses, [stamp_ns],
+                                     m.carried(self.memory, aux, poses, [stamp_ns]), observed)
+            if memory is not None:
+                self._memory = memory
+        t5 = self._sync()
+        det, ids, carried, vel_std, num_points = self._published(
+            out, pts, model_points, stamp_ns, poses, T_odom_base is not None, T_bl)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
                    'head_decode': t4 - t3, 'sampling': t5 - t4, 'tracking': t6 - t5,
