@@ -360,3 +360,22 @@ def test_the_regression_read_where_decoded_gives_the_boxes_of_the_whole_maps():
         assert SHARED in lazy and 'offset' not in lazy and CARRY_CELLS not in lazy
         for k, v in fast.head.dense_outputs(lazy).items():
             torch.testing.assert_close(v, p0[k], atol=1e-5, rtol=1e-5)
+
+
+def test_one_thread_runs_a_block_on_one_torch_thread_and_puts_the_count_back():
+    """The step's small work runs on one torch thread; the count comes back after the block,
+    also when it raises; disabled, or at one thread already, nothing changes."""
+    from suit_ros.model.inference import one_thread
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        with one_thread():
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with pytest.raises(ValueError), one_thread():
+            raise ValueError('inside')
+        assert torch.get_num_threads() == 2
+        with one_thread(enabled=False):
+            assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

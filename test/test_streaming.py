@@ -177,6 +177,7 @@ def test_the_past_term_beside_the_encoder_gives_the_same_steps():
     with torch.no_grad():
         model.carry.past.weight.normal_(0, 0.2)
         model.fusion.past.weight.normal_(0, 0.2)
+    threads = torch.get_num_threads()
     serial = StreamingDetector(model, beside=False)
     beside = StreamingDetector(model, beside=True)
     assert not serial.beside and beside.beside
@@ -191,6 +192,9 @@ def test_the_past_term_beside_the_encoder_gives_the_same_steps():
         assert a.used_memory == b.used_memory and a.memory_bytes == b.memory_bytes
         assert (a.used_memory, t) != (False, 2)            # the memory was fused
     assert beside._worker is not None                    # the second thread ran
+    # its small work on one torch thread; the step's own thread keeps its count
+    assert beside._worker.submit(torch.get_num_threads).result() == 1
+    assert torch.get_num_threads() == threads
 
     def broken(*args):
         raise RuntimeError('past term failed')

@@ -33,6 +33,7 @@ from suit_ros.model.fusion import (
 from suit_ros.model.geonet import GeoNet
 from suit_ros.model.grid import BEVGrid, pooled_occupancy
 from suit_ros.model.head import CenterHead, dilated_cells
+from suit_ros.model.inference import one_thread
 from suit_ros.model.memory import (
     DenseMemory,
     SparseMemory,
@@ -96,6 +97,8 @@ class SUITDetector(nn.Module):
         # set on an inference copy: the head's regression only where it is read
         # (CenterHead.forward_lazy); not with the output gate, which merges whole maps
         self.lazy_regression = False
+        # the carry head at its cells on one torch thread (inference.one_thread)
+        self.small_work_one_thread = True
 
     @property
     def device(self) -> torch.device:
@@ -284,7 +287,8 @@ class SUITDetector(nn.Module):
                 else:
                     near = dilated_cells(carry_term.index, H, W, 2)
                     needed = near[~observed.reshape(-1)[near]]
-                merged = self.carry.head.forward_at(carry_input, needed, preds)
+                with one_thread(self.small_work_one_thread):
+                    merged = self.carry.head.forward_at(carry_input, needed, preds)
             merged.update({OWN + k: v for k, v in preds.items()})
             return merged
         if self.cfg.fusion_gate != 'unobserved_output':

@@ -28,6 +28,8 @@ per-operation cost, not arithmetic, was the time.
 """
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 import copy
 import sys
 from typing import Literal
@@ -39,6 +41,26 @@ Foldable = nn.Conv2d | nn.ConvTranspose2d | nn.Linear
 Precision = Literal['float32', 'bfloat16']
 PrecisionChoice = Literal['auto', 'float32', 'bfloat16']
 CPU_BF16_FLAGS = ('amx_bf16', 'avx512_bf16')
+
+
+@contextmanager
+def one_thread(enabled: bool = True) -> Iterator[None]:
+    """Torch operations in this block on the calling thread alone (its torch thread count set
+    to 1 and back): a step's small work, a few hundred cells, boxes or samples a tensor,
+    whose operations a second thread only slows (forking the team for an operation of 65k
+    elements and joining it cost more than it saved: the memory's sampling took 2.1 ms at
+    two threads, 1.5 at one; docs/experiments/step_beside). Torch keeps the count per thread
+    and a process-wide default for threads that start torch work later, which this block
+    also sets to 1 while it lasts."""
+    n = torch.get_num_threads()
+    if not enabled or n == 1:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(n)
 
 
 def _fold(layer: Foldable, bn: nn.BatchNorm1d | nn.BatchNorm2d) -> None:

@@ -20,7 +20,12 @@ from suit_ros.box_fit import BOX_FIT_MODES, BoxFitMode, fit_to_faces
 from suit_ros.ground import GROUND_MODES, GroundMode, LocalGround
 from suit_ros.model.detector import Memory, SUITDetector
 from suit_ros.model.fusion import BranchTerms, PastTerm
-from suit_ros.model.inference import PrecisionChoice, inference_copy, resolve_precision
+from suit_ros.model.inference import (
+    PrecisionChoice,
+    inference_copy,
+    one_thread,
+    resolve_precision,
+)
 from suit_ros.model.sweeps import SweepBuffer, already_accumulated, boxes_to_lidar
 from suit_ros.ops.geometry import count_points_in_boxes
 from suit_ros.overhang import OverhangMode
@@ -66,6 +71,13 @@ def _in_inference_mode(fn: Callable[..., Result], *args: Any) -> Result:
     """``fn(*args)`` in inference mode (a thread's own: it is not inherited)."""
     with torch.inference_mode():
         return fn(*args)
+
+
+def _one_torch_thread() -> None:
+    """Set the calling thread's torch thread count to 1 (after torch's own first setting of
+    it, which a thread makes on its first use and would otherwise make later)."""
+    torch.get_num_threads()
+    torch.set_num_threads(1)
 
 
 def _as_points(points: NDArray[np.floating[Any]]) -> NDArray[np.float32]:
@@ -277,7 +289,14 @@ class StreamingDetector:
         if not self.beside:
             return None
         if self._worker is None:
-            self._worker = ThreadPoolExecutor(1, thread_name_prefix='suit_memory')
+            threads = torch.get_num_threads()
+            # its small work on one torch thread, beside the encoder's team (the process-wide
+            # default for threads that start later, which this sets too, put back)
+            self._worker = ThreadPoolExecutor(
+                1, thread_name_prefix='suit_memory',
+                initializer=_one_torch_thread if self.model.small_work_one_thread else None)
+            self._worker.submit(int).result()
+            torch.set_num_threads(threads)
         return self._worker.submit(_in_inference_mode, fn, *args)
 
     def _sync(self) -> float:
@@ -410,17 +429,22 @@ class StreamingDetector:
                                shown.dense() if isinstance(shown, PastTerm) else shown)
         t3 = self._sync()
         preds = m.predict(current, past, fused, observed)
-        out = m.decode(preds, observed, self.candidates, self.decode_thresholds,
-                       self.nms_iou_threshold, self.max_detections)
+        small = self.model.small_work_one_thread
+        with one_thread(small):
+            out = m.decode(preds, observed, self.candidates, self.decode_thresholds,
+                           self.nms_iou_threshold, self.max_detections)
         t4 = self._sync()
         if T_odom_base is not None:
-            memory = m.sample_memory(fused, preds, poses, [stamp_ns],
-                                     m.carried(self.memory, aux, poses, [stamp_ns]), observed)
+            with one_thread(small):
+                memory = m.sample_memory(fused, preds, poses, [stamp_ns],
+                                         m.carried(self.memory, aux, poses, [stamp_ns]),
+                                         observed)
             if memory is not None:
                 self._memory = memory
         t5 = self._sync()
-        det, ids, carried, vel_std, num_points = self._published(
-            out, pts, model_points, stamp_ns, poses, T_odom_base is not None, T_bl)
+        with one_thread(small):
+            det, ids, carried, vel_std, num_points = self._published(
+                out, pts, model_points, stamp_ns, poses, T_odom_base is not None, T_bl)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
                    'head_decode': t4 - t3, 'sampling': t5 - t4, 'tracking': t6 - t5,
