@@ -172,7 +172,7 @@ def test_the_heads_read_the_fused_map_through_w1_as_on_the_formed_map(monkeypatc
     from modelkit import frame
 
     from suit_ros.model import inference
-    from suit_ros.model.fusion import FoldedFused
+    from suit_ros.model.fusion import FoldedFused, PastTerm
     torch.manual_seed(0)
     cfg = small_config('suit')
     if carry:
@@ -223,7 +223,9 @@ def test_the_heads_read_the_fused_map_through_w1_as_on_the_formed_map(monkeypatc
         memory = fast.sample_memory(fused0, fast.head(fused0), f0.pose[None], [f0.stamp_ns])
         past, _ = fast.past_term(memory, f1.pose[None], [f1.stamp_ns])
         own = past.own if carry else past
-        own.index[:3] = torch.tensor([0, fast.grid.W - 1, fast.grid.H * fast.grid.W - 1])
+        index = own.index.clone()
+        index[:3] = torch.tensor([0, fast.grid.W - 1, fast.grid.H * fast.grid.W - 1])
+        own = PastTerm(index, own.values, own.shape)      # cells moved: not distinct now
         c1 = fast.encode([torch.from_numpy(f1.points)])
         folded = FoldedFused(c1, own, fast.fusion)
         formed = folded.dense()
@@ -238,12 +240,13 @@ def test_the_heads_read_the_fused_map_through_w1_as_on_the_formed_map(monkeypatc
         assert (at_got[k] - at_want[k]).abs().max() <= tol * scale + tol, k
 
 
-def test_a_fold_equals_the_formed_map_over_a_batch_at_the_edges():
+def test_a_fold_equals_the_formed_map_over_a_batch_at_the_edges(monkeypatch):
     """HeadFold and FoldedFused.rows on a batch of two: past rows at the corners, on the last
     row of the first map and the first of the second, one cell repeated, equal the head's
     first layer on the formed map (the whole map and gathered at cells) and its rows."""
     from suit_ros.model.fusion import FoldedFused, PastTerm, TemporalFusion
     from suit_ros.model.head import HeadFold, _neighbourhoods
+    from suit_ros.ops.kernels import add_tap_spread_dense as spread_dense
     torch.manual_seed(0)
     B, C, hc, H, W = 2, 6, 5, 7, 9
     fusion = TemporalFusion(C).eval()
@@ -276,8 +279,13 @@ def test_a_fold_equals_the_formed_map_over_a_batch_at_the_edges():
         torch.testing.assert_close(fold.at(folded, twice), want.permute(0, 2, 3, 1).reshape(
             -1, hc)[[0, 1, 2, 3, 2]], atol=1e-5, rtol=1e-5)
         # a channels-last map (an inference copy's): the compiled spread into the whole map
+        from suit_ros.ops import kernels
+        calls = []
+        monkeypatch.setattr(kernels, 'add_tap_spread_dense',
+                            lambda *a: calls.append(1) or spread_dense(*a))
         last = FoldedFused(current.contiguous(memory_format=torch.channels_last), past, fusion)
         torch.testing.assert_close(fold.dense(last), want, atol=1e-5, rtol=1e-5)
+        assert calls                                   # the compiled pass ran
         lone = FoldedFused(last.current, None, fusion)
         torch.testing.assert_close(fold.dense(lone), shared(lone.dense()), atol=1e-5,
                                    rtol=1e-5)

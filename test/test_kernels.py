@@ -421,8 +421,10 @@ def test_the_cell_flags_and_the_carry_cells_are_the_tensor_code_s():
     index = torch.cat([index, index[:4], torch.tensor([0, H * W - 1, B * H * W - 1])])
     near = dilated_cells(index, H, W, 2)
     want = near[~observed[near]]
-    got = torch.from_numpy(kernels.dilate_unobserved(index.numpy(), observed.numpy(), H, W, 2))
+    got = dilated_cells(index, H, W, 2, skip=observed.view(B, H, W))
     assert torch.equal(got, want)
+    with pytest.raises(IndexError, match='off the map'):
+        dilated_cells(torch.tensor([B * H * W]), H, W, 2, skip=observed.view(B, H, W))
     cells, flat, feeding, where = kernels.feeding_map(want.numpy(), B, H, W)
     assert torch.equal(torch.from_numpy(cells), unflatten_cells(want, H, W))
     assert torch.equal(torch.from_numpy(flat), dilated_cells(want, H, W, 1))

@@ -195,14 +195,23 @@ def test_the_past_term_beside_the_encoder_gives_the_same_steps():
     # its small work on one torch thread; the step's own thread keeps its count
     assert beside._worker.submit(torch.get_num_threads).result() == 1
     assert torch.get_num_threads() == threads
+    # stepped from another thread (the node's model thread after a warm-up in its main
+    # one), the second thread is started again by the thread that steps
+    import threading
+    first = beside._worker
+    stepper = threading.Thread(target=lambda: [beside.step(frame(t).points, frame(t).stamp_ns,
+                                                           frame(t).pose) for t in (6, 7)])
+    stepper.start()
+    stepper.join()
+    assert beside._worker is not first and beside._worker_owner == stepper.ident
+    beside.close()
+    assert beside._worker is None
 
     def broken(*args):
         raise RuntimeError('past term failed')
-    f = frame(6)
-    beside.step(f.points, f.stamp_ns, f.pose)
     beside.model.past_term = broken
     with pytest.raises(RuntimeError, match='past term failed'):
-        beside.step(frame(7).points, frame(7).stamp_ns, frame(7).pose)
+        beside.step(frame(8).points, frame(8).stamp_ns, frame(8).pose)
     del beside.model.past_term
-    # the memory of frame 6 is still there, and fused again
-    assert beside.step(frame(8).points, frame(8).stamp_ns, frame(8).pose).used_memory
+    # the memory of frame 7 is still there, and fused again (the second thread started anew)
+    assert beside.step(frame(9).points, frame(9).stamp_ns, frame(9).pose).used_memory

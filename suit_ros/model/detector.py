@@ -279,14 +279,7 @@ class SUITDetector(nn.Module):
                 # receptive field of the carry term), gathered; the own outputs elsewhere
                 # (the observed cells among them)
                 _, _, H, W = carry_input.shape
-                if observed.device.type == 'cpu':
-                    from suit_ros.ops.kernels import dilate_unobserved
-                    needed = torch.from_numpy(dilate_unobserved(
-                        carry_term.index.to(torch.int64).contiguous().numpy(),
-                        observed.reshape(-1).contiguous().numpy(), H, W, 2))
-                else:
-                    near = dilated_cells(carry_term.index, H, W, 2)
-                    needed = near[~observed.reshape(-1)[near]]
+                needed = dilated_cells(carry_term.index, H, W, 2, skip=observed)
                 with one_thread(self.small_work_one_thread):
                     merged = self.carry.head.forward_at(carry_input, needed, preds)
             merged.update({OWN + k: v for k, v in preds.items()})

@@ -303,9 +303,12 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
     if M == 0:
         return [PastTerm(torch.zeros(0, dtype=torch.long, device=features.device),
                          features.new_zeros(0, shape[1]), shape) for shape in shapes]
-    if (prune > 0 and features.device.type == 'cpu' and not torch.is_grad_enabled()
+    from suit_ros.model.inference import compiled_ok
+    if (prune > 0 and compiled_ok(features, positions, displacements, probs, q)
             and features.dtype == positions.dtype == displacements.dtype == probs.dtype
-            == q.dtype == torch.float32):
+            == q.dtype == torch.float32
+            and all(proj.bias is None for proj, _ in projections)):
+        # (a projection's bias would be added once per cell, not once per weighted triple)
         return _compiled_triple_terms(features, positions, displacements, probs, mask, q,
                                       prune, batch_index, projections, grid, shapes)
     if prune > 0:
@@ -401,7 +404,15 @@ def _compiled_triple_terms(features: Tensor, positions: Tensor, displacements: T
     (``W2 sum w f`` where the tensor code sums ``w W2 f``: the same up to float rounding,
     tested), each projection over the samples it names."""
     from suit_ros.ops.kernels import sum_triples
-    M = features.shape[0]
+    M, P, _ = features.shape
+    K = q.shape[1]
+    # the compiled pass reads these unchecked
+    if (positions.shape != (M, P, 2) or displacements.shape != (M, K, 2)
+            or probs.shape != (M, P) or mask.shape != (M, P) or batch_index.shape != (M,)):
+        raise ValueError(f'sparse past term: features {tuple(features.shape)}, positions '
+                         f'{tuple(positions.shape)}, displacements {tuple(displacements.shape)},'
+                         f' q {tuple(q.shape)}, probs {tuple(probs.shape)}, mask '
+                         f'{tuple(mask.shape)}, batch index {tuple(batch_index.shape)}')
     member = np.zeros((len(projections), M), np.bool_)
     for s, (_, subset) in enumerate(projections):
         if subset is None:
@@ -411,8 +422,7 @@ def _compiled_triple_terms(features: Tensor, positions: Tensor, displacements: T
     flat, sums, counts = sum_triples(
         positions.contiguous().numpy(), displacements.contiguous().numpy(),
         probs.contiguous().numpy(), mask.to(torch.bool).contiguous().numpy(),
-        q.contiguous().numpy(), np.float32(prune),
-        np.asarray(grid.point_range[:2], np.float32), np.float32(grid.cell),
+        q.contiguous().numpy(), np.float32(prune), *grid.origin_and_cell(),
         batch_index.to(torch.int64).contiguous().numpy(), features.contiguous().numpy(),
         member, grid.H, grid.W)
     terms = []

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+from numpy.typing import NDArray
 import torch
 from torch import Tensor
 
@@ -48,6 +50,11 @@ class BEVGrid:
         """Metric ``(..., 2)`` -> continuous head-map coordinates ``(..., 2)`` (col, row)."""
         origin = xy.new_tensor(self.point_range[:2])
         return (xy - origin) / self.cell
+
+    def origin_and_cell(self) -> tuple[NDArray[np.float32], np.float32]:
+        """The map's origin ``(x0, y0)`` and cell size as float32, as :meth:`xy_to_cell`
+        computes in float32 (for compiled passes that find cells the same way)."""
+        return np.asarray(self.point_range[:2], np.float32), np.float32(self.cell)
 
     def cell_to_xy(self, colrow: Tensor) -> Tensor:
         """Head-map cell ``(..., 2)`` (col, row) -> metric centre of that cell ``(..., 2)``."""

@@ -9,12 +9,14 @@ import math
 import typing
 
 import numpy as np
+from numpy.typing import NDArray
 import torch
 from torch import Tensor, nn
 import torch.nn.functional as F
 
 from suit_ros.model.fusion import FoldedFused, PastTerm, gathered_dtype, kept
 from suit_ros.model.grid import BEVGrid
+from suit_ros.model.inference import compiled_ok
 from suit_ros.ops.nms import batched_nms
 
 REG_SLICES = {'offset': (0, 2), 'z': (2, 3), 'size': (3, 6), 'rot': (6, 8), 'vel': (8, 10)}
@@ -138,23 +140,15 @@ class HeadFold(nn.Module):
         added value rounded to a bfloat16 map's precision as it is added)."""
         pre: Tensor = self.conv(fused.current)          # in an inference copy's conv dtype
         B = pre.shape[0]
-        if (pre.device.type == 'cpu' and not torch.is_grad_enabled()
-                and pre.dtype in (torch.float32, torch.bfloat16)
+        if (compiled_ok(pre) and pre.dtype in (torch.float32, torch.bfloat16)
                 and pre.is_contiguous(memory_format=torch.channels_last)
                 and pre.shape[1:] == (self.hc, self.H, self.W)):
             from suit_ros.ops.kernels import add_tap_spread_dense, add_tap_spread_dense_bf16
-            past = fused.past
             rows = pre.permute(0, 2, 3, 1).view(B * self.H * self.W, self.hc)
-            spread = (past.values.float() @ self.past_weight
-                      if past is not None and len(past.index)
-                      else self.past_weight.new_zeros(0, 9 * self.hc))
-            index = past.index if past is not None and len(past.index) else self.edge_index[:0]
             low = pre.dtype == torch.bfloat16
             (add_tap_spread_dense_bf16 if low else add_tap_spread_dense)(
                 rows.view(torch.int16).numpy().view(np.uint16) if low else rows.numpy(),
-                spread.view(-1, 9, self.hc).contiguous().numpy(),
-                index.contiguous().numpy(), self.edge_index.numpy(),
-                self.edge_values.float().contiguous().numpy(), self.H, self.W)
+                *self._spread(fused.past), self.H, self.W)
             return torch.relu_(pre)
         self._terms(fused.past, B).add_to(pre)
         return torch.relu_(pre)
@@ -175,7 +169,7 @@ class HeadFold(nn.Module):
         v = v + bias
         flat = (cells[:, 0] * H + cells[:, 1]) * W + cells[:, 2]
         past = fused.past
-        if v.device.type == 'cpu' and v.dtype == torch.float32 and not torch.is_grad_enabled():
+        if compiled_ok(v) and v.dtype == torch.float32:
             # K past and the edge correction added at the cells in one compiled pass (each
             # cell one row of the lookup: repeated cells take the tensor path)
             from suit_ros.ops.kernels import add_tap_spread
@@ -186,15 +180,23 @@ class HeadFold(nn.Module):
                 lookup = np.full(B * H * W, -1, np.int64)
                 lookup[at] = np.arange(len(at))
             if len(at) and at.min() >= 0 and (lookup[at] == np.arange(len(at))).all():
-                spread = (past.values.float() @ self.past_weight if past is not None
-                          else v.new_zeros(0, 9 * self.hc))
-                index = past.index if past is not None else flat[:0]
                 v = v.contiguous()
-                add_tap_spread(v.numpy(), spread.view(-1, 9, self.hc).numpy(),
-                               index.contiguous().numpy(), self.edge_index.numpy(),
-                               self.edge_values.float().contiguous().numpy(), lookup, H, W)
+                add_tap_spread(v.numpy(), *self._spread(past), lookup, H, W)
                 return torch.relu_(v)
         return torch.relu(v + self._terms(past, B).at(flat).to(exact))
+
+    def _spread(self, past: PastTerm | None) -> tuple[NDArray[np.float32], NDArray[np.int64],
+                                                      NDArray[np.int64], NDArray[np.float32]]:
+        """For a compiled pass: ``K past`` as each input row's taps ``(R, 9, hc)`` float32 and
+        its cells ``(R,)``, and the edge correction's cells and values."""
+        if past is None or not len(past.index):
+            spread = np.zeros((0, 9, self.hc), np.float32)
+            index = np.zeros(0, np.int64)
+        else:
+            spread = (past.values.float() @ self.past_weight).view(-1, 9, self.hc).numpy()
+            index = past.index.to(torch.int64).contiguous().numpy()
+        return (spread, index, self.edge_index.numpy(),
+                self.edge_values.float().contiguous().numpy())
 
 
 class CenterHead(nn.Module):
@@ -558,7 +560,8 @@ def _neighbourhoods(rows: Tensor, cells: Tensor, H: int, W: int,
         inside = inside & (index >= 0)
         index = index.clamp(min=0)
     patches = torch.index_select(rows, 0, index.view(-1)).view(M, 9, C).to(exact)
-    return (patches * inside[..., None].to(patches.dtype)).view(M, 9 * C)
+    # zero off the map and where the rows hold no cell (not a product: a NaN row stays out)
+    return torch.where(inside[..., None], patches, patches.new_zeros(())).view(M, 9 * C)
 
 
 def unflatten_cells(flat: Tensor, H: int, W: int) -> Tensor:
@@ -566,13 +569,16 @@ def unflatten_cells(flat: Tensor, H: int, W: int) -> Tensor:
     return torch.stack([flat // (H * W), flat // W % H, flat % W], dim=1)
 
 
-def dilated_cells(flat: Tensor, H: int, W: int, r: int) -> Tensor:
+def dilated_cells(flat: Tensor, H: int, W: int, r: int, skip: Tensor | None = None) -> Tensor:
     """The sorted flat cells within ``r`` cells (a square) of the flat cells ``flat`` (repeats
     allowed), on a ``(B, H, W)`` map: what a ``2 r + 1`` max pool of their map marks, found
     without forming the map (a few hundred cells of 16k), in one compiled pass
-    (:func:`suit_ros.ops.kernels.dilate_flat_cells`)."""
+    (:func:`suit_ros.ops.kernels.dilate_flat_cells`); less the cells ``skip`` (``(B, H, W)``
+    bool) marks."""
     from suit_ros.ops.kernels import dilate_flat_cells
-    out = dilate_flat_cells(flat.detach().cpu().to(torch.int64).contiguous().numpy(), H, W, r)
+    out = dilate_flat_cells(
+        flat.detach().cpu().to(torch.int64).contiguous().numpy(), H, W, r,
+        np.zeros(0, np.bool_) if skip is None else skip.detach().cpu().reshape(-1).numpy())
     return torch.from_numpy(out).to(flat.device)
 
 

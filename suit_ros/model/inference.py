@@ -43,6 +43,14 @@ PrecisionChoice = Literal['auto', 'float32', 'bfloat16']
 CPU_BF16_FLAGS = ('amx_bf16', 'avx512_bf16')
 
 
+def compiled_ok(*tensors: Tensor) -> bool:
+    """Whether a compiled pass (:mod:`suit_ros.ops.kernels`, on numpy views of the tensors)
+    may stand in for tensor code on ``tensors``: on the CPU, without autograd (grad mode off,
+    and none of them requires grad)."""
+    return not torch.is_grad_enabled() and all(
+        t.device.type == 'cpu' and not t.requires_grad for t in tensors)
+
+
 @contextmanager
 def one_thread(enabled: bool = True) -> Iterator[None]:
     """Torch operations in this block on the calling thread alone (its torch thread count set

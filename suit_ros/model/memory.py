@@ -112,10 +112,11 @@ class DenseMemory:
                 + 8 * len(self.stamps_ns))
 
 
-def _compiled(memory: SparseMemory) -> bool:
-    """Whether the memory moves in a compiled pass (:mod:`suit_ros.ops.kernels`): on the
-    CPU, without autograd (inference)."""
-    return memory.cell_xy.device.type == 'cpu' and not torch.is_grad_enabled()
+def _compiled(memory: SparseMemory, *more: Tensor) -> bool:
+    """Whether the memory (with ``more``) moves in a compiled pass (:mod:`suit_ros.ops.
+    kernels`): on the CPU, without autograd (inference)."""
+    from suit_ros.model.inference import compiled_ok
+    return compiled_ok(memory.cell_xy, memory.boxes, memory.velocities, *more)
 
 
 def ego_transforms(poses_now: NDArray[np.float64], poses_prev: NDArray[np.float64]
@@ -154,8 +155,8 @@ def rotate_velocities(velocities: Tensor, batch_index: Tensor,
     """Rotate ``(M, 2)`` velocities from the previous frame's axes into the current frame's."""
     if velocities.shape[0] == 0:
         return velocities
-    if (velocities.device.type == 'cpu' and not torch.is_grad_enabled()
-            and velocities.dtype == torch.float32):
+    from suit_ros.model.inference import compiled_ok
+    if compiled_ok(velocities) and velocities.dtype == torch.float32:
         # a few dozen rows: numpy's per-operation cost is a fraction of torch's
         Rn = np.ascontiguousarray(T_now_prev[:, :2, :2]).astype(np.float32)[batch_index.numpy()]
         return torch.from_numpy(np.einsum('mij,mj->mi', Rn, velocities.numpy()))
@@ -178,7 +179,8 @@ def moved_memory(memory: SparseMemory, positions: Tensor, shift: Tensor,
         current frames'.
     """
     M = memory.num_samples
-    if _compiled(memory) and memory.boxes.dtype == memory.velocities.dtype == torch.float32:
+    if (_compiled(memory, shift)
+            and memory.boxes.dtype == memory.velocities.dtype == torch.float32):
         from suit_ros.ops.kernels import move_boxes
         boxes = torch.empty_like(memory.boxes)
         velocities = torch.empty_like(memory.velocities)

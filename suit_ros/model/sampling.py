@@ -18,13 +18,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 
-import numpy as np
 import torch
 from torch import Tensor
 
 from suit_ros.config import SamplingConfig
 from suit_ros.model.fusion import FoldedFused
 from suit_ros.model.grid import BEVGrid
+from suit_ros.model.inference import compiled_ok
 from suit_ros.model.memory import SparseMemory
 from suit_ros.ops.nms import compiled_rotated_nms, greedy_suppression, rotated_suppression
 
@@ -167,12 +167,11 @@ def gather_window(features: Tensor | FoldedFused, prob: Tensor, batch_index: Ten
 def cell_flags(flags: Tensor, batch_index: Tensor, xy: Tensor, grid: BEVGrid) -> Tensor:
     """``flags[b, row, col]`` (``(B, H, W)`` bool) at metric positions ``xy`` ``(M, 2)``;
     False outside the map."""
-    if flags.device.type == 'cpu' and not torch.is_grad_enabled() and xy.dtype == torch.float32:
+    if compiled_ok(flags, xy) and xy.dtype == torch.float32:
         from suit_ros.ops.kernels import flags_at
         return torch.from_numpy(flags_at(
             flags.contiguous().numpy(), batch_index.to(torch.int64).contiguous().numpy(),
-            xy.contiguous().numpy(), np.asarray(grid.point_range[:2], np.float32),
-            np.float32(grid.cell)))
+            xy.contiguous().numpy(), *grid.origin_and_cell()))
     cr = torch.floor(grid.xy_to_cell(xy)).long()
     inside = (cr[:, 0] >= 0) & (cr[:, 0] < grid.W) & (cr[:, 1] >= 0) & (cr[:, 1] < grid.H)
     col, row = cr[:, 0].clamp(0, grid.W - 1), cr[:, 1].clamp(0, grid.H - 1)

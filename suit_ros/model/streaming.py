@@ -6,9 +6,10 @@ detections for the same frames.
 from __future__ import annotations
 
 from collections.abc import Callable
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from dataclasses import dataclass, field
 import os
+import threading
 import time
 from typing import Any, TypeVar, cast
 
@@ -26,6 +27,7 @@ from suit_ros.model.inference import (
     one_thread,
     resolve_precision,
 )
+from suit_ros.model.memory import SparseMemory
 from suit_ros.model.sweeps import SweepBuffer, already_accumulated, boxes_to_lidar
 from suit_ros.ops.geometry import count_points_in_boxes
 from suit_ros.overhang import OverhangMode
@@ -73,6 +75,13 @@ def _in_inference_mode(fn: Callable[..., Result], *args: Any) -> Result:
         return fn(*args)
 
 
+def _usable_cores() -> int:
+    """The cores this process may run on (all of the machine's where that is not known)."""
+    if hasattr(os, 'sched_getaffinity'):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 def _one_torch_thread() -> None:
     """Set the calling thread's torch thread count to 1 (after torch's own first setting of
     it, which a thread makes on its first use and would otherwise make later)."""
@@ -110,13 +119,15 @@ class StreamingDetector:
         None: as the checkpoint's config says (``pillars.overhang``).
     :param box_fit: ``faces``: car boxes moved onto the returns of the faces the sensor sees
         (:mod:`suit_ros.box_fit`); ``off``: as the model places them.
-    :param beside: compute the past term (the last memory moved into this frame and
-        projected: GeoNet, the sparse terms) in a second thread while the encoder runs on this
-        cloud; it needs the memory and the pose, not the cloud. The same results; the step's
-        latency shorter by about the past term's time (1-2 ms), its CPU time the same. None:
-        where this process may use more than one core (on the CPU). The next memory's sampling
-        stays in the step's own thread: beside the tracker (both mostly interpreter work) it
-        lengthened the step (docs/experiments/step_beside).
+    :param beside: compute a sparse memory's past term (the last memory moved into this
+        frame and projected: GeoNet, the sparse terms) in a second thread, on one torch thread,
+        while the encoder runs on this cloud; it needs the memory and the pose, not the cloud.
+        The same results; the step's latency shorter by about the past term's time (1-2 ms),
+        its CPU time the same. The thread is started by the thread that steps (it takes that
+        thread's priority: the node's model thread runs below its callbacks); :meth:`close`
+        ends it. None: where this process may use more than one core (on the CPU). The next
+        memory's sampling stays in the step's own thread: beside the tracker (both mostly
+        interpreter work) it lengthened the step (docs/experiments/step_beside).
     """
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
@@ -127,9 +138,10 @@ class StreamingDetector:
                  overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
                  beside: bool | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
-        self.beside = (self.device.type == 'cpu' and len(os.sched_getaffinity(0)) > 1
+        self.beside = (self.device.type == 'cpu' and _usable_cores() > 1
                        if beside is None else bool(beside))
         self._worker: ThreadPoolExecutor | None = None
+        self._worker_owner = 0
         self.precision = resolve_precision(precision, self.device)
         # steps run on an inference copy (batch norms folded); ``model`` itself is untouched
         self.model = cast(SUITDetector, inference_copy(model.to(self.device),
@@ -272,6 +284,7 @@ class StreamingDetector:
             self.tracks = tracks
             self.reset()
             self.last_reset_reason = reason
+            self.close()        # the thread that steps next starts its own
 
     @property
     def memory(self) -> Memory | None:
@@ -288,16 +301,28 @@ class StreamingDetector:
         mode), or None: the caller runs it itself."""
         if not self.beside:
             return None
+        caller = threading.get_ident()
+        if self._worker is not None and self._worker_owner != caller:
+            # made by another thread (a warm-up before the node's model thread started): a
+            # new thread takes the priority of the thread that starts it, so it follows the
+            # one that steps now (the node lowers its model thread's)
+            self.close()
         if self._worker is None:
             threads = torch.get_num_threads()
-            # its small work on one torch thread, beside the encoder's team (the process-wide
-            # default for threads that start later, which this sets too, put back)
-            self._worker = ThreadPoolExecutor(
-                1, thread_name_prefix='suit_memory',
-                initializer=_one_torch_thread if self.model.small_work_one_thread else None)
+            # one torch thread, beside the encoder's team (the process-wide default for
+            # threads that start later, which this sets too, put back)
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix='suit_memory',
+                                              initializer=_one_torch_thread)
+            self._worker_owner = caller
             self._worker.submit(int).result()
             torch.set_num_threads(threads)
         return self._worker.submit(_in_inference_mode, fn, *args)
+
+    def close(self) -> None:
+        """End the second thread (:attr:`beside`), if one runs; a later step starts another."""
+        if self._worker is not None:
+            self._worker.shutdown(wait=True)
+            self._worker = None
 
     def _sync(self) -> float:
         if self.device.type == 'cuda':
@@ -413,13 +438,23 @@ class StreamingDetector:
         tensor = torch.from_numpy(model_points).to(self.device)
         t1 = self._sync()
         # the past term needs the last memory and this pose, not this cloud: it is computed
-        # beside the encoder (whose convolutions leave the interpreter to it)
+        # beside the encoder (whose convolutions leave the interpreter to it); a dense
+        # memory's warp is no small work and stays here
+        small = self.model.small_work_one_thread
         past_term = (self._start(m.past_term, self.memory, poses, [stamp_ns])
-                     if self.memory is not None else None)
-        current, observed = m.encode_observed([tensor])
+                     if isinstance(self.memory, SparseMemory) else None)
+        try:
+            current, observed = m.encode_observed([tensor])
+        except BaseException:
+            if past_term is not None:       # not left running past the step
+                wait([past_term])
+            raise
         t2 = self._sync()
-        past, aux = (past_term.result() if past_term is not None
-                     else m.past_term(self.memory, poses, [stamp_ns]))
+        if past_term is not None:
+            past, aux = past_term.result()
+        else:
+            with one_thread(small and isinstance(self.memory, SparseMemory)):
+                past, aux = m.past_term(self.memory, poses, [stamp_ns])
         used = past is not None
         fused = m.fuse(current, past, observed)
         if self.keep_terms:
@@ -429,20 +464,17 @@ class StreamingDetector:
                                shown.dense() if isinstance(shown, PastTerm) else shown)
         t3 = self._sync()
         preds = m.predict(current, past, fused, observed)
-        small = self.model.small_work_one_thread
-        with one_thread(small):
+        with one_thread(small):     # the small work that is left, on one torch thread
             out = m.decode(preds, observed, self.candidates, self.decode_thresholds,
                            self.nms_iou_threshold, self.max_detections)
-        t4 = self._sync()
-        if T_odom_base is not None:
-            with one_thread(small):
+            t4 = self._sync()
+            if T_odom_base is not None:
                 memory = m.sample_memory(fused, preds, poses, [stamp_ns],
                                          m.carried(self.memory, aux, poses, [stamp_ns]),
                                          observed)
-            if memory is not None:
-                self._memory = memory
-        t5 = self._sync()
-        with one_thread(small):
+                if memory is not None:
+                    self._memory = memory
+            t5 = self._sync()
             det, ids, carried, vel_std, num_points = self._published(
                 out, pts, model_points, stamp_ns, poses, T_odom_base is not None, T_bl)
         t6 = self._sync()

@@ -10,7 +10,8 @@ computed, in the same floating-point operations and order (test/test_kernels.py 
 them bit for bit), except where a kernel says otherwise (:func:`add_tap_spread`,
 :func:`sum_triples`, :func:`move_cells` and :func:`move_boxes` sum in another order;
 :func:`add_tap_spread_dense_bf16` rounds each sum to bfloat16 where ``index_add_`` rounds the
-addend first; :func:`greedy_bev_nms` and :func:`suppress_near_kernel` measure centre
+addend first, and the dense spreads add the edge correction after the taps, the tensor code
+before; :func:`greedy_bev_nms` and :func:`suppress_near_kernel` measure centre
 distances in float64, where the tensor code's ``cdist`` could round a distance at its
 threshold the other way):
 
@@ -36,9 +37,9 @@ threshold the other way):
   :func:`suppress_near_kernel`: the carried boxes dropped near surer ones;
 - :func:`gather_taps` (and :func:`gather_taps_bf16`): the 3 x 3 neighbourhoods of a few
   hundred cells of a BEV map, where the heads run as gathered products (float32 out, a
-  bfloat16 map's values exactly), :func:`dilate_flat_cells`: the cells around them,
-  :func:`dilate_unobserved` and :func:`feeding_map`: the cells a carry head answers and those
-  that feed them, and :func:`add_tap_spread` (:func:`add_tap_spread_dense` and
+  bfloat16 map's values exactly), :func:`dilate_flat_cells`: the cells around them (less
+  the observed ones: those a carry head answers), :func:`feeding_map`: the cells that feed
+  those, and :func:`add_tap_spread` (:func:`add_tap_spread_dense` and
   :func:`add_tap_spread_dense_bf16` over a whole map): a sparse past term through a 3 x 3
   layer at those cells;
 - :func:`sum_triples`: the sparse past term's weighted features summed per destination cell
@@ -501,7 +502,8 @@ def suppress_near_kernel(xy: Any, labels: Any, movable: Any, radius: Any
 @numba.njit(inline='always', nogil=True)
 def _tap_row(cells: Any, m: int, t: int, H: int, W: int, where: Any,
              rows: int) -> Any:  # pragma: no cover
-    """The row of tap ``t`` (row-major 3 x 3) of cell ``m`` (b, y, x), -1 off the map."""
+    """The row of tap ``t`` (row-major 3 x 3) of cell ``m`` (b, y, x): -1 off the map, or for
+    a cell the rows do not hold (-1 in ``where``)."""
     y = cells[m, 1] + t // 3 - 1
     x = cells[m, 2] + t % 3 - 1
     if y < 0 or y >= H or x < 0 or x >= W:
@@ -551,26 +553,29 @@ def gather_taps_bf16(rows: Any, cells: Any, H: int, W: int, where: Any,
 
 
 @_jit
-def dilate_flat_cells(flat: Any, H: int, W: int, r: int) -> Any:  # pragma: no cover
+def dilate_flat_cells(flat: Any, H: int, W: int, r: int, skip: Any) -> Any:  # pragma: no cover
     """The sorted flat cells ``(b * H + y) * W + x`` within ``r`` cells (a square) of the
     cells ``flat`` (``(N,)`` int64, repeats allowed) on their ``(B, H, W)`` map (B: the last
-    frame they name), marked on a scratch map and read back in order."""
+    frame they name, or ``skip``'s), marked on a scratch map and read back in order; less the
+    cells ``skip`` (``(B * H * W,)`` bool; empty: none) marks."""
     if len(flat) == 0:
         return np.zeros(0, np.int64)
     HW = H * W
     top = 0
     for f in flat:
-        if f < 0:
-            raise IndexError('dilate_flat_cells: a negative cell')
+        if f < 0 or (len(skip) and f >= len(skip)):
+            raise IndexError('dilate_flat_cells: a cell lies off the map')
         top = max(top, f)
-    mark = np.zeros((top // HW + 1) * HW, np.bool_)
+    mark = np.zeros(len(skip) if len(skip) else (top // HW + 1) * HW, np.bool_)
     for f in flat:
         b = f // HW
         y = f // W % H
         x = f % W
         for yy in range(max(y - r, 0), min(y + r + 1, H)):
             for xx in range(max(x - r, 0), min(x + r + 1, W)):
-                mark[(b * H + yy) * W + xx] = True
+                c = (b * H + yy) * W + xx
+                if not (len(skip) and skip[c]):
+                    mark[c] = True
     return np.nonzero(mark)[0].astype(np.int64)
 
 
@@ -616,29 +621,6 @@ def feeding_map(needed: Any, B: int, H: int, W: int) -> Any:  # pragma: no cover
 
 
 @_jit
-def dilate_unobserved(flat: Any, observed: Any, H: int, W: int, r: int
-                      ) -> Any:  # pragma: no cover
-    """:func:`dilate_flat_cells` of ``flat`` on the ``(B * H * W,)`` map ``observed`` (bool),
-    less the observed cells (the cells a carry head answers,
-    :meth:`suit_ros.model.detector.SUITDetector.predict`)."""
-    HW = H * W
-    n = len(observed)
-    mark = np.zeros(n, np.bool_)
-    for f in flat:
-        if f < 0 or f >= n:
-            raise IndexError('dilate_unobserved: a cell lies off the map')
-        b = f // HW
-        y = f // W % H
-        x = f % W
-        for yy in range(max(y - r, 0), min(y + r + 1, H)):
-            for xx in range(max(x - r, 0), min(x + r + 1, W)):
-                c = (b * H + yy) * W + xx
-                if not observed[c]:
-                    mark[c] = True
-    return np.nonzero(mark)[0].astype(np.int64)
-
-
-@_jit
 def add_tap_spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any,
                    lookup: Any, H: int, W: int) -> None:  # pragma: no cover
     """Add to ``out`` ``(M, hc)`` float32 rows of a 3 x 3 layer's pre-activation, at the cells
@@ -663,12 +645,16 @@ def add_tap_spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_valu
             if ty < 0 or ty >= H or tx < 0 or tx >= W:
                 continue
             row = lookup[(b * H + ty) * W + tx]
+            if row >= out.shape[0]:
+                raise IndexError('add_tap_spread: the lookup names a row out does not have')
             if row >= 0:
                 for c in range(out.shape[1]):
                     out[row, c] += spread[r, t, c]
     for b in range(n // HW):
         for e in range(len(edge_index)):
             row = lookup[b * HW + edge_index[e]]
+            if row >= out.shape[0]:
+                raise IndexError('add_tap_spread: the lookup names a row out does not have')
             if row >= 0:
                 for c in range(out.shape[1]):
                     out[row, c] += edge_values[e, c]
@@ -1375,7 +1361,8 @@ def warm_up() -> None:
     suppress_near_kernel(np.zeros((1, 2)), np.zeros(1, np.int64), np.ones(1, np.bool_),
                          np.ones(1))
     cells1 = np.zeros((1, 3), np.int64)
-    dilate_flat_cells(np.zeros(1, np.int64), 2, 2, 1)
+    for skip in (np.zeros(0, np.bool_), np.zeros(4, np.bool_)):
+        dilate_flat_cells(np.zeros(1, np.int64), 2, 2, 1, skip)
     for band in (np.zeros((0, 5)), np.ones((1, 5))):
         rectangle_cells(np.zeros((1, 2), np.int64), np.ones((1, 2), np.int64), 2,
                         np.zeros(2, np.int64), 2.0, band, 1.0)
@@ -1392,7 +1379,6 @@ def warm_up() -> None:
                 np.float32(1.0), np.zeros(1, np.int64), f32, np.ones((1, 1), np.bool_), 1, 1)
     pool_occupancy(np.zeros(4, np.bool_), 1, 2, 2, 2, 1)
     feeding_map(np.zeros(1, np.int64), 1, 2, 2)
-    dilate_unobserved(np.zeros(1, np.int64), np.zeros(4, np.bool_), 2, 2, 2)
     flags_at(np.zeros((1, 2, 2), np.bool_), np.zeros(1, np.int64), np.zeros((1, 2), np.float32),
              np.zeros(2, np.float32), np.float32(1.0))
     T1 = np.eye(4)[None]
