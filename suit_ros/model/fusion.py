@@ -40,7 +40,8 @@ class PastTerm:
     index: Tensor
     values: Tensor
     shape: tuple[int, int, int, int]
-    # the index sorted, without repeats (one row per cell, as the sparse past terms give it)
+    # the index sorted, without repeats (one row per cell, as the sparse past terms give it;
+    # :meth:`at` trusts it: whoever changes the index in place must clear it)
     distinct: bool = False
 
     def rows(self) -> Tensor:
