@@ -9,6 +9,19 @@ from suit_ros.model.detector import SUITDetector
 from suit_ros.model.streaming import StreamingDetector
 
 
+def carry_branch_model() -> SUITDetector:
+    """A small SUIT model with a carry branch whose projection is not zero, carrying up to 3
+    frames, sampling at a low alpha (seeded)."""
+    from dataclasses import replace
+    torch.manual_seed(0)
+    cfg = replace(small_config('suit'), fusion_gate='carry_branch',
+                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
+    model = SUITDetector(cfg).eval()
+    with torch.no_grad():
+        model.carry.past.weight.normal_(0, 0.2)
+    return model
+
+
 def test_tracker_in_the_stream_follows_the_reset_rules():
     from suit_ros.tracking import TrackerConfig
     torch.manual_seed(0)
@@ -97,17 +110,11 @@ def test_streaming_candidates_and_literal_modes():
 def test_carried_boxes_are_published_at_the_carry_thresholds():
     """With a carry branch, the boxes decoded where the cloud has no returns are marked
     ``carried`` and cut at the carry thresholds, the others at the score thresholds."""
-    from dataclasses import replace
-
     import numpy as np
-    torch.manual_seed(0)
-    cfg = replace(small_config('suit'), fusion_gate='carry_branch',
-                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
-    model = SUITDetector(cfg).eval()
+    model = carry_branch_model()
     with torch.no_grad():
-        model.carry.past.weight.normal_(0, 0.2)
         model.carry.head.heatmap[-1].bias.add_(3.0)     # carried boxes among the candidates
-    K = len(cfg.class_names)
+    K = len(model.cfg.class_names)
 
     def run(thresholds, carry):
         runner = StreamingDetector(model)
@@ -167,15 +174,9 @@ def test_the_past_term_beside_the_encoder_gives_the_same_steps():
     the serial step's boxes, scores, memory and carried flags bit for bit, frame by frame (a
     carry branch, a lost half of the sweep, a frame without a pose); an error there reaches
     the caller, and the next step runs."""
-    from dataclasses import replace
-
     import numpy as np
-    torch.manual_seed(0)
-    cfg = replace(small_config('suit'), fusion_gate='carry_branch',
-                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
-    model = SUITDetector(cfg).eval()
+    model = carry_branch_model()
     with torch.no_grad():
-        model.carry.past.weight.normal_(0, 0.2)
         model.fusion.past.weight.normal_(0, 0.2)
     threads = torch.get_num_threads()
     serial = StreamingDetector(model, beside=False)

@@ -620,46 +620,6 @@ def feeding_map(needed: Any, B: int, H: int, W: int) -> Any:  # pragma: no cover
     return cells, flat, feeding, where
 
 
-@_jit
-def add_tap_spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any,
-                   lookup: Any, H: int, W: int) -> None:  # pragma: no cover
-    """Add to ``out`` ``(M, hc)`` float32 rows of a 3 x 3 layer's pre-activation, at the cells
-    ``lookup`` maps to them (``(B * H * W,)``: a cell's row of ``out``, -1 for none), what a
-    sparse input term gives there: each input row ``r`` at flat cell ``index[r]`` feeds, by
-    its tap ``t`` (row-major, ``spread`` ``(R, 9, hc)``: the taps' products with it), the
-    output cell ``(y - (t // 3 - 1), x - (t % 3 - 1))``; and the edge correction
-    ``edge_values`` ``(E, hc)`` at the cells ``edge_index`` of every frame
-    (:meth:`suit_ros.model.head.HeadFold.at`)."""
-    HW = H * W
-    n = len(lookup)
-    for r in range(len(index)):
-        f = index[r]
-        if f < 0 or f >= n:
-            raise IndexError('add_tap_spread: an input row lies off the map')
-        b = f // HW
-        y = f // W % H
-        x = f % W
-        for t in range(9):
-            ty = y - (t // 3 - 1)
-            tx = x - (t % 3 - 1)
-            if ty < 0 or ty >= H or tx < 0 or tx >= W:
-                continue
-            row = lookup[(b * H + ty) * W + tx]
-            if row >= out.shape[0]:
-                raise IndexError('add_tap_spread: the lookup names a row out does not have')
-            if row >= 0:
-                for c in range(out.shape[1]):
-                    out[row, c] += spread[r, t, c]
-    for b in range(n // HW):
-        for e in range(len(edge_index)):
-            row = lookup[b * HW + edge_index[e]]
-            if row >= out.shape[0]:
-                raise IndexError('add_tap_spread: the lookup names a row out does not have')
-            if row >= 0:
-                for c in range(out.shape[1]):
-                    out[row, c] += edge_values[e, c]
-
-
 @numba.njit(inline='always', nogil=True)
 def _bf16_add(bits: Any, value: Any, scratch: Any, view: Any) -> Any:  # pragma: no cover
     """``bits`` (a bfloat16's uint16) plus the float32 ``value``, rounded to the nearest
@@ -687,17 +647,19 @@ def _add_bf16(out: Any, row: int, c: int, value: Any, scratch: Any,
 
 
 @numba.njit(inline='always', nogil=True)
-def _spread_dense(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any,
-                  H: int, W: int, add: Any) -> None:  # pragma: no cover
+def _spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any, lookup: Any,
+            H: int, W: int, add: Any) -> None:  # pragma: no cover
+    """The loop of :func:`add_tap_spread` (``lookup`` empty: the rows of ``out`` are the map's
+    cells), adding with ``add``."""
     HW = H * W
-    n = out.shape[0]
+    n = len(lookup) if len(lookup) else out.shape[0]
     hc = out.shape[1]
     scratch = np.zeros(1, np.uint32)
     view = scratch.view(np.float32)
     for r in range(len(index)):
         f = index[r]
         if f < 0 or f >= n:
-            raise IndexError('add_tap_spread_dense: an input row lies off the map')
+            raise IndexError('add_tap_spread: an input row lies off the map')
         b = f // HW
         y = f // W % H
         x = f % W
@@ -707,13 +669,36 @@ def _spread_dense(out: Any, spread: Any, index: Any, edge_index: Any, edge_value
             if ty < 0 or ty >= H or tx < 0 or tx >= W:
                 continue
             row = (b * H + ty) * W + tx
-            for c in range(hc):
-                add(out, row, c, spread[r, t, c], scratch, view)
+            if len(lookup):
+                row = lookup[row]
+            if row >= out.shape[0]:
+                raise IndexError('add_tap_spread: the lookup names a row out does not have')
+            if row >= 0:
+                for c in range(hc):
+                    add(out, row, c, spread[r, t, c], scratch, view)
     for b in range(n // HW):
         for e in range(len(edge_index)):
             row = b * HW + edge_index[e]
-            for c in range(hc):
-                add(out, row, c, edge_values[e, c], scratch, view)
+            if len(lookup):
+                row = lookup[row]
+            if row >= out.shape[0]:
+                raise IndexError('add_tap_spread: the lookup names a row out does not have')
+            if row >= 0:
+                for c in range(hc):
+                    add(out, row, c, edge_values[e, c], scratch, view)
+
+
+@_jit
+def add_tap_spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any,
+                   lookup: Any, H: int, W: int) -> None:  # pragma: no cover
+    """Add to ``out`` ``(M, hc)`` float32 rows of a 3 x 3 layer's pre-activation, at the cells
+    ``lookup`` maps to them (``(B * H * W,)``: a cell's row of ``out``, -1 for none), what a
+    sparse input term gives there: each input row ``r`` at flat cell ``index[r]`` feeds, by
+    its tap ``t`` (row-major, ``spread`` ``(R, 9, hc)``: the taps' products with it), the
+    output cell ``(y - (t // 3 - 1), x - (t % 3 - 1))``; and the edge correction
+    ``edge_values`` ``(E, hc)`` at the cells ``edge_index`` of every frame
+    (:meth:`suit_ros.model.head.HeadFold.at`)."""
+    _spread(out, spread, index, edge_index, edge_values, lookup, H, W, _add_f32)
 
 
 @_jit
@@ -721,7 +706,7 @@ def add_tap_spread_dense(out: Any, spread: Any, index: Any, edge_index: Any, edg
                          H: int, W: int) -> None:  # pragma: no cover
     """:func:`add_tap_spread` into a whole ``(B * H * W, hc)`` float32 map's rows
     (channels-last; row = flat cell) (:meth:`suit_ros.model.head.HeadFold.dense`)."""
-    _spread_dense(out, spread, index, edge_index, edge_values, H, W, _add_f32)
+    _spread(out, spread, index, edge_index, edge_values, np.zeros(0, np.int64), H, W, _add_f32)
 
 
 @_jit
@@ -729,7 +714,8 @@ def add_tap_spread_dense_bf16(out: Any, spread: Any, index: Any, edge_index: Any
                               edge_values: Any, H: int, W: int) -> None:  # pragma: no cover
     """:func:`add_tap_spread_dense` into a bfloat16 map given as its ``uint16`` bits, each
     added value rounded to bfloat16 (to nearest, ties to even) as it is added."""
-    _spread_dense(out, spread, index, edge_index, edge_values, H, W, _add_bf16)
+    _spread(out, spread, index, edge_index, edge_values, np.zeros(0, np.int64), H, W,
+            _add_bf16)
 
 
 @_jit
