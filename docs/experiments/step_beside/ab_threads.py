@@ -4,7 +4,7 @@ with the past term beside the encoder, and that with its small work on one threa
 runner steps each demo frame in turn; p50 of each stage, the ratios, the paired per-frame
 differences of the totals, and whether the boxes are the same.
 
-Usage: python ab_threads.py CHECKPOINT THREADS FRAMES
+Usage: python ab_threads.py CHECKPOINT THREADS FRAMES [PRECISION]   (default auto)
 """
 import argparse
 import sys
@@ -22,6 +22,7 @@ from suit_ros.tracking import TrackerConfig
 
 keep_freed_memory()
 checkpoint, threads, n = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+precision = sys.argv[4] if len(sys.argv) > 4 else 'auto'
 torch.set_num_threads(threads)
 args = argparse.Namespace(config=None, checkpoint=checkpoint)
 sim = Simulation(preset('demo-real', frames=60), 7)
@@ -29,7 +30,7 @@ inputs = [step_inputs(to_frame(sim.render(k % 60), 7)) for k in range(n)]
 
 
 def make(temporal: str, small: bool, beside: bool | None = None) -> StreamingDetector:
-    runner = StreamingDetector(bench._model(args, temporal), 'cpu', precision='auto',
+    runner = StreamingDetector(bench._model(args, temporal), 'cpu', precision=precision,
                                tracker=TrackerConfig(), beside=beside)
     runner.model.small_work_one_thread = small
     return runner
