@@ -78,7 +78,8 @@ class DetectorNode(Node):
             self.pipeline, lambda: self.params, lambda: self.get_clock().now().nanoseconds,
             self._publish, lambda: self.pub_markers.get_subscription_count() > 0,
             lambda: self.count_publishers(self.params.odom_topic) > 0, self.reasons,
-            self.get_logger(), keep_skipped=max(self.detector.cfg.sweeps - 1, 0))
+            self.get_logger(), keep_skipped=max(self.detector.cfg.sweeps - 1, 0),
+            publish_markers=lambda out: self.pub_markers.publish(out.markers_msg))
         self._points_topic = self.resolve_topic_name(self.params.points_topic)
         self.points = PointsSubscription(
             self, self._points_topic, cast(Callable[[Any], None], self._on_cloud),

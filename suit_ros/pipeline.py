@@ -275,13 +275,22 @@ class DetectionPipeline:
                 track_ids=out.track_ids, num_points=out.num_points,
                 vel_std=out.velocity_std)
             if markers:
-                out.markers_msg = detections_to_markerarray(
-                    d.boxes, d.velocities, d.scores, d.labels, out.header, self.class_names,
-                    self.classes, track_ids=out.track_ids)
+                out.markers_msg = self.markers(out)
         t3 = time.perf_counter()
         out.timings = {'convert': t1 - t0, 'model': t2 - t1, 'publish': t3 - t2}
         out.timings.update({f'model.{k}': v for k, v in model_timings.items()})
         return out
+
+    def markers(self, out: PipelineOutput) -> Any:
+        """The MarkerArray of a processed frame's detections (with their track ids), in its
+        header: what :meth:`process` builds with ``markers``; the node builds it after it has
+        published the detections, which then go out without waiting for it."""
+        if self.classes is None:
+            raise ValueError('markers need message classes: the pipeline was made without')
+        d = out.detections
+        return detections_to_markerarray(d.boxes, d.velocities, d.scores, d.labels, out.header,
+                                         self.class_names, self.classes,
+                                         track_ids=out.track_ids)
 
     def buffer(self, cloud: Any) -> PipelineOutput:
         """Take a cloud the model will not run on (the node skipped it while the model was

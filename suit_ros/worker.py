@@ -64,6 +64,8 @@ class Pipeline(Protocol):
 
     def process(self, msg: Any, markers: bool = True) -> Any: ...
 
+    def markers(self, out: Any) -> Any: ...
+
     def buffer(self, msg: Any) -> Any: ...
 
 
@@ -73,6 +75,9 @@ class FrameWorker:
     :param clock_ns: the node clock (ns).
     :param publish: ``publish(out)`` sends a frame's messages; :param want_markers: whether
         anybody subscribes to the markers (they cost more than the rest of the output).
+    :param publish_markers: ``publish_markers(out)`` sends a frame's MarkerArray: given, the
+        markers are built after ``publish`` has sent the detections (which then do not wait
+        1-2.5 ms for them); None: ``publish`` sends both, built together.
     :param odometry_published: whether anybody publishes odometry (no wait otherwise).
     :param keep_skipped: the model's previous sweeps (``sweeps - 1``): of the clouds skipped
         while the model was busy, this many (the newest) are taken into the sweep buffer
@@ -82,9 +87,11 @@ class FrameWorker:
     def __init__(self, pipeline: Pipeline, params: Callable[[], DetectorParams],
                  clock_ns: Callable[[], int], publish: Callable[[Any], None],
                  want_markers: Callable[[], bool], odometry_published: Callable[[], bool],
-                 reasons: Reasons, log: Any, keep_skipped: int = 0) -> None:
+                 reasons: Reasons, log: Any, keep_skipped: int = 0,
+                 publish_markers: Callable[[Any], None] | None = None) -> None:
         self.pipeline, self.params, self.clock_ns = pipeline, params, clock_ns
         self.publish, self.want_markers = publish, want_markers
+        self.publish_markers = publish_markers
         self.odometry_published, self.reasons, self.log = odometry_published, reasons, log
         self.lock = threading.Condition()      # requests, counters and the last frame
         self.mailbox: CloudMailbox[Received[Any]] = CloudMailbox(keep_replaced=keep_skipped)
@@ -223,7 +230,9 @@ class FrameWorker:
 
         :param buffer_s: the time spent before it on the skipped clouds (in its latency).
         """
-        out = self.pipeline.process(received.msg, markers=self.want_markers())
+        markers = self.want_markers()
+        later = markers and self.publish_markers is not None
+        out = self.pipeline.process(received.msg, markers=markers and not later)
         out.timings['buffer'] = buffer_s
         t0 = time.perf_counter()
         self.publish(out)
@@ -241,6 +250,13 @@ class FrameWorker:
             self.reasons.report(out.warnings, received.monotonic)
         if out.reset_reason:
             self._log_reset(out.reset_reason)
+        if later and self.publish_markers is not None and out.detections_msg is not None:
+            try:        # the detections are out: a failure here loses only the picture
+                out.markers_msg = self.pipeline.markers(out)
+                self.publish_markers(out)
+            except Exception as exc:  # noqa: BLE001 - said; the frame itself went out
+                if not self.stopping:
+                    self.log.error(f'markers not published: {type(exc).__name__}: {exc}')
 
     def _log_reset(self, reason: str) -> None:
         """Log a memory reset: the first of a kind, then at most every

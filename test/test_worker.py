@@ -248,3 +248,48 @@ def test_settings_the_pipeline_cannot_apply_leave_the_frame_running(worker):
     assert w.frames_failed == 0 and w.pipeline.params == before      # the settings before
     level, message, _ = health_report(w.snapshot({}))
     assert level >= 1 and 'parameters not applied: RuntimeError' in message
+
+
+def test_the_detections_go_out_before_their_markers_are_built(request):
+    """With a markers publisher (the node's), a frame's detections are published first, then
+    its MarkerArray is built and published (the same boxes, the same header); a marker build
+    that fails loses only the markers: the frame counts as out, the failure is logged."""
+    from test_pipeline import make_pipeline
+    mc = request.getfixturevalue('classes')
+    pipe = make_pipeline(request.getfixturevalue('model'), mc)
+    for t in range(T0 - S // 2, T0 + S, S // 50):
+        assert pipe.add_odometry(odom(t))
+    events, log = [], Log()
+    built = pipe.markers
+
+    def markers(out):
+        events.append(('built', out.detections_msg is not None))
+        return built(out)
+
+    pipe.markers = markers
+    w = FrameWorker(pipe, lambda: DetectorParams(), lambda: T0,
+                    lambda out: events.append(('detections', out.markers_msg)),
+                    lambda: True, lambda: True, Reasons(lambda _: None, 5.0, 30.0), log,
+                    publish_markers=lambda out: events.append(('markers', out.markers_msg)))
+    thread = threading.Thread(target=w.run, daemon=True)
+    thread.start()
+    try:
+        put_cloud(w, mc, T0)
+        assert until(lambda: len(events) >= 3)
+        (first, unbuilt), second, (third, array) = events[:3]
+        assert (first, unbuilt) == ('detections', None)         # out before the markers
+        assert second == ('built', True) and third == 'markers'
+        assert array.markers[0].header.stamp == w.last.detections_msg.header.stamp
+        assert not [line for kind, line in log.lines if kind == 'error']
+
+        def broken(out):
+            raise RuntimeError('no markers today')
+        pipe.markers = broken
+        put_cloud(w, mc, T0 + S // 10)
+        assert until(lambda: w.frames_out == 2)
+        assert until(lambda: any('markers not published: RuntimeError: no markers today'
+                                 in line for _, line in log.lines))
+        assert w.frames_failed == 0 and events[-1][0] == 'detections'
+    finally:
+        w.stop()
+        thread.join(5.0)
