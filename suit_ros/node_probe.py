@@ -154,7 +154,7 @@ def _summary(clouds: dict[int, float], dets: dict[int, float], last: dict[str, s
     span = max(dets.values()) - min(clouds.values()) if dets and clouds else 0.0
     model = float(last.get('model_ms_p50', 'nan'))
     overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50')) \
-        + float(last.get('buffer_ms_p50', 0.0))
+        + float(last.get('buffer_ms_p50', 0.0)) + float(last.get('markers_ms_p50', 0.0))
     return {'frames_in': len(clouds), 'frames_out': len(dets),
             'dropped': int(last.get('dropped_frames', -1)),
             # skipped clouds the node still took into the model's sweeps; the last input's

@@ -235,7 +235,9 @@ class DetectionPipeline:
     def process(self, cloud: Any, markers: bool = True) -> PipelineOutput:
         """Detect in one PointCloud2; never raises for bad input.
 
-        :param markers: build the MarkerArray too (the node skips it when nobody listens).
+        :param markers: build the MarkerArray too (``detect-bag``; the node builds it with
+            :meth:`markers` after it has published the detections, and only while someone
+            subscribes).
         """
         t0 = time.perf_counter()
         out = PipelineOutput(cloud.header, Detections.empty())

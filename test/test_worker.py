@@ -252,8 +252,9 @@ def test_settings_the_pipeline_cannot_apply_leave_the_frame_running(worker):
 
 def test_the_detections_go_out_before_their_markers_are_built(request):
     """With a markers publisher (the node's), a frame's detections are published first, then
-    its MarkerArray is built and published (the same boxes, the same header); a marker build
-    that fails loses only the markers: the frame counts as out, the failure is logged."""
+    its MarkerArray is built and published once (its boxes, its header), its time counted
+    with the frame's processing; a marker build that fails loses only the markers: the frame
+    counts as out, and the diagnostics say what failed."""
     from test_pipeline import make_pipeline
     mc = request.getfixturevalue('classes')
     pipe = make_pipeline(request.getfixturevalue('model'), mc)
@@ -275,21 +276,27 @@ def test_the_detections_go_out_before_their_markers_are_built(request):
     thread.start()
     try:
         put_cloud(w, mc, T0)
-        assert until(lambda: len(events) >= 3)
-        (first, unbuilt), second, (third, array) = events[:3]
+        assert until(lambda: len(events) >= 3 and 'markers' in w.stats[-1])
+        assert len(events) == 3                                 # each once
+        (first, unbuilt), second, (third, array) = events
         assert (first, unbuilt) == ('detections', None)         # out before the markers
         assert second == ('built', True) and third == 'markers'
-        assert array.markers[0].header.stamp == w.last.detections_msg.header.stamp
+        d = w.last.detections
+        assert len(d) > 0                                       # a frame with boxes
+        assert all(m.header is w.last.header for m in array.markers)
+        labels = [m for m in array.markers if m.ns.endswith('/labels')]
+        assert len(labels) == len(d)                             # one label a box: its boxes
+        assert w.stats[-1]['markers'] > 0                        # in the processing figure
         assert not [line for kind, line in log.lines if kind == 'error']
 
         def broken(out):
             raise RuntimeError('no markers today')
         pipe.markers = broken
         put_cloud(w, mc, T0 + S // 10)
-        assert until(lambda: w.frames_out == 2)
-        assert until(lambda: any('markers not published: RuntimeError: no markers today'
-                                 in line for _, line in log.lines))
-        assert w.frames_failed == 0 and events[-1][0] == 'detections'
+        assert until(lambda: w.frames_out == 2 and len(events) == 4)
+        assert events[3:] == [('detections', None)] and w.frames_failed == 0
+        _, message, _ = health_report(w.snapshot({}))
+        assert 'markers not published: RuntimeError: no markers today' in message
     finally:
         w.stop()
         thread.join(5.0)
