@@ -150,8 +150,7 @@ class SUITDetector(nn.Module):
             a sparse one, two of them as :class:`BranchTerms` with a carry branch) and aux
             outputs (``geo_logits``, ``sample_index``, ``T_now_prev``) for the GeoNet loss;
             with a carry (``sampling.carry_frames``) also ``carry_index``,
-            ``carry_positions`` and ``carry_shift`` for :meth:`carried` (and ``carry_all``
-            when the index is every sample).
+            ``carry_positions`` and ``carry_shift`` for :meth:`carried`.
         """
         aux: dict[str, Tensor] = {}
         if self.fusion is None or memory is None:
@@ -196,8 +195,6 @@ class SUITDetector(nn.Module):
             # the object's own expected displacement since the memory's frame
             shift = disp[:, 0] if q.shape[1] == 1 else (q[:, :, None] * disp).sum(dim=1)
             aux.update(carry_index=sel, carry_positions=positions, carry_shift=shift)
-            if sub is memory:
-                aux['carry_all'] = sel
         if self.carry is None:
             return sparse_past_term(feats, probs, mask, positions, bi, disp, q,
                                     self.fusion.past, self.grid, B, prune), aux
@@ -243,8 +240,9 @@ class SUITDetector(nn.Module):
         carry of :meth:`sample_memory` (None without a carry or a usable memory)."""
         if not isinstance(memory, SparseMemory) or 'carry_index' not in aux:
             return None
-        # every sample (a node's frame fuses its whole memory): no copy
-        held = memory if 'carry_all' in aux else memory.select(aux['carry_index'])
+        # every sample (a node's frame fuses its whole memory; the index is sorted): no copy
+        index = aux['carry_index']
+        held = memory if len(index) == memory.num_samples else memory.select(index)
         return moved_memory(held, aux['carry_positions'],
                             aux['carry_shift'], aux['T_now_prev'].numpy(), poses,
                             list(stamps_ns))

@@ -30,6 +30,7 @@ from torch import Tensor, nn
 import torch.nn.functional as F
 
 from suit_ros.model.grid import BEVGrid
+from suit_ros.model.inference import compiled_ok
 
 
 @dataclass
@@ -304,7 +305,6 @@ def sparse_past_terms(features: Tensor, probs: Tensor, mask: Tensor, positions: 
     if M == 0:
         return [PastTerm(torch.zeros(0, dtype=torch.long, device=features.device),
                          features.new_zeros(0, shape[1]), shape) for shape in shapes]
-    from suit_ros.model.inference import compiled_ok
     if (prune > 0 and compiled_ok(features, positions, displacements, probs, q)
             and features.dtype == positions.dtype == displacements.dtype == probs.dtype
             == q.dtype == torch.float32

@@ -58,16 +58,12 @@ class GeoNet(nn.Module):
             M, _, H, W = patches.shape
             v = (velocities / self.velocity_step)[:, :, None, None].expand(M, 2, H, W)
             patches = torch.cat([patches, v.to(patches)], dim=1)
-        if (self.products and patches.shape[-2:] == (self.window, self.window)
-                and self.product_key == state_key(self.net)):
+        if patches.shape[-2:] == (self.window, self.window) and self._products_current():
             M, C, Hs, Ws = patches.shape
-            h = patches.reshape(M, C * Hs * Ws)
-            for k in range(self.products):
-                if k:
-                    h = torch.relu(h)
-                h = h.to(self.get_buffer(f'product_weight_{k}').dtype) \
-                    @ self.get_buffer(f'product_weight_{k}') + self.get_buffer(f'product_bias_{k}')
-            return h
+            weight = self.get_buffer('product_weight_0')
+            h = patches.reshape(M, C * Hs * Ws).to(weight.dtype) @ weight \
+                + self.get_buffer('product_bias_0')
+            return self._later_products(h)
         out: Tensor = self.net(patches).flatten(1)
         return out
 
@@ -80,8 +76,7 @@ class GeoNet(nn.Module):
         window once); otherwise they are laid out as patches for :meth:`forward`."""
         M, P, C = features.shape
         rows = features * mask[..., None].to(features.dtype)
-        if (self.products and P == self.window * self.window and hasattr(self, 'memory_weight')
-                and self.product_key == state_key(self.net)):
+        if P == self.window * self.window and self._products_current():
             weight = self.get_buffer('memory_weight')
             h = rows.reshape(M, P * C).to(weight.dtype) @ weight \
                 + self.get_buffer('product_bias_0')
@@ -89,13 +84,22 @@ class GeoNet(nn.Module):
                 if velocities is None:
                     raise ValueError("this GeoNet takes the samples' velocities")
                 h = h + velocities.to(h.dtype) @ self.get_buffer('velocity_weight')
-            for k in range(1, self.products):
-                h = torch.relu(h) @ self.get_buffer(f'product_weight_{k}') \
-                    + self.get_buffer(f'product_bias_{k}')
-            return h
+            return self._later_products(h)
         patches = rows.permute(0, 2, 1).reshape(M, C, self.window, self.window)
         logits: Tensor = self(patches, velocities)
         return logits
+
+    def _products_current(self) -> bool:
+        """Whether :meth:`as_products` made the products and the convolutions are still the
+        ones they were made from (no load or update since)."""
+        return bool(self.products) and self.product_key == state_key(self.net)
+
+    def _later_products(self, h: Tensor) -> Tensor:
+        """The layers after the first as products: a ReLU, then each one's matrix and bias."""
+        for k in range(1, self.products):
+            weight = self.get_buffer(f'product_weight_{k}')
+            h = torch.relu(h).to(weight.dtype) @ weight + self.get_buffer(f'product_bias_{k}')
+        return h
 
     def as_products(self) -> int:
         """For an inference copy: each convolution over a ``window x window`` patch (the

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 import torch
 from torch import Tensor
 
+from suit_ros.model.inference import compiled_ok
 from suit_ros.ops.geometry import ego_transform
 
 
@@ -115,7 +116,6 @@ class DenseMemory:
 def _compiled(memory: SparseMemory, *more: Tensor) -> bool:
     """Whether the memory (with ``more``) moves in a compiled pass (:mod:`suit_ros.ops.
     kernels`): on the CPU, without autograd (inference)."""
-    from suit_ros.model.inference import compiled_ok
     return compiled_ok(memory.cell_xy, memory.boxes, memory.velocities, *more)
 
 
@@ -155,7 +155,6 @@ def rotate_velocities(velocities: Tensor, batch_index: Tensor,
     """Rotate ``(M, 2)`` velocities from the previous frame's axes into the current frame's."""
     if velocities.shape[0] == 0:
         return velocities
-    from suit_ros.model.inference import compiled_ok
     if compiled_ok(velocities) and velocities.dtype == torch.float32:
         # a few dozen rows: numpy's per-operation cost is a fraction of torch's
         Rn = np.ascontiguousarray(T_now_prev[:, :2, :2]).astype(np.float32)[batch_index.numpy()]
@@ -178,7 +177,6 @@ def moved_memory(memory: SparseMemory, positions: Tensor, shift: Tensor,
     :param T_now_prev: ``(B, 4, 4)`` per frame of the batch; ``poses``/``stamps_ns``: the
         current frames'.
     """
-    M = memory.num_samples
     if (_compiled(memory, shift)
             and memory.boxes.dtype == memory.velocities.dtype == torch.float32):
         from suit_ros.ops.kernels import move_boxes
@@ -189,22 +187,18 @@ def moved_memory(memory: SparseMemory, positions: Tensor, shift: Tensor,
                    np.ascontiguousarray(T_now_prev, np.float64),
                    memory.batch_index.to(torch.int64).contiguous().numpy(), boxes.numpy(),
                    velocities.numpy())
-        return SparseMemory(memory.batch_index,
-                            positions + shift[:, None, :].to(positions.dtype),
-                            memory.features, memory.probs, memory.mask, boxes, velocities,
-                            list(stamps_ns), np.asarray(poses, np.float64).copy(),
-                            memory.window, memory.age() + 1)
-    T = torch.from_numpy(np.ascontiguousarray(T_now_prev)).to(memory.boxes.device)
-    T = T[memory.batch_index]                                               # (M, 4, 4) f64
-    boxes = memory.boxes.clone()
-    if M:
-        centre = torch.einsum('mij,mj->mi', T[:, :3, :3], memory.boxes[:, :3].double()) \
-            + T[:, :3, 3]
-        boxes[:, :3] = centre.to(boxes.dtype)
-        boxes[:, :2] += shift.to(boxes.dtype)
-        boxes[:, 6] += torch.atan2(T[:, 1, 0], T[:, 0, 0]).to(boxes.dtype)
+    else:
+        T = torch.from_numpy(np.ascontiguousarray(T_now_prev)).to(memory.boxes.device)
+        T = T[memory.batch_index]                                           # (M, 4, 4) f64
+        boxes = memory.boxes.clone()
+        if memory.num_samples:
+            centre = torch.einsum('mij,mj->mi', T[:, :3, :3], memory.boxes[:, :3].double()) \
+                + T[:, :3, 3]
+            boxes[:, :3] = centre.to(boxes.dtype)
+            boxes[:, :2] += shift.to(boxes.dtype)
+            boxes[:, 6] += torch.atan2(T[:, 1, 0], T[:, 0, 0]).to(boxes.dtype)
+        velocities = rotate_velocities(memory.velocities, memory.batch_index, T_now_prev)
     return SparseMemory(memory.batch_index, positions + shift[:, None, :].to(positions.dtype),
-                        memory.features, memory.probs, memory.mask, boxes,
-                        rotate_velocities(memory.velocities, memory.batch_index, T_now_prev),
+                        memory.features, memory.probs, memory.mask, boxes, velocities,
                         list(stamps_ns), np.asarray(poses, np.float64).copy(), memory.window,
                         memory.age() + 1)

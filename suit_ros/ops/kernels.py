@@ -647,13 +647,25 @@ def _add_bf16(out: Any, row: int, c: int, value: Any, scratch: Any,
 
 
 @numba.njit(inline='always', nogil=True)
+def _add_at(out: Any, cell: int, lookup: Any, values: Any, add: Any, scratch: Any,
+            view: Any) -> None:  # pragma: no cover
+    """``values`` ``(hc,)`` added with ``add`` to the row of ``out`` at flat ``cell``: the
+    cell itself, or ``lookup``'s row for it (-1: none) when ``lookup`` is not empty."""
+    row = lookup[cell] if len(lookup) else cell
+    if row >= out.shape[0]:
+        raise IndexError('add_tap_spread: the lookup names a row out does not have')
+    if row >= 0:
+        for c in range(out.shape[1]):
+            add(out, row, c, values[c], scratch, view)
+
+
+@numba.njit(inline='always', nogil=True)
 def _spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any, lookup: Any,
             H: int, W: int, add: Any) -> None:  # pragma: no cover
     """The loop of :func:`add_tap_spread` (``lookup`` empty: the rows of ``out`` are the map's
     cells), adding with ``add``."""
     HW = H * W
     n = len(lookup) if len(lookup) else out.shape[0]
-    hc = out.shape[1]
     scratch = np.zeros(1, np.uint32)
     view = scratch.view(np.float32)
     for r in range(len(index)):
@@ -668,24 +680,10 @@ def _spread(out: Any, spread: Any, index: Any, edge_index: Any, edge_values: Any
             tx = x - (t % 3 - 1)
             if ty < 0 or ty >= H or tx < 0 or tx >= W:
                 continue
-            row = (b * H + ty) * W + tx
-            if len(lookup):
-                row = lookup[row]
-            if row >= out.shape[0]:
-                raise IndexError('add_tap_spread: the lookup names a row out does not have')
-            if row >= 0:
-                for c in range(hc):
-                    add(out, row, c, spread[r, t, c], scratch, view)
+            _add_at(out, (b * H + ty) * W + tx, lookup, spread[r, t], add, scratch, view)
     for b in range(n // HW):
         for e in range(len(edge_index)):
-            row = b * HW + edge_index[e]
-            if len(lookup):
-                row = lookup[row]
-            if row >= out.shape[0]:
-                raise IndexError('add_tap_spread: the lookup names a row out does not have')
-            if row >= 0:
-                for c in range(hc):
-                    add(out, row, c, edge_values[e, c], scratch, view)
+            _add_at(out, b * HW + edge_index[e], lookup, edge_values[e], add, scratch, view)
 
 
 @_jit
