@@ -517,8 +517,7 @@ class SweepReading(NamedTuple):
 
 def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floating[Any]],
                      which: NDArray[np.bool_], max_speed: float = 20.0, bin_m: float = 0.1,
-                     min_points: int = 10, current_margin: float | None = None
-                     ) -> SweepReading:
+                     min_points: int = 10) -> SweepReading:
     """Each box's velocity read from the motion of its points between the accumulated sweeps.
 
     The model input holds the current sweep and the previous ones, all in the current frame
@@ -575,9 +574,8 @@ def sweep_velocities(points: NDArray[np.floating[Any]], boxes: NDArray[np.floati
     # compiled pass over the points, each against the boxes of its cell (in the cloud's
     # dtype, as numpy computes an array against float scalars)
     cos, sin = np.cos(bp[:, 6]), np.sin(bp[:, 6])
-    counted = half if current_margin is None else np.minimum(0.5 * bp[:, 3] + current_margin, half)
     geometry = np.stack([bp[:, 0], bp[:, 1], cos, sin, half, across,
-                         bp[:, 2] + 0.5 * bp[:, 5] + 0.3, counted], axis=1)
+                         bp[:, 2] + 0.5 * bp[:, 5] + 0.3], axis=1)
     n_bins = (2 * half / bin_m).astype(np.int64) + 1
     start, owners = index.box_lists()
     dt = pts.dtype.type

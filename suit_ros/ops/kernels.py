@@ -1101,9 +1101,8 @@ def sweep_histograms_by_cell(pts: Any, inv_cell: Any, origin: Any, shape: Any, z
     :func:`count_in_box_cells`).
 
     float32 arithmetic throughout, as numpy computes a float32 cloud against float scalars:
-    ``geometry`` is ``(M, 8)`` float32: centre x, y, cos, sin, half the search length, half
-    the width plus margin, the top (centre z + half height + margin), and half the length
-    the current sweep's returns are counted over (at most the search's).
+    ``geometry`` is ``(M, 7)`` float32: centre x, y, cos, sin, half the search length, half
+    the width plus margin, the top (centre z + half height + margin).
     :return: ``(M, 1 + L, width)`` counts and each box's histogram length (its ``n_bins``,
         or more where a bin rounded up past it, as ``np.bincount`` would return).
     """
@@ -1137,8 +1136,6 @@ def sweep_histograms_by_cell(pts: Any, inv_cell: Any, origin: Any, shape: Any, z
             s = geometry[b, 3]
             half = geometry[b, 4]
             u = dx * c + dy * s
-            if row == 0 and abs(u) >= geometry[b, 7]:
-                continue
             if abs(u) < half and abs(-dx * s + dy * c) < geometry[b, 5] and z < geometry[b, 6]:
                 h = min(np.int64((u + half) / bin_m), width - 1)
                 out[b, row, h] += 1.0
@@ -1335,7 +1332,7 @@ def warm_up() -> None:
         count_in_box_cells(xyz, np.float32(0.5), origin, shape, start, owners, np.ones((1, 7)),
                            np.ones(1), np.zeros(1))
     sweep_histograms_by_cell(model_input, np.float32(0.5), origin, shape, np.float32(0.3),
-                             np.float32(5.0), start, owners, np.ones((1, 8), np.float32),
+                             np.float32(5.0), start, owners, np.ones((1, 7), np.float32),
                              np.ones(1, np.float32), np.float32(0.1), np.ones(1, np.int64))
     distinct_values(model_input[:, 4])
     azimuth_counts(sweep[:, :3], 72)
