@@ -73,12 +73,13 @@ VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', '
             'all car ends', 'tracking, all car ends', 'street objects',
             'tracking, street objects', 'bystanders', 'tracking, bystanders', 'dark tops',
             'tracking, dark tops', 'occluders', 'tracking, occluders', 'deskewed',
-            'tracking, deskewed')
+            'tracking, deskewed', 'parked rows', 'tracking, parked rows')
 # the validation drives regenerated in another world: passenger cars shaped at their ends as
-# real cars are; and with the street objects of real sidewalks too; and pedestrians beside them
+# real cars are; and with the street objects of real sidewalks too; and pedestrians beside them;
+# or cars seen only below the belt; or the kerbs lined with parked cars
 WORLDS = {'real car ends': 'val-ends', 'all car ends': 'val-ends-all',
           'street objects': 'val-street-ends', 'bystanders': 'val-bystanders',
-          'dark tops': 'val-dark-tops'}
+          'dark tops': 'val-dark-tops', 'parked rows': 'val-parked-rows'}
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']

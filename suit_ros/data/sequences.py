@@ -58,7 +58,7 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
     for name in ('realism', 'exact_sectors'):   # off: the box world, keys as before they existed
         if not cfg[name]:
             del cfg[name]
-    for name in ('street_objects', 'real_car_ends', 'bystanders', 'dark_tops'):
+    for name in ('street_objects', 'real_car_ends', 'bystanders', 'dark_tops', 'parked_rows'):
         if cfg.get('realism') and not cfg['realism'][name]:
             del cfg['realism'][name]             # off: the world (and its key) as before
     # v3: objects count their own returns where a moving sweep put them outside their box

@@ -76,6 +76,9 @@ class Realism:
         glass that returns nothing, a roof that returns one hit in six, dim seats behind the
         glass (:func:`~suit_ros.data.sim.bodies.car_body`); 0 (default): none, the world byte
         for byte as before.
+    :param parked_rows: share of the kerbs near the ego's path lined with rows of parked cars,
+        as city streets are (:mod:`~suit_ros.data.sim.parked_rows`); 0 (default): none, the
+        world byte for byte as before.
     """
 
     clutter: float = 1.0
@@ -88,6 +91,7 @@ class Realism:
     real_car_ends: float = 0.0
     bystanders: float = 0.0
     dark_tops: float = 0.0
+    parked_rows: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -155,7 +159,7 @@ def _validate_realism(r: Realism) -> None:
     if r.clutter < 0:
         raise ConfigError(f'realism.clutter must be >= 0 (0: no clutter), got {r.clutter}')
     for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends', 'bystanders',
-                 'dark_tops'):
+                 'dark_tops', 'parked_rows'):
         value = getattr(r, name)
         if not 0.0 <= value <= 1.0:
             raise ConfigError(f'realism.{name} is a probability in [0, 1], got {value}')
@@ -233,6 +237,12 @@ PRESETS['train-dark-tops'] = replace(
     PRESETS['train-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, dark_tops=0.5))
 PRESETS['val-dark-tops'] = replace(
     PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, dark_tops=0.5))
+# or with the kerbs lined with rows of parked cars (docs/experiments/parked_rows)
+PRESETS['train-parked-rows'] = replace(
+    PRESETS['train-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0,
+                                           parked_rows=0.5))
+PRESETS['val-parked-rows'] = replace(
+    PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, parked_rows=0.5))
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:

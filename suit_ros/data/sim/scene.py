@@ -20,6 +20,7 @@ from suit_ros.data.sim.bystanders import place_bystanders
 from suit_ros.data.sim.clutter import CLUTTER_ID, StaticScene, furnish
 from suit_ros.data.sim.config import Realism, SimConfig
 from suit_ros.data.sim.lidar import GROUND, Porosity, RangeImage, cast, ray_directions
+from suit_ros.data.sim.parked_rows import park_rows
 from suit_ros.data.sim.world import REFLECTIVITY, build_world
 from suit_ros.ops.geometry import (  # noqa: F401 - points_in_boxes: re-exported
     count_points_in_boxes,
@@ -125,6 +126,8 @@ class Simulation:
         self.scene = furnish(self.world, self.cfg, realism, rng)
         place_bystanders(self.actors, self.scene, self.world, realism.bystanders,
                          np.random.default_rng([self.seed, 0xB757]))
+        self.actors += park_rows(self.actors, self.ego, self.world, realism,
+                                 np.random.default_rng([self.seed, 0x9A2C]))
         self.trajectories = Trajectories.sample(self.actors)
         ego = ego_body(self.ego.size) if realism.ego_body else None
         bodies = [a.body for a in self.actors if a.body is not None]

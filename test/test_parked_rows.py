@@ -1,0 +1,139 @@
+"""Rows of parked cars along the kerbs (``Realism.parked_rows``): the worlds without them keep
+their bytes and cache keys; the rows stand at the kerb, clear of each other and of every path
+driven or walked during the drive, and the sensor sees them in part."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suit_ros import CLASS_NAMES
+from suit_ros.data.sim import Realism, preset
+from suit_ros.data.sim.actors import Trajectories
+from suit_ros.data.sim.parked_rows import CLEAR_END, park_rows
+from suit_ros.data.sim.scene import Simulation, to_frame
+from suit_ros.errors import ConfigError
+
+CAR = CLASS_NAMES.index('car')
+
+
+@pytest.fixture(scope='module')
+def worlds():
+    return (Simulation(preset('val-street-ends', frames=4), 9003),
+            Simulation(preset('val-parked-rows', frames=4), 9003))
+
+
+def footprint_gap(a, b):
+    """Distance between two footprints (x, y, l, w, yaw): the smallest distance between a
+    corner of one and the other's rectangle, both ways (0 when they touch or overlap)."""
+    def corners(r):
+        c, s = np.cos(r[4]), np.sin(r[4])
+        u = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [r[2] / 2, r[3] / 2]
+        return r[:2] + u @ np.array([[c, s], [-s, c]])
+
+    def to_rect(p, r):
+        d = p - r[:2]
+        c, s = np.cos(r[4]), np.sin(r[4])
+        u = np.abs(c * d[:, 0] + s * d[:, 1]) - r[2] / 2
+        v = np.abs(-s * d[:, 0] + c * d[:, 1]) - r[3] / 2
+        return np.hypot(np.maximum(u, 0), np.maximum(v, 0)).min()
+    return min(to_rect(corners(a), b), to_rect(corners(b), a))
+
+
+def rows_of(plain, rows):
+    return rows.actors[len(plain.actors):]
+
+
+def test_worlds_without_rows_keep_their_keys_and_values_are_checked():
+    from suit_ros.data.sequences import _cache_key
+    assert _cache_key('val-street-ends', 'hdl32e', 9001, 40) == '52d36ca031398c1e'
+    assert _cache_key('val-parked-rows', 'hdl32e', 9001, 40) != '52d36ca031398c1e'
+    assert preset('val-street-ends').realism.parked_rows == 0.0
+    for name in ('train-parked-rows', 'val-parked-rows'):
+        r = preset(name).realism
+        assert (r.parked_rows, r.street_objects, r.real_car_ends) == (0.5, 1.0, 1.0)
+    with pytest.raises(ConfigError, match='parked_rows'):
+        preset('test', realism=Realism(parked_rows=1.5))
+
+
+def test_the_rest_of_the_world_is_unchanged(worlds):
+    plain, rows = worlds
+    assert len(rows.actors) > len(plain.actors)
+    for a, b in zip(plain.actors, rows.actors):
+        assert a.instance_id == b.instance_id and np.array_equal(a.size, b.size)
+        assert np.array_equal(a.poly, b.poly) and np.array_equal(a.s, b.s)
+    assert np.array_equal(plain.scene.parts, rows.scene.parts)
+    assert park_rows(plain.actors, plain.ego, plain.world, Realism(parked_rows=0.0),
+                     np.random.default_rng(0)) == []
+
+
+def test_rows_stand_at_the_kerb_clear_of_everything(worlds):
+    plain, rows = worlds
+    new = rows_of(plain, rows)
+    ids = [a.instance_id for a in new]
+    assert len(set(ids)) == len(ids) and min(ids) > max(a.instance_id for a in plain.actors)
+    world = rows.world
+    boxes = []
+    for a in new:
+        assert a.label == CAR and len(a.poly) == 1 and not a.v.any() and a.body is not None
+        x, y = a.poly[0]
+        # distance from the nearest road axis: the car's far side 0.1-0.35 m off the kerb
+        off = np.abs(np.array([x, y]) - np.round(np.array([x, y]) / world.block) * world.block)
+        side = off.min() + a.size[1] / 2
+        assert world.road_half_width - 0.36 <= side <= world.road_half_width - 0.09
+        # and along its road at least CLEAR_END - half a length from an intersection
+        assert off.max() >= CLEAR_END - 1e-6
+        boxes.append(np.array([x, y, a.size[0], a.size[1], a.heading]))
+    parked = [np.array([a.poly[0, 0], a.poly[0, 1], a.size[0], a.size[1], a.heading])
+              for a in plain.actors if len(a.poly) == 1
+              and CLASS_NAMES[a.label] in ('car', 'truck')]
+    for i, b in enumerate(boxes):
+        for other in boxes[i + 1:] + parked:
+            assert footprint_gap(b, other) > 0.25
+    # no path driven or walked during the drive (the ego's included) comes into a row car
+    traj = Trajectories.sample([plain.ego, *plain.actors])
+    moving = np.array([True] + [len(a.poly) > 1 or CLASS_NAMES[a.label] not in ('car', 'truck')
+                                for a in plain.actors])
+    pts = np.stack([traj.x[moving].ravel(), traj.y[moving].ravel()], 1)
+    for b in boxes:
+        d = pts - b[:2]
+        c, s = np.cos(b[4]), np.sin(b[4])
+        u = np.abs(c * d[:, 0] + s * d[:, 1])
+        v = np.abs(-s * d[:, 0] + c * d[:, 1])
+        assert not ((u <= b[2] / 2 + 0.3) & (v <= b[3] / 2 + 1.4)).any()
+    # rows: most cars have a neighbour in line within 3 m of their end
+    close = sum(any(footprint_gap(b, o) < 3.0 and abs(np.sin(b[4] - o[4])) < 0.1
+                    for o in boxes if o is not b) for b in boxes)
+    assert close >= 0.6 * len(boxes)
+
+
+def test_the_sensor_sees_the_rows_and_gt_keeps_them(worlds):
+    plain, rows = worlds
+    new = {a.instance_id for a in rows_of(plain, rows)}
+    f = to_frame(rows.render(2), 9003)
+    g = f.gt
+    near = np.hypot(*g.boxes[:, :2].T) < 50
+    in_rows = np.isin(f.instance_ids, list(new))
+    seen = in_rows & near & (f.num_points > 0)
+    assert (g.labels[in_rows] == CAR).all()
+    # many of them, some only in part (a neighbour hides the rest)
+    assert seen.sum() >= 5
+    assert (f.num_points[seen] < 15).any() and (f.num_points[seen] > 40).any()
+    plain_cars = (to_frame(plain.render(2), 9003).gt.labels == CAR).sum()
+    assert (g.labels == CAR).sum() >= plain_cars + 5
+
+
+def test_compare_scores_the_rows_world():
+    """``compare --variant 'tracking, parked rows'``: the validation drives with rows, scored
+    on their own labels (the rows' cars counted)."""
+    from suit_ros.compare import VARIANTS, variant_run
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.data.sequences import synthetic_split
+    from suit_ros.model.detector import SUITDetector
+    assert {'parked rows', 'tracking, parked rows'} <= set(VARIANTS)
+    drives = synthetic_split('val', 1, 2)
+    model = SUITDetector(model_config_from_dict({'temporal': 'none'}, 'test')).eval()
+    plain = variant_run('unused', model, 'tracking', drives, 'float32')
+    rows = variant_run('unused', model, 'tracking, parked rows', drives, 'float32')
+    assert rows is not None and len(rows.gt) == len(plain.gt) == 2
+    for a, b in zip(rows.gt, plain.gt):
+        assert (a.labels == CAR).sum() > (b.labels == CAR).sum()
