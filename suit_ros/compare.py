@@ -35,7 +35,10 @@ checkpoint changed in one way:
   :mod:`~suit_ros.data.sim.bystanders`; scored against the boxes where they stand);
   ``dark tops`` and ``tracking, dark tops``: the street-objects drives with half the passenger
   cars seen only below the belt (preset ``val-dark-tops``,
-  :attr:`~suit_ros.data.sim.config.Realism.dark_tops`);
+  :attr:`~suit_ros.data.sim.config.Realism.dark_tops`); ``parked rows`` and ``tracking,
+  parked rows``: the street-objects drives with about half the kerbs near the ego lined with
+  rows of parked cars (preset ``val-parked-rows``, :mod:`~suit_ros.data.sim.parked_rows`;
+  scored against their own labels, the rows' cars among them);
 - ``deskewed`` and ``tracking, deskewed``: the sweeps of the sensors that take them over time
   put back at their stamps (:mod:`suit_ros.deskew`), as the node does by default; every other
   run has them as taken, as the figures in docs/results.md were measured.

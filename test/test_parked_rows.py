@@ -8,7 +8,6 @@ import pytest
 
 from suit_ros import CLASS_NAMES
 from suit_ros.data.sim import Realism, preset
-from suit_ros.data.sim.actors import Trajectories
 from suit_ros.data.sim.parked_rows import CLEAR_END, park_rows
 from suit_ros.data.sim.scene import Simulation, to_frame
 from suit_ros.errors import ConfigError
@@ -66,44 +65,86 @@ def test_the_rest_of_the_world_is_unchanged(worlds):
                      np.random.default_rng(0)) == []
 
 
-def test_rows_stand_at_the_kerb_clear_of_everything(worlds):
-    plain, rows = worlds
+def rects_touch(a, b, clear=0.0):
+    """Whether two footprints (x, y, l, w, yaw) come within ``clear`` of each other (the
+    separating axis test, written apart from the module's)."""
+    def axes(r):
+        u = np.array([np.cos(r[4]), np.sin(r[4])])
+        return u, np.array([-u[1], u[0]])
+
+    ua, va = axes(a)
+    ub, vb = axes(b)
+    d = b[:2] - a[:2]
+    for n in (ua, va, ub, vb):
+        ha = abs(n @ ua) * a[2] / 2 + abs(n @ va) * a[3] / 2
+        hb = abs(n @ ub) * b[2] / 2 + abs(n @ vb) * b[3] / 2
+        if abs(n @ d) > ha + hb + clear:
+            return False
+    return True
+
+
+@pytest.fixture(scope='module')
+def long_drive():
+    """A 40-frame drive in the rows world (where the first version let a row car stand in a
+    bus that drove off at the start) and the same drive without the rows."""
+    return (Simulation(preset('val-street-ends', frames=40), 9000),
+            Simulation(preset('val-parked-rows', frames=40), 9000))
+
+
+@pytest.mark.parametrize('which', ['short', 'long'])
+def test_rows_stand_at_the_kerb_clear_of_everything(worlds, long_drive, which):
+    plain, rows = worlds if which == 'short' else long_drive
     new = rows_of(plain, rows)
+    assert len(new) >= 20
     ids = [a.instance_id for a in new]
     assert len(set(ids)) == len(ids) and min(ids) > max(a.instance_id for a in plain.actors)
     world = rows.world
-    boxes = []
+    right = 0
     for a in new:
         assert a.label == CAR and len(a.poly) == 1 and not a.v.any() and a.body is not None
-        x, y = a.poly[0]
-        # distance from the nearest road axis: the car's far side 0.1-0.35 m off the kerb
-        off = np.abs(np.array([x, y]) - np.round(np.array([x, y]) / world.block) * world.block)
-        side = off.min() + a.size[1] / 2
-        assert world.road_half_width - 0.36 <= side <= world.road_half_width - 0.09
-        # and along its road at least CLEAR_END - half a length from an intersection
-        assert off.max() >= CLEAR_END - 1e-6
-        boxes.append(np.array([x, y, a.size[0], a.size[1], a.heading]))
-    parked = [np.array([a.poly[0, 0], a.poly[0, 1], a.size[0], a.size[1], a.heading])
-              for a in plain.actors if len(a.poly) == 1
-              and CLASS_NAMES[a.label] in ('car', 'truck')]
-    for i, b in enumerate(boxes):
-        for other in boxes[i + 1:] + parked:
-            assert footprint_gap(b, other) > 0.25
-    # no path driven or walked during the drive (the ego's included) comes into a row car
-    traj = Trajectories.sample([plain.ego, *plain.actors])
-    moving = np.array([True] + [len(a.poly) > 1 or CLASS_NAMES[a.label] not in ('car', 'truck')
-                                for a in plain.actors])
-    pts = np.stack([traj.x[moving].ravel(), traj.y[moving].ravel()], 1)
-    for b in boxes:
-        d = pts - b[:2]
-        c, s = np.cos(b[4]), np.sin(b[4])
-        u = np.abs(c * d[:, 0] + s * d[:, 1])
-        v = np.abs(-s * d[:, 0] + c * d[:, 1])
-        assert not ((u <= b[2] / 2 + 0.3) & (v <= b[3] / 2 + 1.4)).any()
+        p = a.poly[0]
+        axis = np.round(p / world.block) * world.block       # the nearest road's lines
+        off = np.abs(p - axis)
+        k = int(np.argmin(off))                              # across the road it stands on
+        side = off[k] + a.size[1] / 2
+        assert world.road_half_width - 0.36 <= side <= world.road_half_width - 0.14
+        # its near end at least CLEAR_END from the crossing road's centre line
+        assert off[1 - k] - a.size[0] / 2 >= CLEAR_END - 1e-6
+        # the kerb on its right: it faces its side's traffic (right-hand traffic)
+        heading = np.array([np.cos(a.heading), np.sin(a.heading)])
+        to_kerb = np.zeros(2)
+        to_kerb[k] = np.sign(p[k] - axis[k])
+        right += heading @ np.array([-to_kerb[1], to_kerb[0]]) > 0.9
+    assert 0.7 * len(new) <= right <= 0.97 * len(new)
+    # at every rendered frame, no row car's footprint meets another actor's (the ego's
+    # included), whatever drives past it, stands or walks
+    ego_box = np.array([*rows.ego.size[:2]])
+    n_old = len(plain.actors)
+    for t in np.arange(0, 40, 3) * 0.1:
+        boxes, _ = rows.actor_boxes(t)
+        fp = boxes[:, [0, 1, 3, 4, 6]]
+        ex, ey, eyaw, _, _ = rows.ego.state(t)
+        others = np.concatenate([fp, [[ex, ey, *ego_box, eyaw]]])
+        for i in range(n_old, len(fp)):
+            near = np.flatnonzero(np.hypot(*(others[:, :2] - fp[i, :2]).T) < 12.0)
+            for j in near[near != i]:
+                assert not rects_touch(fp[i], others[j], 0.15), (t, i, j)
     # rows: most cars have a neighbour in line within 3 m of their end
-    close = sum(any(footprint_gap(b, o) < 3.0 and abs(np.sin(b[4] - o[4])) < 0.1
-                    for o in boxes if o is not b) for b in boxes)
-    assert close >= 0.6 * len(boxes)
+    rowed = [np.array([a.poly[0, 0], a.poly[0, 1], a.size[0], a.size[1], a.heading])
+             for a in new]
+    close = sum(any(rects_touch(b, o, 3.0) and abs(np.sin(b[4] - o[4])) < 0.1
+                    for o in rowed if o is not b) for b in rowed)
+    assert close >= 0.6 * len(rowed)
+
+
+def test_a_full_share_ends(worlds):
+    """Every kerb lined (share 1): each kerb ends when the next car no longer fits."""
+    plain, _ = worlds
+    full = park_rows(plain.actors, plain.ego, plain.world,
+                     Realism(parked_rows=1.0, real_car_ends=1.0), np.random.default_rng(3))
+    half = park_rows(plain.actors, plain.ego, plain.world,
+                     Realism(parked_rows=0.5, real_car_ends=1.0), np.random.default_rng(3))
+    assert len(full) > 1.3 * len(half) > 0
 
 
 def test_the_sensor_sees_the_rows_and_gt_keeps_them(worlds):

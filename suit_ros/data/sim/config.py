@@ -76,9 +76,9 @@ class Realism:
         glass that returns nothing, a roof that returns one hit in six, dim seats behind the
         glass (:func:`~suit_ros.data.sim.bodies.car_body`); 0 (default): none, the world byte
         for byte as before.
-    :param parked_rows: share of the kerbs near the ego's path lined with rows of parked cars,
-        as city streets are (:mod:`~suit_ros.data.sim.parked_rows`); 0 (default): none, the
-        world byte for byte as before.
+    :param parked_rows: about the share of the kerbs near the ego's path lined with rows of
+        parked cars, as city streets are (:mod:`~suit_ros.data.sim.parked_rows`); 0 (default):
+        none, the world byte for byte as before.
     """
 
     clutter: float = 1.0

@@ -6,13 +6,16 @@ sensor, most of them parked in rows; the world without this has a median of 6 ca
 its ends, the sensor sees a corner past the car in front, or only its roof over the next one
 (the dev set's missed cars at 8 and 24 m are such views; docs/experiments/parked_rows).
 
-:attr:`~suit_ros.data.sim.config.Realism.parked_rows` is the share of kerb length, on both
-sides of every block edge that the ego passes within 100 m of, lined with parked cars:
-:func:`park_rows` walks each kerb from 10 m past one intersection to 10 m before the next,
-alternating rows of 2-8 cars (0.4-2.5 m apart, most facing the traffic on their side) and
-empty stretches; a car is left out where anything else stands or passes during the drive
-(another actor's path, a parked vehicle, a pedestrian). Its own generator keeps the rest of the
-world as it was, and 0 adds nothing.
+:attr:`~suit_ros.data.sim.config.Realism.parked_rows` sets how densely the kerbs are lined, on
+both sides of every block edge with an end within 100 m of the ego's path: :func:`park_rows`
+walks each kerb from 10 m past one intersection to 10 m before the next, alternating rows of
+2-8 cars (0.4-2.5 m apart, 0.15-0.35 m off the kerb, most facing their side's traffic) with
+empty stretches whose mean length puts rows on about that share of the kerb (less where a row
+is cut at the kerb's end or a car is left out). A car is left out where its footprint would
+come within 0.3 m of anything that drives past or stands during the drive (the ego, traffic,
+cyclists; a pedestrian within 0.2 m), each at its own size and heading at every step, or within
+0.25 m of another parked vehicle. Its own generator keeps the rest of the world as it was, and
+0 adds nothing.
 """
 from __future__ import annotations
 
@@ -31,36 +34,33 @@ CLEAR_END = 10.0      # m: no car this close to an intersection's centre line cr
 NEAR_EGO = 100.0      # m: block edges with an end this close to the ego's path get rows
 ROW_CARS = (2, 8)     # cars a row holds (inclusive)
 ROW_GAP = (0.4, 2.5)  # m between cars of a row
-PATH_PAD = 1.4        # m: a moving actor's centre stays this far outside a parked car
+KERB_GAP = (0.15, 0.35)   # m between a car's side and the kerb
+YAW_SD = 0.015        # rad: how far a car stands off its kerb's line
+PATH_CLEAR = 0.3      # m between a row car and anything that drives past or stands
+WALK_CLEAR = 0.2      # m between a row car and a pedestrian
+PARKED_CLEAR = 0.25   # m between two parked vehicles
 REVERSED = 0.15       # share of cars parked against their side's traffic
 
 
-def _inside(points: NDArray[np.float64], box: NDArray[np.float64], pad_l: float,
-            pad_w: float) -> bool:
-    """Whether any of ``points`` ``(N, 2)`` lies in the footprint ``box`` (x, y, l, w, yaw)
-    grown by ``pad_l`` along it and ``pad_w`` across."""
-    if len(points) == 0:
+def _overlap(rects: NDArray[np.float64], box: NDArray[np.float64],
+             clear: float | NDArray[np.float64]) -> bool:
+    """Whether the footprint ``box`` (x, y, l, w, yaw) comes within ``clear`` (m; one value or
+    one per rectangle) of any of the footprints ``rects`` ``(K, 5)``: two rectangles grown by
+    half of ``clear`` each overlap unless one of their four axes separates them."""
+    if len(rects) == 0:
         return False
-    d = points - box[:2]
-    c, s = np.cos(box[4]), np.sin(box[4])
-    u = np.abs(c * d[:, 0] + s * d[:, 1])
-    v = np.abs(-s * d[:, 0] + c * d[:, 1])
-    return bool(((u <= box[2] / 2 + pad_l) & (v <= box[3] / 2 + pad_w)).any())
-
-
-def _overlaps(boxes: NDArray[np.float64], box: NDArray[np.float64], clear: float = 0.3
-              ) -> bool:
-    """Whether a footprint ``box`` (x, y, l, w, yaw) comes within ``clear`` of any of
-    ``boxes`` ``(K, 5)`` (bounding circles along and across ``box``'s axes: a test that may
-    say yes for two boxes at an angle that do not touch, never no for two that do)."""
-    if len(boxes) == 0:
-        return False
-    d = boxes[:, :2] - box[:2]
-    c, s = np.cos(box[4]), np.sin(box[4])
-    u = np.abs(c * d[:, 0] + s * d[:, 1])
-    v = np.abs(-s * d[:, 0] + c * d[:, 1])
-    reach = 0.5 * np.hypot(boxes[:, 2], boxes[:, 3])
-    return bool(((u < box[2] / 2 + reach + clear) & (v < box[3] / 2 + reach + clear)).any())
+    d = rects[:, :2] - box[:2]
+    ua = np.array([np.cos(box[4]), np.sin(box[4])])
+    va = np.array([-ua[1], ua[0]])
+    ub = np.stack([np.cos(rects[:, 4]), np.sin(rects[:, 4])], 1)
+    vb = np.stack([-ub[:, 1], ub[:, 0]], 1)
+    separated = np.zeros(len(rects), bool)
+    for n in (np.broadcast_to(ua, ub.shape), np.broadcast_to(va, ub.shape), ub, vb):
+        half_a = np.abs(n @ ua) * box[2] / 2 + np.abs(n @ va) * box[3] / 2
+        half_b = (np.abs((n * ub).sum(1)) * rects[:, 2] / 2
+                  + np.abs((n * vb).sum(1)) * rects[:, 3] / 2)
+        separated |= np.abs((n * d).sum(1)) > half_a + half_b + clear
+    return bool((~separated).any())
 
 
 def _edges_near(world: World, path: NDArray[np.float64]) -> list[tuple[tuple[int, int],
@@ -93,14 +93,20 @@ def park_rows(actors: Sequence[Actor], ego: Actor, world: World, realism: Realis
         return []
     traj = Trajectories.sample([ego, *actors])
     steps = traj.x.shape[1]
-    moving = np.array([True] + [len(a.poly) > 1 for a in actors])
-    vehicle = np.array([True] + [CLASS_NAMES[a.label] in ('car', 'truck') for a in actors])
-    # where everything is during the drive: the moving along their paths, standing pedestrians
-    # and cyclists where they stand; parked vehicles as footprints (x, y, l, w, yaw)
-    paths = np.stack([traj.x[moving | ~vehicle].ravel(), traj.y[moving | ~vehicle].ravel()], 1)
+    everyone = [ego, *actors]
+    parked = np.array([len(a.poly) == 1 and CLASS_NAMES[a.label] in ('car', 'truck')
+                       for a in everyone])
+    # what moves or stands during the drive, as a footprint at every step (the ego, traffic,
+    # cyclists, pedestrians: their own sizes and headings), and the parked vehicles
+    size = np.array([a.size[:2] for a in everyone])[~parked]
+    k = steps
+    paths = np.concatenate([np.stack([traj.x[~parked].ravel(), traj.y[~parked].ravel()], 1),
+                            np.repeat(size, k, axis=0), traj.yaw[~parked].ravel()[:, None]], 1)
+    walker = np.repeat([CLASS_NAMES[a.label] == 'pedestrian' for a in everyone], k)[
+        np.repeat(~parked, k)]
+    path_clear = np.where(walker, WALK_CLEAR, PATH_CLEAR)
     taken = np.array([[a.poly[0, 0], a.poly[0, 1], a.size[0], a.size[1], a.heading]
-                      for a in actors if len(a.poly) == 1
-                      and CLASS_NAMES[a.label] in ('car', 'truck')], np.float64).reshape(-1, 5)
+                      for a, p in zip(everyone, parked) if p], np.float64).reshape(-1, 5)
     ego_path = np.stack([traj.x[0], traj.y[0]], 1)
     next_id = max(a.instance_id for a in actors) + 1
     still = np.zeros(steps)
@@ -113,25 +119,27 @@ def park_rows(actors: Sequence[Actor], ego: Actor, world: World, realism: Realis
         d = (b - a) / length
         normal = np.array([d[1], -d[0]])                      # right of a -> b
         for side in (1.0, -1.0):
-            s = CLEAR_END + float(rng.exponential(mean_gap)) if mean_gap else CLEAR_END
+            s = CLEAR_END + (float(rng.exponential(mean_gap)) if mean_gap else 0.0)
             while s < length - CLEAR_END:
                 for _ in range(int(rng.integers(ROW_CARS[0], ROW_CARS[1] + 1))):
                     kind, size = vehicle_kind(rng)
                     if s + size[0] > length - CLEAR_END:
+                        s = length              # the kerb is full: on to the next
                         break
                     centre = s + size[0] / 2
-                    off = world.road_half_width - size[1] / 2 - float(rng.uniform(0.1, 0.35))
+                    off = world.road_half_width - size[1] / 2 - float(rng.uniform(*KERB_GAP))
                     xy = a + d * centre + normal * side * off
                     yaw = float(np.arctan2(d[1], d[0])) + (0.0 if side > 0 else np.pi)
                     if rng.random() < REVERSED:
                         yaw += np.pi
-                    yaw = float((yaw + float(rng.normal(0.0, 0.03)) + np.pi) % (2 * np.pi) - np.pi)
+                    yaw = float((yaw + float(rng.normal(0.0, YAW_SD)) + np.pi) % (2 * np.pi)
+                                - np.pi)
                     box = np.array([xy[0], xy[1], size[0], size[1], yaw])
                     coat = paint(rng, realism)
                     s += size[0] + float(rng.uniform(*ROW_GAP))
-                    if _inside(paths, box, 0.3, PATH_PAD) or _overlaps(taken, box):
+                    if _overlap(paths, box, path_clear) or _overlap(taken, box, PARKED_CLEAR):
                         continue
-                    car = _actor(next_id, 'car', 'car', size, xy[None, :].copy(), still,
+                    car = _actor(next_id, 'car', 'car', size, xy[None, :].copy(), still.copy(),
                                  still.copy())
                     car.heading = yaw
                     car.body = car_body(kind, size, coat, realism,
