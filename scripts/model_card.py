@@ -282,8 +282,9 @@ def main() -> int:
     if st and ends:
         lines += ['', '**Sidewalk furniture** (the validation drives with every car shaped and '
                   'the street objects of real sidewalks added: trash cans, hydrants, parking '
-                  'meters, posts, planters, bus shelters; preset `val-street-ends`, which the '
-                  'shipped models never trained on): tracked mAP '
+                  'meters, posts, planters, bus shelters; preset `val-street-ends`: the '
+                  'validation drives of that world, the SUIT model trained on other drives of '
+                  'it, run 22): tracked mAP '
                   f'{fmt(st, "mAP")} against {fmt(ends, "mAP")} on the same drives without '
                   f'them; pedestrian AP {fmt(st, "AP pedestrian")} against '
                   f'{fmt(ends, "AP pedestrian")}. Expect more false pedestrians on streets full '
