@@ -22,8 +22,8 @@ from suit_ros.tracking import TrackerConfig
 
 drives = int(sys.argv[1]) if len(sys.argv) > 1 else 16
 frames = int(sys.argv[2]) if len(sys.argv) > 2 else 40
-NO_TRACKER = "--no-tracker" in sys.argv
-checkpoints = [a for a in sys.argv[3:] if a != "--no-tracker"] or ["suit_default"]
+NO_TRACKER = '--no-tracker' in sys.argv
+checkpoints = [a for a in sys.argv[3:] if a != '--no-tracker'] or ['suit_default']
 block = preset('val-parked-rows').block
 seqs = synthetic_split('val', drives, frames, 'data_cache', preset_name='val-parked-rows')
 for ckpt in checkpoints:
