@@ -1,10 +1,10 @@
 """Rows of parked cars along the kerbs, as real city streets are lined.
 
 On the two Argoverse 2 dev sweeps (Pittsburgh) 16 labelled cars stand within 50 m of the
-sensor, most of them parked in rows; the world without this has a median of 6 cars within 50 m
-(2 of them standing), each parked alone. A car in a row is seen in part: its neighbours hide
-its ends, the sensor sees a corner past the car in front, or only its roof over the next one
-(the dev set's missed cars at 8 and 24 m are such views; docs/experiments/parked_rows).
+sensor, 10-11 of them standing; the world without this has a median of 6 cars within 50 m (2
+of them standing), each parked alone. A car in a row is seen in part: its neighbours hide its
+ends, the sensor sees a corner past the car in front, or only its roof over the next one (the
+dev set's missed cars at 8 and 24 m look like such views; docs/experiments/parked_rows).
 
 :attr:`~suit_ros.data.sim.config.Realism.parked_rows` sets how densely the kerbs are lined, on
 both sides of every block edge with an end within 100 m of the ego's path: :func:`park_rows`
