@@ -21,23 +21,6 @@ def worlds():
             Simulation(preset('val-parked-rows', frames=4), 9003))
 
 
-def footprint_gap(a, b):
-    """Distance between two footprints (x, y, l, w, yaw): the smallest distance between a
-    corner of one and the other's rectangle, both ways (0 when they touch or overlap)."""
-    def corners(r):
-        c, s = np.cos(r[4]), np.sin(r[4])
-        u = np.array([[1, 1], [1, -1], [-1, -1], [-1, 1]]) * [r[2] / 2, r[3] / 2]
-        return r[:2] + u @ np.array([[c, s], [-s, c]])
-
-    def to_rect(p, r):
-        d = p - r[:2]
-        c, s = np.cos(r[4]), np.sin(r[4])
-        u = np.abs(c * d[:, 0] + s * d[:, 1]) - r[2] / 2
-        v = np.abs(-s * d[:, 0] + c * d[:, 1]) - r[3] / 2
-        return np.hypot(np.maximum(u, 0), np.maximum(v, 0)).min()
-    return min(to_rect(corners(a), b), to_rect(corners(b), a))
-
-
 def rows_of(plain, rows):
     return rows.actors[len(plain.actors):]
 

@@ -91,20 +91,19 @@ def park_rows(actors: Sequence[Actor], ego: Actor, world: World, realism: Realis
     share = realism.parked_rows
     if share <= 0 or not actors:
         return []
-    traj = Trajectories.sample([ego, *actors])
-    steps = traj.x.shape[1]
     everyone = [ego, *actors]
+    traj = Trajectories.sample(everyone)
+    steps = traj.x.shape[1]
     parked = np.array([len(a.poly) == 1 and CLASS_NAMES[a.label] in ('car', 'truck')
                        for a in everyone])
+    walker = np.array([CLASS_NAMES[a.label] == 'pedestrian' for a in everyone])
     # what moves or stands during the drive, as a footprint at every step (the ego, traffic,
     # cyclists, pedestrians: their own sizes and headings), and the parked vehicles
     size = np.array([a.size[:2] for a in everyone])[~parked]
-    k = steps
     paths = np.concatenate([np.stack([traj.x[~parked].ravel(), traj.y[~parked].ravel()], 1),
-                            np.repeat(size, k, axis=0), traj.yaw[~parked].ravel()[:, None]], 1)
-    walker = np.repeat([CLASS_NAMES[a.label] == 'pedestrian' for a in everyone], k)[
-        np.repeat(~parked, k)]
-    path_clear = np.where(walker, WALK_CLEAR, PATH_CLEAR)
+                            np.repeat(size, steps, axis=0), traj.yaw[~parked].ravel()[:, None]],
+                           1)
+    path_clear = np.repeat(np.where(walker[~parked], WALK_CLEAR, PATH_CLEAR), steps)
     taken = np.array([[a.poly[0, 0], a.poly[0, 1], a.size[0], a.size[1], a.heading]
                       for a, p in zip(everyone, parked) if p], np.float64).reshape(-1, 5)
     ego_path = np.stack([traj.x[0], traj.y[0]], 1)
@@ -113,13 +112,18 @@ def park_rows(actors: Sequence[Actor], ego: Actor, world: World, realism: Realis
     out: list[Actor] = []
     mean_row = 0.5 * (ROW_CARS[0] + ROW_CARS[1]) * (4.6 + np.mean(ROW_GAP))
     mean_gap = mean_row * (1.0 - share) / share if share < 1 else 0.0
+
+    def gap() -> float:
+        """An empty stretch of kerb before a row (none at a full share)."""
+        return float(rng.exponential(mean_gap)) if mean_gap else 0.0
+
     for p, q in _edges_near(world, ego_path):
         a, b = world.node_xy(*p), world.node_xy(*q)
         length = float(np.linalg.norm(b - a))
         d = (b - a) / length
         normal = np.array([d[1], -d[0]])                      # right of a -> b
         for side in (1.0, -1.0):
-            s = CLEAR_END + (float(rng.exponential(mean_gap)) if mean_gap else 0.0)
+            s = CLEAR_END + gap()
             while s < length - CLEAR_END:
                 for _ in range(int(rng.integers(ROW_CARS[0], ROW_CARS[1] + 1))):
                     kind, size = vehicle_kind(rng)
@@ -148,5 +152,5 @@ def park_rows(actors: Sequence[Actor], ego: Actor, world: World, realism: Realis
                     out.append(car)
                     taken = np.concatenate([taken, box[None]])
                     next_id += 1
-                s += float(rng.exponential(mean_gap)) if mean_gap else 0.0
+                s += gap()
     return out
