@@ -29,12 +29,17 @@ def test_worlds_without_rows_keep_their_keys_and_values_are_checked():
     from suit_ros.data.sequences import _cache_key
     assert _cache_key('val-street-ends', 'hdl32e', 9001, 40) == '52d36ca031398c1e'
     assert _cache_key('val-parked-rows', 'hdl32e', 9001, 40) != '52d36ca031398c1e'
+    # the rows' reversed share at its default (0.15, what the rows had before it was a field)
+    assert _cache_key('val-parked-rows', 'hdl32e', 9001, 20) == 'f1fc79ab11fb9ada'
+    assert _cache_key('val-parked-either', 'hdl32e', 9001, 20) != 'f1fc79ab11fb9ada'
     assert preset('val-street-ends').realism.parked_rows == 0.0
     for name in ('train-parked-rows', 'val-parked-rows'):
         r = preset(name).realism
         assert (r.parked_rows, r.street_objects, r.real_car_ends) == (0.5, 1.0, 1.0)
     with pytest.raises(ConfigError, match='parked_rows'):
         preset('test', realism=Realism(parked_rows=1.5))
+    with pytest.raises(ConfigError, match='parked_reversed'):
+        preset('test', realism=Realism(parked_rows=0.5, parked_reversed=-0.1))
 
 
 def test_the_rest_of_the_world_is_unchanged(worlds):
@@ -161,3 +166,16 @@ def test_compare_scores_the_rows_world():
     assert rows is not None and len(rows.gt) == len(plain.gt) == 2
     for a, b in zip(rows.gt, plain.gt):
         assert (a.labels == CAR).sum() > (b.labels == CAR).sum()
+
+
+def test_either_way_parks_half_the_row_cars_against_traffic(worlds):
+    """``parked_reversed`` 0.5 (``*-parked-either``): the side of the road says nothing of a
+    parked car's heading; the same rows as at 0.15 otherwise (same draws)."""
+    plain, rows = worlds
+    either = Simulation(preset('val-parked-either', frames=4), 9003)
+    a, b = rows_of(plain, rows), rows_of(plain, either)
+    assert [x.poly.tolist() for x in a] == [x.poly.tolist() for x in b]
+    turned = np.array([np.cos(x.heading - y.heading) < -0.9 for x, y in zip(a, b)])
+    kept = np.array([np.cos(x.heading - y.heading) > 0.9 for x, y in zip(a, b)])
+    assert (turned | kept).all() and 0.2 * len(a) <= turned.sum() <= 0.55 * len(a)
+    assert Realism(parked_rows=0.5).parked_reversed == 0.15

@@ -61,6 +61,8 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
     for name in ('street_objects', 'real_car_ends', 'bystanders', 'dark_tops', 'parked_rows'):
         if cfg.get('realism') and not cfg['realism'][name]:
             del cfg['realism'][name]             # off: the world (and its key) as before
+    if cfg.get('realism') and cfg['realism']['parked_reversed'] == 0.15:
+        del cfg['realism']['parked_reversed']    # the share the rows had before it was a field
     # v3: objects count their own returns where a moving sweep put them outside their box
     blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 3}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

@@ -79,6 +79,9 @@ class Realism:
     :param parked_rows: about the share of the kerbs near the ego's path lined with rows of
         parked cars, as city streets are (:mod:`~suit_ros.data.sim.parked_rows`); 0 (default):
         none, the world byte for byte as before.
+    :param parked_reversed: share of those row cars parked against their side's traffic, as on
+        one-way streets and in cities where cars park either way (0.15, the default, the world
+        as it was; at 0.5 the side of the road says nothing of a parked car's heading).
     """
 
     clutter: float = 1.0
@@ -92,6 +95,7 @@ class Realism:
     bystanders: float = 0.0
     dark_tops: float = 0.0
     parked_rows: float = 0.0
+    parked_reversed: float = 0.15
 
 
 @dataclass(frozen=True)
@@ -159,7 +163,7 @@ def _validate_realism(r: Realism) -> None:
     if r.clutter < 0:
         raise ConfigError(f'realism.clutter must be >= 0 (0: no clutter), got {r.clutter}')
     for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends', 'bystanders',
-                 'dark_tops', 'parked_rows'):
+                 'dark_tops', 'parked_rows', 'parked_reversed'):
         value = getattr(r, name)
         if not 0.0 <= value <= 1.0:
             raise ConfigError(f'realism.{name} is a probability in [0, 1], got {value}')
@@ -243,6 +247,13 @@ PRESETS['train-parked-rows'] = replace(
                                            parked_rows=0.5))
 PRESETS['val-parked-rows'] = replace(
     PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, parked_rows=0.5))
+# and half the row cars parked against their side's traffic (docs/experiments/either_way)
+PRESETS['train-parked-either'] = replace(
+    PRESETS['train-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0,
+                                           parked_rows=0.5, parked_reversed=0.5))
+PRESETS['val-parked-either'] = replace(
+    PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, parked_rows=0.5,
+                                         parked_reversed=0.5))
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:

@@ -9,13 +9,13 @@ dev set's missed cars at 8 and 24 m look like such views; docs/experiments/parke
 :attr:`~suit_ros.data.sim.config.Realism.parked_rows` sets how densely the kerbs are lined, on
 both sides of every block edge with an end within 100 m of the ego's path: :func:`park_rows`
 walks each kerb from 10 m past one intersection to 10 m before the next, alternating rows of
-2-8 cars (0.4-2.5 m apart, 0.15-0.35 m off the kerb, most facing their side's traffic) with
-empty stretches whose mean length puts rows on about that share of the kerb (less where a row
-is cut at the kerb's end or a car is left out). A car is left out where its footprint would
-come within 0.3 m of anything that drives past or stands during the drive (the ego, traffic,
-cyclists; a pedestrian within 0.2 m), each at its own size and heading at every step, or within
-0.25 m of another parked vehicle. Its own generator keeps the rest of the world as it was, and
-0 adds nothing.
+2-8 cars (0.4-2.5 m apart, 0.15-0.35 m off the kerb, a share ``parked_reversed`` of them
+against their side's traffic) with empty stretches whose mean length puts rows on about that
+share of the kerb (less where a row is cut at the kerb's end or a car is left out). A car is
+left out where its footprint would come within 0.3 m of anything that drives past or stands
+during the drive (the ego, traffic, cyclists; a pedestrian within 0.2 m), each at its own size
+and heading at every step, or within 0.25 m of another parked vehicle. Its own generator keeps
+the rest of the world as it was, and 0 adds nothing.
 """
 from __future__ import annotations
 
@@ -39,7 +39,6 @@ YAW_SD = 0.015        # rad: how far a car stands off its kerb's line
 PATH_CLEAR = 0.3      # m between a row car and anything that drives past or stands
 WALK_CLEAR = 0.2      # m between a row car and a pedestrian
 PARKED_CLEAR = 0.25   # m between two parked vehicles
-REVERSED = 0.15       # share of cars parked against their side's traffic
 
 
 def _overlap(rects: NDArray[np.float64], box: NDArray[np.float64],
@@ -134,7 +133,7 @@ def park_rows(actors: Sequence[Actor], ego: Actor, world: World, realism: Realis
                     off = world.road_half_width - size[1] / 2 - float(rng.uniform(*KERB_GAP))
                     xy = a + d * centre + normal * side * off
                     yaw = float(np.arctan2(d[1], d[0])) + (0.0 if side > 0 else np.pi)
-                    if rng.random() < REVERSED:
+                    if rng.random() < realism.parked_reversed:
                         yaw += np.pi
                     yaw = float((yaw + float(rng.normal(0.0, YAW_SD)) + np.pi) % (2 * np.pi)
                                 - np.pi)
