@@ -39,6 +39,10 @@ checkpoint changed in one way:
   parked rows``: the street-objects drives with about half the kerbs near the ego lined with
   rows of parked cars (preset ``val-parked-rows``, :mod:`~suit_ros.data.sim.parked_rows`;
   scored against their own labels, the rows' cars among them);
+- ``mirrored`` and ``tracking, mirrored``: the drives mirrored across the LiDAR's x-z plane,
+  odometry frame included (:func:`~suit_ros.data.augment.mirror_world`): left-hand traffic,
+  every car parked facing the other way from where it would stand in right-hand traffic, so
+  a model that reads headings off the side of the road turns them round;
 - ``deskewed`` and ``tracking, deskewed``: the sweeps of the sensors that take them over time
   put back at their stamps (:mod:`suit_ros.deskew`), as the node does by default; every other
   run has them as taken, as the figures in docs/results.md were measured.
@@ -76,7 +80,8 @@ VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', '
             'all car ends', 'tracking, all car ends', 'street objects',
             'tracking, street objects', 'bystanders', 'tracking, bystanders', 'dark tops',
             'tracking, dark tops', 'occluders', 'tracking, occluders', 'deskewed',
-            'tracking, deskewed', 'parked rows', 'tracking, parked rows')
+            'tracking, deskewed', 'parked rows', 'tracking, parked rows', 'mirrored',
+            'tracking, mirrored')
 # the validation drives regenerated in another world: passenger cars shaped at their ends as
 # real cars are; and with the street objects of real sidewalks too; and pedestrians beside them;
 # or cars seen only below the belt; or the kerbs lined with parked cars
@@ -132,6 +137,9 @@ def variant_run(path: str, model: Any, variant: str, sequences: Any,
     if base == 'occluders':
         from suit_ros.data.occluders import occluded_drives
         return run_model(model, occluded_drives(sequences), tracker=tracker, **kwargs)
+    if base == 'mirrored':          # left-hand traffic
+        from suit_ros.data.augment import mirror_world
+        return run_model(model, sequences, tracker=tracker, transform=mirror_world, **kwargs)
     if base == 'deskewed':          # sweeps taken over time put back at their stamps
         return run_model(model, sequences, tracker=tracker, deskew=True, **kwargs)
     if base == 'box fit faces':

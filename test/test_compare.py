@@ -131,3 +131,21 @@ def test_the_real_car_ends_variant_runs_the_same_drives_with_real_car_ends():
     ped = cfg.class_names.index('pedestrian')
     assert not np.array_equal(by[0][0].gt.boxes[by[0][0].gt.labels == ped],
                               street[0][0].gt.boxes[street[0][0].gt.labels == ped])
+
+
+def test_the_mirrored_variant_scores_the_mirrored_drives():
+    """``mirrored``: the validation drives in left-hand traffic, scored against their own
+    boxes mirrored; ``tracking, mirrored`` the same tracked."""
+    from suit_ros.compare import variant_run
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.data.sequences import synthetic_split
+    from suit_ros.model.detector import SUITDetector
+    drives = synthetic_split('val', 1, 2)
+    cfg = model_config_from_dict({'temporal': 'none'}, 'test')
+    model = SUITDetector(cfg).eval()
+    for variant in ('mirrored', 'tracking, mirrored'):
+        out = variant_run('unused', model, variant, drives, 'float32')
+        assert out is not None and len(out.gt) == 2
+        for g, f in zip(out.gt, drives[0]):
+            assert np.allclose(g.boxes[:, 1], -f.gt.boxes[:, 1])
+            assert np.allclose(np.cos(g.boxes[:, 6] + f.gt.boxes[:, 6]), 1.0)

@@ -50,6 +50,35 @@ def test_augmentation_keeps_static_objects_consistent(aug):
         np.testing.assert_allclose(f.ignore_boxes, f.gt.boxes, atol=1e-4)
 
 
+def test_a_mirrored_drive_is_a_left_hand_drive_of_the_same_objects():
+    """``mirror_world`` (compare's ``mirrored``): the odometry frame mirrored too, so every pose
+    stays a rotation, static objects still map through the poses, a box's heading and velocity
+    mirror with it, the points stay in their boxes, and twice gives the frame back."""
+    from suit_ros.data.augment import mirror_world
+    from suit_ros.ops.geometry import yaw_of
+    raw = two_frames()
+    f0, f1 = (mirror_world(f) for f in raw)
+    for f, r in ((f0, raw[0]), (f1, raw[1])):
+        assert np.linalg.det(f.pose[:3, :3]) == pytest.approx(1.0)
+        assert yaw_of(f.pose) == pytest.approx(-yaw_of(r.pose))
+        assert f.pose[1, 3] == pytest.approx(-r.pose[1, 3])
+        np.testing.assert_allclose(f.points[:, :3], f.gt.boxes[:, :3], atol=1e-4)
+        back = mirror_world(f)
+        np.testing.assert_array_equal(back.points, r.points)
+        np.testing.assert_allclose(back.pose, r.pose)
+        np.testing.assert_allclose(back.gt.boxes, r.gt.boxes)
+        np.testing.assert_allclose(back.gt.velocities, r.gt.velocities)
+    moved, vel = transform_boxes(ego_transform(f1.pose, f0.pose), f0.gt.boxes,
+                                 f0.gt.velocities)
+    np.testing.assert_allclose(moved[:, :6], f1.gt.boxes[:, :6], atol=1e-4)
+    assert np.cos(moved[0, 6] - f1.gt.boxes[0, 6]) == pytest.approx(1.0, abs=1e-6)
+    np.testing.assert_allclose(vel, f1.gt.velocities, atol=1e-6)
+    # in the odometry frame: the world's velocity (3, -1) and heading 0.3 mirrored
+    world_yaw = f0.gt.boxes[0, 6] + yaw_of(f0.pose)
+    assert np.cos(world_yaw + 0.3) == pytest.approx(1.0, abs=1e-6)
+    np.testing.assert_allclose(f0.pose[:2, :2] @ f0.gt.velocities[0], [3.0, 1.0], atol=1e-6)
+
+
 def test_tilt_lift_and_dropout_draws():
     from suit_ros.data.augment import apply, draw
     rng = np.random.default_rng(0)

@@ -13,7 +13,11 @@ sweeps), while the synthetic road is flat. Boxes stay upright (their centres mov
 points). Point dropout thins the whole clip (missing returns, sparser sensors).
 
 The flip is off by default: with box-shaped actors the side of the road a car drives on is the
-only front/back cue, and a mirror erases it. Intensity dropout (the whole clip without
+only front/back cue, and a mirror erases it. That cue does not hold on real streets (one-way
+streets, cars parked either way, left-hand traffic), and a model trained with the flip off
+reads a parked car's heading off the side of the road (docs/experiments/parked_rows and
+either_way). :func:`mirror_world` mirrors a whole drive, its odometry frame included, into
+left-hand traffic for evaluation. Intensity dropout (the whole clip without
 intensity, as from a driver that publishes none) teaches the model to work from geometry alone.
 """
 from __future__ import annotations
@@ -108,6 +112,33 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
         moved(frame.ignore_boxes).astype(np.float32)          # they go with the GT
     return replace(frame, points=pts, pose=pose, gt=gt, times=times, ignore_boxes=ignore,
                    owners=None)
+
+
+_MIRROR = np.diag([1.0, -1.0, 1.0, 1.0])
+
+
+def mirror_world(frame: Frame) -> Frame:
+    """The frame of a drive mirrored across its LiDAR x-z plane, odometry frame included
+    (``T' = M T M`` with ``M = diag(1, -1, 1)``): right-hand traffic becomes left-hand traffic,
+    every pose stays a rotation (so a tracker, unlike a training clip's flip, sees a drive that
+    could be real), and boxes, velocities and labels keep their objects. Mirroring twice gives
+    the frame back."""
+    pts = frame.points.copy()
+    pts[:, 1] = -pts[:, 1]
+
+    def mirrored(given: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
+        boxes = np.asarray(given, np.float64).reshape(-1, 7).copy()
+        boxes[:, 1] = -boxes[:, 1]
+        boxes[:, 6] = -boxes[:, 6]
+        return boxes
+    gt = frame.gt
+    if gt is not None:
+        vel = gt.velocities.astype(np.float64) * np.array([1.0, -1.0])
+        gt = Detections(mirrored(gt.boxes), vel, gt.scores, gt.labels)
+    ignore = None if frame.ignore_boxes is None else \
+        mirrored(frame.ignore_boxes).astype(np.float32)
+    return replace(frame, points=pts, pose=_MIRROR @ frame.pose @ _MIRROR, gt=gt,
+                   T_base_lidar=_MIRROR @ frame.T_base_lidar @ _MIRROR, ignore_boxes=ignore)
 
 
 def _hash_unit(points: NDArray[np.float32]) -> NDArray[np.float64]:
