@@ -143,9 +143,14 @@ def test_the_mirrored_variant_scores_the_mirrored_drives():
     drives = synthetic_split('val', 1, 2)
     cfg = model_config_from_dict({'temporal': 'none'}, 'test')
     model = SUITDetector(cfg).eval()
+    plain = variant_run('unused', model, 'tracking', drives, 'float32')
     for variant in ('mirrored', 'tracking, mirrored'):
         out = variant_run('unused', model, variant, drives, 'float32')
         assert out is not None and len(out.gt) == 2
+        # the model ran on the mirrored points: its boxes are not the plain drive's
+        assert not np.array_equal(np.concatenate([d.boxes for d in out.det]),
+                                  np.concatenate([d.boxes for d in plain.det]))
         for g, f in zip(out.gt, drives[0]):
+            assert len(g.boxes) > 5
             assert np.allclose(g.boxes[:, 1], -f.gt.boxes[:, 1])
             assert np.allclose(np.cos(g.boxes[:, 6] + f.gt.boxes[:, 6]), 1.0)

@@ -174,6 +174,7 @@ def test_either_way_parks_half_the_row_cars_against_traffic(worlds):
     plain, rows = worlds
     either = Simulation(preset('val-parked-either', frames=4), 9003)
     a, b = rows_of(plain, rows), rows_of(plain, either)
+    assert len(a) >= 20
     assert [x.poly.tolist() for x in a] == [x.poly.tolist() for x in b]
     turned = np.array([np.cos(x.heading - y.heading) < -0.9 for x, y in zip(a, b)])
     kept = np.array([np.cos(x.heading - y.heading) > 0.9 for x, y in zip(a, b)])

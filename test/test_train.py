@@ -77,6 +77,20 @@ def test_a_mirrored_drive_is_a_left_hand_drive_of_the_same_objects():
     world_yaw = f0.gt.boxes[0, 6] + yaw_of(f0.pose)
     assert np.cos(world_yaw + 0.3) == pytest.approx(1.0, abs=1e-6)
     np.testing.assert_allclose(f0.pose[:2, :2] @ f0.gt.velocities[0], [3.0, 1.0], atol=1e-6)
+    # a mounting off the centre line and turned, and ignore boxes: the model's input (sweeps
+    # accumulated in base_link) of the mirrored drive is the mirrored input of the drive
+    from suit_ros.model.sweeps import model_frame
+    mount = pose_from_xyz_rpy((1.1, 0.4, 1.6), (0.0, 0.02, 0.15))
+    raw = [replace(f, T_base_lidar=mount, ignore_boxes=f.gt.boxes.astype(np.float32) + 0.5)
+           for f in two_frames()]
+    ours = model_frame([mirror_world(f) for f in raw], 1, 2)
+    theirs = mirror_world(model_frame(raw, 1, 2))
+    assert len(ours.points) == 2
+    np.testing.assert_allclose(ours.points, theirs.points, atol=1e-5)
+    np.testing.assert_allclose(ours.pose, theirs.pose, atol=1e-9)
+    np.testing.assert_allclose(ours.gt.boxes, theirs.gt.boxes, atol=1e-6)
+    np.testing.assert_allclose(ours.gt.velocities, theirs.gt.velocities, atol=1e-6)
+    np.testing.assert_allclose(ours.ignore_boxes, theirs.ignore_boxes, atol=1e-5)
 
 
 def test_tilt_lift_and_dropout_draws():
