@@ -11,6 +11,7 @@ import sys
 from typing import Any
 
 SPREAD_VAL = 'docs/experiments/velocity_filter/val_spread.json'
+MIRRORED = 'docs/experiments/either_way/run33/validation.json'   # suit_default as 'before'
 CKPTS = {'suit': 'suit_ros/checkpoints/suit_default.safetensors',
          'single': 'suit_ros/checkpoints/centerpoint_single.safetensors'}
 
@@ -297,9 +298,30 @@ def main() -> int:
               'speed follows GT speed with a least-squares slope of '
               f'{fmt(runs["suit"], "moving car speed slope")} (1 would read it fully; '
               '`moving car speed slope` in docs/results.md).']
+    lines += traffic_side_lines()
     Path('docs/model_card.md').write_text('\n'.join(lines) + '\n')
     print('\n'.join(lines))
     return 0
+
+
+def traffic_side_lines() -> list[str]:
+    """What the shipped SUIT model does in left-hand traffic: the shipped checkpoint's run on
+    the validation drives mirrored (docs/experiments/either_way, where it was measured)."""
+    path = Path(MIRRORED)
+    if not path.exists():
+        return []
+    res = json.loads(path.read_text())
+    if res['meta']['checkpoints'].get('before') != 'suit_default':
+        return []
+    plain, mirrored = res['runs']['before, tracking'], res['runs']['before, tracking, mirrored']
+    flips = mirrored['car flipped %'][0], plain['car flipped %'][0]
+    return ['', "Right-hand traffic only: the model reads a vehicle's front and back off the "
+            'side of the road it is on. On the validation drives mirrored into left-hand '
+            f'traffic (measured {res["meta"]["date"]}, docs/experiments/either_way) it flips '
+            f'{flips[0]:.1f}% of car headings ({flips[1]:.1f}% as driven) and its tracked mAP '
+            f'is {fmt(mirrored, "mAP")} against {fmt(plain, "mAP")}; a car parked against its '
+            "side's traffic (a one-way street's left kerb) comes out turned round "
+            '(docs/experiments/parked_rows).']
 
 
 if __name__ == '__main__':
