@@ -321,7 +321,9 @@ def traffic_side_lines() -> list[str]:
             f'{flips[0]:.1f}% of car headings ({flips[1]:.1f}% as driven) and its tracked mAP '
             f'is {fmt(mirrored, "mAP")} against {fmt(plain, "mAP")}; a car parked against its '
             "side's traffic (a one-way street's left kerb) comes out turned round "
-            '(docs/experiments/parked_rows).']
+            "(docs/experiments/parked_rows). In left-hand traffic set the node's "
+            '`traffic_side: left`: the model is given the drive mirrored, the right-hand world '
+            'it was trained on, and its boxes are mirrored back.']
 
 
 if __name__ == '__main__':

@@ -18,7 +18,13 @@ from typing import Any, get_args
 import numpy as np
 
 from suit_ros.errors import BagError, ConfigError
-from suit_ros.params import BoxFitParam, DetectorParams, GroundChoice, OverhangChoice
+from suit_ros.params import (
+    BoxFitParam,
+    DetectorParams,
+    GroundChoice,
+    OverhangChoice,
+    TrafficSide,
+)
 
 DET_TOPIC = '/detector/detections'
 MARKER_TOPIC = '/detector/markers'
@@ -47,6 +53,9 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--box-fit', default=None, choices=get_args(BoxFitParam),
                         help="car boxes moved onto the returns of their visible faces (the "
                         "node's box_fit parameter)")
+    parser.add_argument('--traffic-side', default=None, choices=get_args(TrafficSide),
+                        help="the side of the road traffic keeps to (the node's traffic_side "
+                        'parameter: left gives the model the drive mirrored)')
     parser.add_argument('--intensity-scale', type=float,
                         help='intensity / scale -> 0..1 (1 for 0..1 reflectance)')
     parser.add_argument('--score-threshold', type=float, nargs='+', metavar='T',
@@ -68,6 +77,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 FLAG_PARAMS = {'checkpoint': 'checkpoint', 'device': 'device', 'precision': 'precision',
                'ground': 'ground', 'overhang': 'overhang', 'box_fit': 'box_fit',
+               'traffic_side': 'traffic_side',
                'points_topic': 'points_topic',
                'odom_topic': 'odom_topic', 'intensity_scale': 'intensity_scale',
                'intensity_field': 'intensity_field',

@@ -26,6 +26,7 @@ OverhangParam = Literal['keep', 'drop']          # suit_ros.overhang.OverhangMod
 OverhangChoice = Literal['checkpoint', 'keep', 'drop']   # the node's: 'checkpoint' as it says
 GroundChoice = Literal['checkpoint', 'as_given', 'local']   # the node's: 'checkpoint' as it says
 BoxFitParam = Literal['off', 'faces']             # suit_ros.box_fit.BoxFitMode
+TrafficSide = Literal['right', 'left']
 Vector3 = tuple[float, float, float]
 
 
@@ -115,6 +116,13 @@ class DetectorParams:
         'off | faces: car boxes as the model places them, or moved toward the sensor onto the '
         'returns of the faces it sees (real LiDAR: the shipped models place parked cars about '
         '0.6 m too far; docs/experiments/box_fit)', choices=get_args(BoxFitParam)))
+    traffic_side: TrafficSide = field(default='right', metadata=_spec(
+        'right | left: the side of the road traffic keeps to. The shipped models learnt a '
+        "vehicle's front from the side of the road in right-hand traffic (left-hand: half the "
+        'car headings flipped, docs/experiments/either_way); left mirrors the cloud, the '
+        'odometry and the extrinsic across the x-z plane before the model and its boxes back, '
+        'so it sees right-hand traffic; a change resets the memory and the tracks',
+        choices=get_args(TrafficSide)))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
     max_range: float = field(default=80.0, metadata=_spec(

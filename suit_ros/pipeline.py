@@ -24,7 +24,13 @@ from suit_ros.msg_adapters.detections import detections_to_markerarray, detectio
 from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
 from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_to_ns
 from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
-from suit_ros.ops.geometry import pose_from_xyz_rpy
+from suit_ros.ops.geometry import (
+    mirror_boxes,
+    mirror_points,
+    mirror_transform,
+    mirror_velocities,
+    pose_from_xyz_rpy,
+)
 from suit_ros.ops.kernels import in_range, in_range_times
 from suit_ros.params import DetectorParams
 from suit_ros.structures import Detections
@@ -174,6 +180,8 @@ class DetectionPipeline:
             self.reset('overhang changed')     # the memory was made of other returns
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
+        if old.traffic_side != params.traffic_side and self.last_stamp_ns is not None:
+            self.reset('traffic side changed')   # what is held was seen in the other world
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,
                                                       params.extrinsic_rpy):
             self.T_base_lidar = pose_from_xyz_rpy(params.extrinsic_xyz, params.extrinsic_rpy)
@@ -251,9 +259,10 @@ class DetectionPipeline:
         t1 = time.perf_counter()
         model_timings: dict[str, float] = {}
         if len(points):
-            result = self.detector.step(points, stamp_ns, pose, self.T_base_lidar)
+            pts, T_odom_base, T_base_lidar = self._as_trained(points, pose)
+            result = self.detector.step(pts, stamp_ns, T_odom_base, T_base_lidar)
             out.input_lags_s = self.detector.sweeps.last_lags_s
-            out.detections = result.detections
+            out.detections = self._from_model(result.detections)
             out.used_memory = result.used_memory
             out.memory_samples = result.memory_samples
             out.memory_bytes = result.memory_bytes
@@ -310,9 +319,29 @@ class DetectionPipeline:
         # 260k-point cloud's cost: docs/experiments/overload)
         points, stamp_ns, pose = self._prepare(cloud, out, coverage=False)
         if len(points):
-            out.buffered = self.detector.add_sweep(points, stamp_ns, pose, self.T_base_lidar)
+            pts, T_odom_base, T_base_lidar = self._as_trained(points, pose)
+            out.buffered = self.detector.add_sweep(pts, stamp_ns, T_odom_base, T_base_lidar)
         out.timings = {'convert': time.perf_counter() - t0}
         return out
+
+    def _as_trained(self, points: NDArray[np.float32], pose: NDArray[np.float64] | None
+                    ) -> tuple[NDArray[np.float32], NDArray[np.float64] | None,
+                               NDArray[np.float64]]:
+        """The model's ``points, pose, T_base_lidar`` as its training world had them: as
+        they are in right-hand traffic, mirrored across the x-z plane in left-hand traffic
+        (``traffic_side``; the whole world mirrored, odometry frame too, so every pose stays
+        a rotation and the memory and the tracks move as in a right-hand drive)."""
+        if self.params.traffic_side == 'right':
+            return points, pose, self.T_base_lidar
+        return (mirror_points(points), None if pose is None else mirror_transform(pose),
+                mirror_transform(self.T_base_lidar))
+
+    def _from_model(self, det: Detections) -> Detections:
+        """The model's boxes back in the cloud's world (see :meth:`_as_trained`)."""
+        if self.params.traffic_side == 'right':
+            return det
+        return Detections(mirror_boxes(det.boxes), mirror_velocities(det.velocities), det.scores,
+                          det.labels)
 
     def _prepare(self, cloud: Any, out: PipelineOutput, coverage: bool = True
                  ) -> tuple[NDArray[np.float32], int, NDArray[np.float64] | None]:

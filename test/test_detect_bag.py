@@ -39,6 +39,10 @@ def test_flags_override_the_yaml_which_overrides_defaults(tmp_path):
     assert params_from_args(parse('--box-fit', 'faces')).box_fit == 'faces'
     with pytest.raises(SystemExit):
         parse('--box-fit', 'snap')
+    assert params_from_args(parse()).traffic_side == 'right'
+    assert params_from_args(parse('--traffic-side', 'left')).traffic_side == 'left'
+    with pytest.raises(SystemExit):
+        parse('--traffic-side', 'middle')
     with pytest.raises(SystemExit):
         parse('--precision', 'float16')
     with pytest.raises(ConfigError, match='min_range'):

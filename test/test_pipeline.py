@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from rosgraph import node_checkpoint
 
+from suit_ros.errors import ConfigError
 from suit_ros.params import DetectorParams, runtime_parameters
 
 S = 10**9
@@ -77,7 +78,7 @@ def feed_odometry(pipe, start, end, step=S // 50, speed=10.0):
 # ------------------------------------------------------------------ runtime parameters
 RUNTIME_TESTED_HERE = {'score_thresholds', 'nms_iou_threshold', 'max_detections', 'candidates',
                        'intensity_field', 'tracking', 'track_score_mix', 'coast_s',
-                       'ground', 'overhang', 'box_fit', 'deskew', 'time_field',
+                       'ground', 'overhang', 'box_fit', 'traffic_side', 'deskew', 'time_field',
                        'min_range',
                        'max_range', 'intensity_scale', 'extrinsic_xyz', 'extrinsic_rpy',
                        'ego_box_min', 'ego_box_max', 'min_points', 'odom_buffer_s',
@@ -471,6 +472,61 @@ def test_extrinsic_change_resets_and_moves_the_model_input(model, classes):
     assert np.arctan2(pipe.T_base_lidar[1, 0], pipe.T_base_lidar[0, 0]) == pytest.approx(0.5)
     pipe.process(cloud(classes, T0 + 2 * S // 10))
     assert np.arctan2(pipe.last_pose[1, 0], pipe.last_pose[0, 0]) == pytest.approx(yaw0)
+
+
+def test_traffic_side_left_gives_the_model_the_right_hand_world(model, classes, scene):
+    """``traffic_side: left``: a left-hand drive (the right-hand one mirrored: its clouds, its
+    odometry, its mounting) comes out as the right-hand drive's boxes mirrored, because the
+    model is given the right-hand world; a change resets the memory and the tracks."""
+    def turning_odom(stamp, mirrored):
+        t = (stamp - T0) / S
+        x, y, yaw = 8.0 * t, 0.5 * t * t, 0.15 * t
+        m = odom(stamp, x)
+        m.pose.pose.position.y = -y if mirrored else y
+        half = (-yaw if mirrored else yaw) / 2
+        m.pose.pose.orientation.z, m.pose.pose.orientation.w = np.sin(half), np.cos(half)
+        return m
+
+    def drive(side, mirrored):
+        xyz, rpy = (1.0, 0.3, 1.8), (0.0, 0.0, 0.1)
+        if mirrored:
+            xyz, rpy = (1.0, -0.3, 1.8), (0.0, 0.0, -0.1)
+        pipe = make_pipeline(model, classes, score_thresholds=(0.05,), traffic_side=side,
+                             extrinsic_xyz=xyz, extrinsic_rpy=rpy)
+        for t in range(T0 - S, T0 + S, S // 50):
+            assert pipe.add_odometry(turning_odom(t, mirrored))
+        outs = []
+        for k in range(3):
+            array = scene.copy()
+            if mirrored:
+                array['y'] = -array['y']
+            outs.append(pipe.process(cloud(classes, T0 + k * S // 10, array)))
+        return pipe, outs
+
+    _, right = drive('right', False)
+    pipe, left = drive('left', True)
+    for a, b in zip(right, left):
+        da, db = a.detections, b.detections
+        assert len(da) >= 3 and len(da) == len(db)
+        np.testing.assert_allclose(db.scores, da.scores, atol=1e-4)
+        np.testing.assert_allclose(db.boxes[:, [0, 2, 3, 4, 5]], da.boxes[:, [0, 2, 3, 4, 5]],
+                                   atol=1e-3)
+        np.testing.assert_allclose(db.boxes[:, 1], -da.boxes[:, 1], atol=1e-3)
+        np.testing.assert_allclose(np.cos(db.boxes[:, 6] + da.boxes[:, 6]), 1.0, atol=1e-5)
+        np.testing.assert_allclose(db.velocities * [1, -1], da.velocities, atol=1e-3)
+        assert np.array_equal(a.track_ids, b.track_ids) and np.array_equal(a.num_points,
+                                                                           b.num_points)
+    # the left-hand drive read as right-hand traffic: the model sees another world
+    _, unmirrored = drive('right', True)
+    u, m = unmirrored[-1].detections, right[-1].detections
+    assert not (len(u) == len(m) and np.allclose(u.scores, m.scores, atol=1e-4)
+                and np.allclose(u.boxes[:, 1], -m.boxes[:, 1], atol=1e-3))
+    resets = pipe.resets
+    pipe.configure(replace(pipe.params, traffic_side='right'))
+    assert pipe.resets == resets + 1 and pipe.last_reset_reason == 'traffic side changed'
+    assert pipe.detector.memory is None and len(pipe.detector.tracks) == 0
+    with pytest.raises(ConfigError, match='traffic_side'):
+        pipe.configure(replace(pipe.params, traffic_side='middle'))
 
 
 def test_ground_local_levels_the_input_and_a_change_resets(model, classes, scene):

@@ -114,31 +114,27 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
                    owners=None)
 
 
-_MIRROR = np.diag([1.0, -1.0, 1.0, 1.0])
-
-
 def mirror_world(frame: Frame) -> Frame:
     """The frame of a drive mirrored across its LiDAR x-z plane, odometry frame included
     (``T' = M T M`` with ``M = diag(1, -1, 1)``): right-hand traffic becomes left-hand traffic,
     every pose stays a rotation (so a tracker, unlike a training clip's flip, sees a drive that
     could be real), and boxes, velocities and labels keep their objects. Mirroring twice gives
     the frame back."""
-    pts = frame.points.copy()
-    pts[:, 1] = -pts[:, 1]
-
-    def mirrored(given: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
-        boxes = np.asarray(given, np.float64).reshape(-1, 7).copy()
-        boxes[:, 1] = -boxes[:, 1]
-        boxes[:, 6] = -boxes[:, 6]
-        return boxes
+    from suit_ros.ops.geometry import (
+        mirror_boxes,
+        mirror_points,
+        mirror_transform,
+        mirror_velocities,
+    )
     gt = frame.gt
     if gt is not None:
-        vel = gt.velocities.astype(np.float64) * np.array([1.0, -1.0])
-        gt = Detections(mirrored(gt.boxes), vel, gt.scores, gt.labels)
+        gt = Detections(mirror_boxes(gt.boxes), mirror_velocities(gt.velocities), gt.scores,
+                        gt.labels)
     ignore = None if frame.ignore_boxes is None else \
-        mirrored(frame.ignore_boxes).astype(np.float32)
-    return replace(frame, points=pts, pose=_MIRROR @ frame.pose @ _MIRROR, gt=gt,
-                   T_base_lidar=_MIRROR @ frame.T_base_lidar @ _MIRROR, ignore_boxes=ignore)
+        mirror_boxes(frame.ignore_boxes).astype(np.float32)
+    return replace(frame, points=mirror_points(frame.points), pose=mirror_transform(frame.pose),
+                   gt=gt, T_base_lidar=mirror_transform(frame.T_base_lidar),
+                   ignore_boxes=ignore)
 
 
 def _hash_unit(points: NDArray[np.float32]) -> NDArray[np.float64]:

@@ -56,6 +56,37 @@ def transform_boxes(T: NDArray[np.float64], boxes: NDArray[np.floating[Any]],
     return out.astype(np.float32), vel_out
 
 
+MIRROR_Y = np.diag([1.0, -1.0, 1.0, 1.0])   # across the x-z plane: left- <-> right-hand traffic
+
+
+def mirror_transform(T: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
+    """A transform between two frames that are both mirrored across their x-z planes
+    (``M T M``): still a rotation and a translation."""
+    return np.asarray(MIRROR_Y @ np.asarray(T, np.float64) @ MIRROR_Y)
+
+
+def mirror_points(points: NDArray[np.float32]) -> NDArray[np.float32]:
+    """A copy of ``(N, >= 3)`` points with y negated (the other columns as they are)."""
+    out = points.copy()
+    out[:, 1] = -out[:, 1]
+    return out
+
+
+def mirror_boxes(boxes: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
+    """``(N, 7)`` boxes mirrored across the x-z plane: y and yaw negated (a float64 copy)."""
+    b = np.asarray(boxes, np.float64).reshape(-1, 7).copy()
+    b[:, 1] = -b[:, 1]
+    b[:, 6] = -b[:, 6]
+    return b
+
+
+def mirror_velocities(velocities: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
+    """``(N, 2)`` velocities mirrored across the x-z plane: vy negated (a float64 copy)."""
+    out: NDArray[np.float64] = np.asarray(velocities, np.float64).reshape(-1, 2) * np.array(
+        [1.0, -1.0])
+    return out
+
+
 def wrap_angle(a: NDArray[np.floating[Any]] | float) -> NDArray[np.float64]:
     """Wrap angles to ``[-pi, pi)``."""
     return (np.asarray(a, np.float64) + np.pi) % (2.0 * np.pi) - np.pi
