@@ -315,8 +315,8 @@ def traffic_side_lines() -> list[str]:
         return []
     plain, mirrored = res['runs']['before, tracking'], res['runs']['before, tracking, mirrored']
     flips = mirrored['car flipped %'][0], plain['car flipped %'][0]
-    return ['', "Right-hand traffic only: the model reads a vehicle's front and back off the "
-            'side of the road it is on. On the validation drives mirrored into left-hand '
+    return ['', "Trained for right-hand traffic: the model reads a vehicle's front and back "
+            'off the side of the road it is on. On the validation drives mirrored into left-hand '
             f'traffic (measured {res["meta"]["date"]}, docs/experiments/either_way) it flips '
             f'{flips[0]:.1f}% of car headings ({flips[1]:.1f}% as driven) and its tracked mAP '
             f'is {fmt(mirrored, "mAP")} against {fmt(plain, "mAP")}; a car parked against its '
