@@ -496,10 +496,12 @@ def test_traffic_side_left_gives_the_model_the_right_hand_world(model, classes, 
         for t in range(T0 - S, T0 + S, S // 50):
             assert pipe.add_odometry(turning_odom(t, mirrored))
         outs = []
+        array = scene.copy()
+        if mirrored:
+            array['y'] = -array['y']
         for k in range(3):
-            array = scene.copy()
-            if mirrored:
-                array['y'] = -array['y']
+            if k:       # a cloud the node skipped while busy: only buffered, as a past sweep
+                assert pipe.buffer(cloud(classes, T0 + k * S // 10 - S // 20, array)).buffered
             outs.append(pipe.process(cloud(classes, T0 + k * S // 10, array)))
         return pipe, outs
 
@@ -525,6 +527,8 @@ def test_traffic_side_left_gives_the_model_the_right_hand_world(model, classes, 
     pipe.configure(replace(pipe.params, traffic_side='right'))
     assert pipe.resets == resets + 1 and pipe.last_reset_reason == 'traffic side changed'
     assert pipe.detector.memory is None and len(pipe.detector.tracks) == 0
+    assert len(pipe.detector.sweeps) == 0
+    assert len(pipe.process(cloud(classes, T0 + 3 * S // 10, scene)).detections)
     with pytest.raises(ConfigError, match='traffic_side'):
         pipe.configure(replace(pipe.params, traffic_side='middle'))
 
