@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from suit_ros.ground import GroundMode
     from suit_ros.model.inference import PrecisionChoice
     from suit_ros.overhang import OverhangMode
+    from suit_ros.params import TrafficSide
     from suit_ros.tracking import TrackerConfig
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
@@ -428,7 +429,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
               overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
               deskew: bool = False, run_every: int = 1, buffer_skipped: bool = True,
-              max_gap_s: float = 0.5) -> ModelRun:
+              max_gap_s: float = 0.5, traffic_side: TrafficSide = 'right') -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -455,6 +456,9 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         node does) or dropped (a node that feeds the model only the clouds it runs on). As
         the node, it drops a memory older than ``max_gap_s`` (the node's parameter; at 10 Hz
         from ``run_every`` 6 on), the sweeps kept; with ``run_every`` 1 the gap is not read.
+    :param traffic_side: as the node's parameter: ``left`` gives the model each drive mirrored
+        (:func:`~suit_ros.data.augment.mirror_world`) and mirrors its boxes back; the GT is
+        the drive's own.
     """
     if run_every < 1:
         raise ValueError(f'run_every must be at least 1, got {run_every}')
@@ -468,6 +472,11 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         runner.reset('new sequence')
         if transform is not None:
             seq = [transform(f) for f in seq]
+        given = seq
+        if traffic_side == 'left':
+            from suit_ros.data.augment import mirror_world
+            from suit_ros.ops.geometry import mirror_boxes, mirror_velocities
+            seq = [mirror_world(f) for f in seq]
         if deskew:
             seq = deskewed(seq)
         for t, frame in enumerate(seq):
@@ -488,13 +497,17 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.memory_bytes.append(res.memory_bytes)
             if history is None and t + 1 in (2, 10):
                 out.memory_after.setdefault(t + 1, []).append(res.memory_bytes)
-            out.det.append(res.detections)
+            det = res.detections
+            if traffic_side == 'left':            # back in the drive's own world
+                det = Detections(mirror_boxes(det.boxes), mirror_velocities(det.velocities),
+                                 det.scores, det.labels)
+            out.det.append(det)
             out.carried.append(res.carried)
             out.used_memory.append(res.used_memory)
-            out.gt.append(frame.gt)
+            out.gt.append(given[t].gt)
             out.num_points.append(frame.num_points)
             out.drive.append(drive)
-            out.ignore.append(frame.ignore_boxes)
+            out.ignore.append(given[t].ignore_boxes)
     model.train(was_training)
     return out
 

@@ -524,6 +524,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--box-fit', choices=list(BOX_FIT_MODES), default='off',
                         help="car boxes moved onto the returns of their visible faces (the "
                         "node's `box_fit` parameter; suit_ros/box_fit.py)")
+    parser.add_argument('--traffic-side', choices=['right', 'left'], default='right',
+                        help="the side of the road traffic keeps to (the node's "
+                        '`traffic_side` parameter: left gives the model each drive mirrored, '
+                        'as the node does; nuScenes Singapore, UK, Japan, Australia)')
     parser.add_argument('--deskew', choices=['on', 'off'], default='on',
                         help="sweeps taken over time put back at their stamps (the node's "
                         '`deskew` parameter; synthetic sweeps of real sensors; the readers of '
@@ -614,10 +618,10 @@ def run(args: argparse.Namespace) -> int:
         filt = tracker_for(seqs, filt)          # keyframes 0.5 s apart: see tracker_for
     deskew = args.deskew == 'on'
     result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
-                       box_fit=args.box_fit, deskew=deskew)
+                       box_fit=args.box_fit, deskew=deskew, traffic_side=args.traffic_side)
     base_run = None if baseline is None else run_model(
         baseline, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
-        box_fit=args.box_fit, deskew=deskew)
+        box_fit=args.box_fit, deskew=deskew, traffic_side=args.traffic_side)
     notes = [f'as the node by default: {cfg.sweeps} sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.ground is not None or cfg.pillars.ground != 'as_given':
@@ -629,6 +633,9 @@ def run(args: argparse.Namespace) -> int:
     if args.overhang is not None:
         notes.append(f'overhang {args.overhang}: the returns that hang over a gap in their '
                      'column (suit_ros/overhang.py)')
+    if args.traffic_side == 'left':
+        notes.append('traffic side left: the model given each drive mirrored, its boxes '
+                     "mirrored back (the node's `traffic_side`)")
     if args.box_fit != 'off':
         notes.append(f'box fit {args.box_fit}: car boxes moved onto the returns of the faces '
                      'the sensor sees (suit_ros/box_fit.py)')

@@ -170,3 +170,31 @@ def test_a_run_on_some_of_its_frames_keeps_every_per_frame_list_in_step():
     assert [len(c) for c in sub.carried] == [3, 1] and sub.memory_after == {2: [5]}
     assert len(ModelRun(dets, dets, [None] * 4, [0.0] * 4, [0] * 4, {}).select_frames(
         [0]).drive) == 0                                          # lists left empty stay empty
+
+
+def test_traffic_side_left_runs_the_model_on_the_drive_mirrored():
+    """``run_model(traffic_side='left')`` (``report --traffic-side left``, as the node's
+    parameter): a left-hand drive (a right-hand one mirrored) gives the right-hand drive's boxes
+    mirrored, scored against its own GT; read as right-hand traffic it gives other boxes."""
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.data.augment import mirror_world
+    from suit_ros.data.sequences import synthetic_split
+    from suit_ros.evaluate import run_model
+    from suit_ros.model.detector import SUITDetector
+    from suit_ros.tracking import TrackerConfig
+    drives = synthetic_split('val', 1, 3)
+    model = SUITDetector(model_config_from_dict({'temporal': 'none'}, 'test')).eval()
+    left_hand = [[mirror_world(f) for f in d] for d in drives]
+    plain = run_model(model, drives, tracker=TrackerConfig())
+    left = run_model(model, left_hand, tracker=TrackerConfig(), traffic_side='left')
+    as_right = run_model(model, left_hand, tracker=TrackerConfig())
+    for p, q, g, f in zip(plain.det, left.det, left.gt, left_hand[0]):
+        assert len(p) > 5 and len(p) == len(q)
+        np.testing.assert_allclose(q.scores, p.scores, atol=1e-5)
+        np.testing.assert_allclose(q.boxes[:, 1], -p.boxes[:, 1], atol=1e-3)
+        np.testing.assert_allclose(q.boxes[:, [0, 2, 3, 4, 5]], p.boxes[:, [0, 2, 3, 4, 5]],
+                                   atol=1e-3)
+        np.testing.assert_allclose(np.cos(q.boxes[:, 6] + p.boxes[:, 6]), 1.0, atol=1e-5)
+        np.testing.assert_array_equal(g.boxes, f.gt.boxes)          # the drive's own GT
+    r, q = as_right.det[-1], left.det[-1]
+    assert not (len(r) == len(q) and np.allclose(r.scores, q.scores, atol=1e-5))

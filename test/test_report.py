@@ -245,8 +245,9 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
     assert 'Real-data report' in capsys.readouterr().out
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep2'),
                  '--pictures', '0', '--overhang', 'drop', '--ground', 'local',
-                 '--box-fit', 'faces']) == 0
+                 '--box-fit', 'faces', '--traffic-side', 'left']) == 0
     assert 'overhang drop' in (tmp_path / 'rep2' / 'report.md').read_text()
+    assert 'traffic side left' in (tmp_path / 'rep2' / 'report.md').read_text()
     assert 'box fit faces' in (tmp_path / 'rep2' / 'report.md').read_text()
     # against a baseline: the paired AP difference per class over resampled places
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep3'),
