@@ -429,7 +429,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               tracker: TrackerConfig | None = None, ground: GroundMode | None = None,
               overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
               deskew: bool = False, run_every: int = 1, buffer_skipped: bool = True,
-              max_gap_s: float = 0.5, traffic_side: TrafficSide = 'right') -> ModelRun:
+              max_gap_s: float = 0.5,
+              traffic_side: TrafficSide | Sequence[TrafficSide] = 'right') -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -458,7 +459,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         from ``run_every`` 6 on), the sweeps kept; with ``run_every`` 1 the gap is not read.
     :param traffic_side: as the node's parameter: ``left`` gives the model each drive mirrored
         (:func:`~suit_ros.data.augment.mirror_world`) and mirrors its boxes back; the GT is
-        the drive's own.
+        the drive's own; one side, or one per drive.
     """
     if run_every < 1:
         raise ValueError(f'run_every must be at least 1, got {run_every}')
@@ -473,7 +474,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         if transform is not None:
             seq = [transform(f) for f in seq]
         given = seq
-        if traffic_side == 'left':
+        side = traffic_side if isinstance(traffic_side, str) else traffic_side[drive]
+        if side == 'left':
             from suit_ros.data.augment import mirror_world
             from suit_ros.ops.geometry import mirror_boxes, mirror_velocities
             seq = [mirror_world(f) for f in seq]
@@ -498,7 +500,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             if history is None and t + 1 in (2, 10):
                 out.memory_after.setdefault(t + 1, []).append(res.memory_bytes)
             det = res.detections
-            if traffic_side == 'left':            # back in the drive's own world
+            if side == 'left':                    # back in the drive's own world
                 det = Detections(mirror_boxes(det.boxes), mirror_velocities(det.velocities),
                                  det.scores, det.labels)
             out.det.append(det)

@@ -47,6 +47,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="sweeps taken over time put back at their stamps, as the node's "
                         "`deskew` does (frames with their returns' times: synthetic sweeps of "
                         'real sensors)')
+    parser.add_argument('--traffic-side', choices=['auto', 'right', 'left'], default='auto',
+                        help="the side of the road traffic keeps to, as the node's "
+                        '`traffic_side` would be set there (left: the model given each drive '
+                        "mirrored); auto: nuScenes' Singapore scenes left, everything else "
+                        'right')
     parser.add_argument('--run-every', type=int, default=1, metavar='K',
                         help='run the model on every K-th frame only, as a node too slow for '
                         'its sensor does (the skipped frames feed its sweeps, as the node '
@@ -153,10 +158,12 @@ def run(args: argparse.Namespace) -> int:
         filt = _tracker(args)
         model, _, _ = load_checkpoint(args.checkpoint or default_checkpoint_path())
         seqs: Any
+        own_sides = None
         if args.nuscenes:
-            from suit_ros.data.sequences import nuscenes_sequences
-            seqs = nuscenes_sequences(args.nuscenes, args.version,
-                                      model.cfg.sweeps if args.sweeps is None else args.sweeps)
+            from suit_ros.data.sequences import nuscenes_scenes
+            seqs, own_sides = nuscenes_scenes(
+                args.nuscenes, args.version,
+                model.cfg.sweeps if args.sweeps is None else args.sweeps)
         elif args.av2:
             from suit_ros.data.av2 import av2_sequences
             seqs = av2_sequences(args.av2, model.cfg.class_names)
@@ -170,8 +177,10 @@ def run(args: argparse.Namespace) -> int:
         if filt is not None and args.nuscenes:
             from suit_ros.evaluate import tracker_for
             filt = tracker_for(seqs, filt)          # keyframes 0.5 s apart: see tracker_for
+        from suit_ros.report import traffic_sides
         result = run_model(model, seqs, history=args.history, tracker=filt,
-                           deskew=args.deskew == 'on', run_every=args.run_every
+                           deskew=args.deskew == 'on', run_every=args.run_every,
+                           traffic_side=traffic_sides(args.traffic_side, len(seqs), own_sides)
                            ).evaluate(model.cfg.class_names)
     print(result.table())
     if args.json_out:

@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import json
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,6 +37,9 @@ from suit_ros.ground import GROUND_MODES
 from suit_ros.overhang import OVERHANG_MODES
 from suit_ros.place_bootstrap import CELL, APIntervals
 from suit_ros.structures import Detections
+
+if TYPE_CHECKING:
+    from suit_ros.params import TrafficSide
 
 SWEEP = tuple(round(0.1 + 0.05 * i, 2) for i in range(18))     # 0.10 .. 0.95
 FLIP_RAD = np.deg2rad(135.0)
@@ -524,10 +527,11 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--box-fit', choices=list(BOX_FIT_MODES), default='off',
                         help="car boxes moved onto the returns of their visible faces (the "
                         "node's `box_fit` parameter; suit_ros/box_fit.py)")
-    parser.add_argument('--traffic-side', choices=['right', 'left'], default='right',
-                        help="the side of the road traffic keeps to (the node's "
-                        '`traffic_side` parameter: left gives the model each drive mirrored, '
-                        'as the node does; nuScenes Singapore, UK, Japan, Australia)')
+    parser.add_argument('--traffic-side', choices=['auto', 'right', 'left'], default='auto',
+                        help="the side of the road traffic keeps to, as the node's "
+                        '`traffic_side` parameter would be set there (left gives the model '
+                        "each drive mirrored); auto: nuScenes' Singapore scenes left (their "
+                        'log location), everything else right')
     parser.add_argument('--deskew', choices=['on', 'off'], default='on',
                         help="sweeps taken over time put back at their stamps (the node's "
                         '`deskew` parameter; synthetic sweeps of real sensors; the readers of '
@@ -547,29 +551,40 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
 
 
 def _sequences(args: argparse.Namespace, class_names: Sequence[str], sweeps: int
-               ) -> tuple[list[Any], str]:
+               ) -> tuple[list[Any], str, list[TrafficSide] | None]:
+    """The frames, what they are, and the side of the road each sequence keeps to where
+    the dataset says it (nuScenes' log locations; None: not said)."""
     if args.av2:
         from suit_ros.data.av2 import av2_sequences
-        return list(av2_sequences(args.av2, class_names)), f'Argoverse 2 ({args.av2})'
+        return list(av2_sequences(args.av2, class_names)), f'Argoverse 2 ({args.av2})', None
     if args.kitti:
         from suit_ros.data.sequences import kitti_sequences
         return list(kitti_sequences(args.kitti, args.kitti_intensity_scale)), \
-            f'KITTI ({args.kitti}, camera field of view)'
+            f'KITTI ({args.kitti}, camera field of view)', None
     if args.nuscenes:
-        from suit_ros.data.sequences import nuscenes_sequences
-        return nuscenes_sequences(args.nuscenes, args.version, sweeps), \
-            f'nuScenes ({args.nuscenes})'
+        from suit_ros.data.sequences import nuscenes_scenes
+        seqs, sides = nuscenes_scenes(args.nuscenes, args.version, sweeps)
+        return seqs, f'nuScenes ({args.nuscenes})', sides
     from suit_ros.data.sequences import SPLIT_SEEDS, synthetic_sequence, synthetic_split
     from suit_ros.data.sim.config import PRESETS
     if args.synthetic == 'demo':
         return [synthetic_sequence('demo-real', SPLIT_SEEDS['demo'], 100, args.cache_dir)], \
-            'synthetic demo drive'
+            'synthetic demo drive', None
     if args.preset is not None and args.preset not in PRESETS:
         raise ConfigError(f'--preset {args.preset!r} is not a preset; one of '
                           f'{", ".join(sorted(PRESETS))}')
     return synthetic_split(args.synthetic, 16, 40, args.cache_dir, args.preset), \
         f'synthetic {args.synthetic} split (16 drives' + \
-        (f', world {args.preset})' if args.preset else ')')
+        (f', world {args.preset})' if args.preset else ')'), None
+
+
+def traffic_sides(choice: str, count: int, own: list[TrafficSide] | None
+                  ) -> list[TrafficSide]:
+    """The side of the road each of ``count`` sequences keeps to: ``--traffic-side``, or
+    with ``auto`` the recording's own where the dataset says it (``own``), else right."""
+    if choice in ('right', 'left'):
+        return [choice] * count       # type: ignore[list-item]
+    return list(own) if own is not None else ['right'] * count
 
 
 def report_thresholds(meta: dict[str, Any], class_names: Sequence[str],
@@ -599,7 +614,7 @@ def run(args: argparse.Namespace) -> int:
     model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
     names = tuple(cfg.class_names)
     thresholds = report_thresholds(meta, names, args.score_thresholds)
-    seqs, source = _sequences(args, names, cfg.sweeps)
+    seqs, source, own_sides = _sequences(args, names, cfg.sweeps)
     if not seqs or not any(len(s) for s in seqs):
         raise DatasetError('the dataset holds no frame')
     baseline = None
@@ -617,11 +632,12 @@ def run(args: argparse.Namespace) -> int:
         from suit_ros.evaluate import tracker_for
         filt = tracker_for(seqs, filt)          # keyframes 0.5 s apart: see tracker_for
     deskew = args.deskew == 'on'
+    sides = traffic_sides(args.traffic_side, len(seqs), own_sides)
     result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
-                       box_fit=args.box_fit, deskew=deskew, traffic_side=args.traffic_side)
+                       box_fit=args.box_fit, deskew=deskew, traffic_side=sides)
     base_run = None if baseline is None else run_model(
         baseline, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
-        box_fit=args.box_fit, deskew=deskew, traffic_side=args.traffic_side)
+        box_fit=args.box_fit, deskew=deskew, traffic_side=sides)
     notes = [f'as the node by default: {cfg.sweeps} sweeps, tracker on (tracker and score '
              'smoothing)' if filt else "the model's own output (tracker off)"]
     if args.ground is not None or cfg.pillars.ground != 'as_given':
@@ -633,9 +649,10 @@ def run(args: argparse.Namespace) -> int:
     if args.overhang is not None:
         notes.append(f'overhang {args.overhang}: the returns that hang over a gap in their '
                      'column (suit_ros/overhang.py)')
-    if args.traffic_side == 'left':
-        notes.append('traffic side left: the model given each drive mirrored, its boxes '
-                     "mirrored back (the node's `traffic_side`)")
+    if 'left' in sides:
+        notes.append(f'traffic side left in {sides.count("left")} of {len(sides)} sequences '
+                     "(the node's `traffic_side`: the model given the drive mirrored, its "
+                     'boxes mirrored back)')
     if args.box_fit != 'off':
         notes.append(f'box fit {args.box_fit}: car boxes moved onto the returns of the faces '
                      'the sensor sees (suit_ros/box_fit.py)')

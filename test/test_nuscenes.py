@@ -212,6 +212,13 @@ def test_eval_and_report_read_nuscenes_with_the_checkpoints_sweeps(dataset, tmp_
                  '--out', str(tmp_path / 'report')]) == 0
     assert counts == [3, 3] and gaps == [pytest.approx(1.25)] * 2
     assert (tmp_path / 'report' / 'report.json').is_file()
+    # the scenes were recorded in Singapore: the report runs them as the node set for
+    # left-hand traffic would (--traffic-side auto, the default), or as told
+    assert 'traffic side left in 2 of 2 sequences' in \
+        (tmp_path / 'report' / 'report.md').read_text()
+    assert main(['report', '--nuscenes', str(dataset), '--version', VERSION, '--pictures', '0',
+                 '--traffic-side', 'right', '--out', str(tmp_path / 'right')]) == 0
+    assert 'traffic side left' not in (tmp_path / 'right' / 'report.md').read_text()
     assert main(['eval', '--nuscenes', str(dataset), '--version', VERSION,
                  '--sweeps', '0']) != 0
 
@@ -258,3 +265,25 @@ def test_parked_bicycles_are_ignored_and_objects_keep_their_ids(dataset, tmp_pat
     assert len(set(ids[0].values())) == len(ids[0])
     assert map_category('human.pedestrian.stroller') is None
     assert map_category('human.pedestrian.wheelchair') is None
+
+
+def test_scenes_keep_to_the_side_of_their_log_location(dataset, tmp_path):
+    """Singapore logs keep left, Boston logs right, and a dataset without a log table right."""
+    import json
+    import shutil
+
+    from suit_ros.data.nuscenes import NuScenesReader
+    from suit_ros.data.sequences import nuscenes_scenes
+    seqs, sides = nuscenes_scenes(dataset, VERSION)
+    assert len(seqs) == 2 and sides == ['left', 'left']
+    copy = tmp_path / 'boston'
+    shutil.copytree(dataset, copy)
+    log = copy / VERSION / 'log.json'
+    rows = json.loads(log.read_text())
+    rows[0]['location'] = 'boston-seaport'
+    log.write_text(json.dumps(rows))
+    reader = NuScenesReader(copy, VERSION)
+    assert [reader.traffic_side(s) for s in reader.scenes()] == ['right', 'right']
+    log.unlink()
+    reader = NuScenesReader(copy, VERSION)
+    assert [reader.traffic_side(s) for s in reader.scenes()] == ['right', 'right']

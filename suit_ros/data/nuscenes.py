@@ -17,12 +17,15 @@ from collections.abc import Iterator
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.errors import DatasetError
+
+if TYPE_CHECKING:
+    from suit_ros.params import TrafficSide
 from suit_ros.model.sweeps import Sweep, accumulate_sweeps
 from suit_ros.msg_adapters.odometry import quaternion_to_matrix
 from suit_ros.structures import Detections, Frame
@@ -38,7 +41,9 @@ PEDESTRIANS = ('human.pedestrian.adult', 'human.pedestrian.child',
 RIDERLESS = 'cycle.without_rider'      # a parked bicycle or motorcycle: not a cyclist
 TABLES = ('scene', 'sample', 'sample_data', 'ego_pose', 'calibrated_sensor', 'sensor',
           'sample_annotation', 'instance', 'category')
-OPTIONAL_TABLES = ('attribute',)       # without it, every bicycle and motorcycle is a cyclist
+OPTIONAL_TABLES = ('attribute',       # without it, every bicycle and motorcycle is a cyclist
+                   'log')             # without it, every scene keeps to the right
+LEFT_HAND = ('singapore',)            # log locations (prefixes) where traffic keeps left
 
 
 def map_category(name: str) -> str | None:
@@ -102,6 +107,12 @@ class NuScenesReader:
     def scenes(self) -> list[str]:
         """Scene tokens, sorted by name."""
         return [s['token'] for s in sorted(self.t['scene'].values(), key=lambda s: s['name'])]
+
+    def traffic_side(self, scene_token: str) -> TrafficSide:
+        """The side of the road traffic keeps to where the scene was recorded: left in
+        Singapore (the log's location), right elsewhere (Boston) and without a log table."""
+        log = self.t['log'].get(self.t['scene'][scene_token].get('log_token', ''), {})
+        return 'left' if str(log.get('location', '')).startswith(LEFT_HAND) else 'right'
 
     def sequence(self, scene_token: str) -> Iterator[Frame]:
         """The keyframes of one scene, in order."""

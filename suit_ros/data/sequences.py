@@ -35,6 +35,7 @@ from suit_ros.structures import Detections, Frame
 
 if TYPE_CHECKING:
     from suit_ros.data.kitti import KittiSequence
+    from suit_ros.params import TrafficSide
 
 SPLIT_SEEDS = {'train': 1000, 'tune': 8000, 'outage': 8500, 'val': 9000, 'heldout': 9500,
                'demo': 7}
@@ -406,9 +407,17 @@ def nuscenes_sequences(root: str | os.PathLike[str], version: str = 'v1.0-mini',
     """Every scene of a nuScenes-format dataset as a sequence of keyframes, each with the
     ``sweeps - 1`` sweeps before it (the model's count: :class:`~suit_ros.data.nuscenes.
     NuScenesReader`)."""
+    return nuscenes_scenes(root, version, sweeps)[0]
+
+
+def nuscenes_scenes(root: str | os.PathLike[str], version: str = 'v1.0-mini', sweeps: int = 3
+                    ) -> tuple[list[list[Frame]], list[TrafficSide]]:
+    """:func:`nuscenes_sequences` and the side of the road each scene keeps to (left in
+    Singapore: the log table's location), from one read of the tables."""
     from suit_ros.data.nuscenes import NuScenesReader
     reader = NuScenesReader(root, version, sweeps)
-    return [list(reader.sequence(s)) for s in reader.scenes()]
+    scenes = reader.scenes()
+    return [list(reader.sequence(s)) for s in scenes], [reader.traffic_side(s) for s in scenes]
 
 
 def kitti_sequences(root: str | os.PathLike[str], intensity_scale: float = 1.0,
