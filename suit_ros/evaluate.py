@@ -463,6 +463,11 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     """
     if run_every < 1:
         raise ValueError(f'run_every must be at least 1, got {run_every}')
+    sides = [traffic_side] if isinstance(traffic_side, str) else list(traffic_side)
+    if not set(sides) <= {'right', 'left'} or (
+            not isinstance(traffic_side, str) and len(sides) != len(sequences)):
+        raise ValueError(f'traffic_side must be right or left, or one of them per drive '
+                         f'({len(sequences)}), got {traffic_side!r}')
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
     runner = StreamingDetector(model, device, precision=precision,
@@ -507,7 +512,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.carried.append(res.carried)
             out.used_memory.append(res.used_memory)
             out.gt.append(given[t].gt)
-            out.num_points.append(frame.num_points)
+            out.num_points.append(given[t].num_points)
             out.drive.append(drive)
             out.ignore.append(given[t].ignore_boxes)
     model.train(was_training)

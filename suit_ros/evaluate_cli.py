@@ -102,7 +102,10 @@ def _from_kitti(args: argparse.Namespace) -> Any:
         except OSError as exc:
             raise DatasetError(f'cannot read --kitti-ids {args.kitti_ids}: {exc}') from exc
     seqs = kitti_sequences(args.kitti, args.kitti_intensity_scale, ids=ids)
-    run = camera_fov_run(run_model(model, seqs, history=args.history, tracker=filt),
+    from suit_ros.report import traffic_sides
+    run = camera_fov_run(run_model(model, seqs, history=args.history, tracker=filt,
+                                   traffic_side=traffic_sides(args.traffic_side, len(seqs),
+                                                              None)),
                          seqs, args.image_width)
     result = run.evaluate(model.cfg.class_names)
     result.extra['scored_region'] = f'camera field of view ({args.image_width:g} px)'
@@ -148,6 +151,10 @@ def run(args: argparse.Namespace) -> int:
         # nuScenes keyframes come with their sweeps accumulated: nothing to buffer
         raise ConfigError('--run-every applies to a model run over drives of single sweeps '
                           '(--synthetic, --av2), without --history')
+    if args.bag and args.traffic_side != 'auto':
+        # the bag's detections were made by detect-bag (or the node): the side was theirs
+        raise ConfigError('--traffic-side applies where eval runs the model; a bag holds '
+                          'detections already made: give it to detect-bag --traffic-side')
     if args.bag:
         result = _from_bag(args)
     elif args.kitti:

@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 from numpy.typing import NDArray
@@ -578,12 +578,12 @@ def _sequences(args: argparse.Namespace, class_names: Sequence[str], sweeps: int
         (f', world {args.preset})' if args.preset else ')'), None
 
 
-def traffic_sides(choice: str, count: int, own: list[TrafficSide] | None
-                  ) -> list[TrafficSide]:
+def traffic_sides(choice: Literal['auto', 'right', 'left'], count: int,
+                  own: list[TrafficSide] | None) -> list[TrafficSide]:
     """The side of the road each of ``count`` sequences keeps to: ``--traffic-side``, or
     with ``auto`` the recording's own where the dataset says it (``own``), else right."""
-    if choice in ('right', 'left'):
-        return [choice] * count       # type: ignore[list-item]
+    if choice == 'right' or choice == 'left':
+        return [choice] * count
     return list(own) if own is not None else ['right'] * count
 
 

@@ -198,3 +198,20 @@ def test_traffic_side_left_runs_the_model_on_the_drive_mirrored():
         np.testing.assert_array_equal(g.boxes, f.gt.boxes)          # the drive's own GT
     r, q = as_right.det[-1], left.det[-1]
     assert not (len(r) == len(q) and np.allclose(r.scores, q.scores, atol=1e-5))
+    # one side per drive: a right-hand and a left-hand drive in one run
+    mixed = run_model(model, [drives[0], left_hand[0]], tracker=TrackerConfig(),
+                      traffic_side=['right', 'left'])
+    assert mixed.drive == [0] * 3 + [1] * 3
+    for p, q in zip(mixed.det[:3], mixed.det[3:]):
+        np.testing.assert_allclose(q.boxes[:, 1], -p.boxes[:, 1], atol=1e-3)
+        np.testing.assert_allclose(q.scores, p.scores, atol=1e-5)
+    for wrong in ('Left', ['left']):
+        with pytest.raises(ValueError, match='traffic_side'):
+            run_model(model, [drives[0], left_hand[0]], traffic_side=wrong)
+
+
+def test_eval_of_a_bag_refuses_a_traffic_side(tmp_path, capsys):
+    """A bag holds detections already made: the side was detect-bag's."""
+    from suit_ros.cli import main
+    assert main(['eval', '--bag', str(tmp_path / 'bag'), '--traffic-side', 'left']) != 0
+    assert 'detect-bag --traffic-side' in capsys.readouterr().err

@@ -23,12 +23,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.errors import DatasetError
-
-if TYPE_CHECKING:
-    from suit_ros.params import TrafficSide
 from suit_ros.model.sweeps import Sweep, accumulate_sweeps
 from suit_ros.msg_adapters.odometry import quaternion_to_matrix
 from suit_ros.structures import Detections, Frame
+
+if TYPE_CHECKING:
+    from suit_ros.params import TrafficSide
 
 CLASS_MAP = {'vehicle.car': 'car', 'vehicle.truck': 'truck', 'vehicle.bus.bendy': 'truck',
              'vehicle.bus.rigid': 'truck', 'vehicle.construction': 'truck',
