@@ -463,9 +463,9 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
     """
     if run_every < 1:
         raise ValueError(f'run_every must be at least 1, got {run_every}')
-    sides = [traffic_side] if isinstance(traffic_side, str) else list(traffic_side)
-    if not set(sides) <= {'right', 'left'} or (
-            not isinstance(traffic_side, str) and len(sides) != len(sequences)):
+    sides = ([traffic_side] * len(sequences) if isinstance(traffic_side, str)
+             else list(traffic_side))
+    if not set(sides) <= {'right', 'left'} or len(sides) != len(sequences):
         raise ValueError(f'traffic_side must be right or left, or one of them per drive '
                          f'({len(sequences)}), got {traffic_side!r}')
     from suit_ros.model.streaming import StreamingDetector
@@ -479,10 +479,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         if transform is not None:
             seq = [transform(f) for f in seq]
         given = seq
-        side = traffic_side if isinstance(traffic_side, str) else traffic_side[drive]
-        if side == 'left':
-            from suit_ros.data.augment import mirror_world
-            from suit_ros.ops.geometry import mirror_boxes, mirror_velocities
+        if sides[drive] == 'left':
+            from suit_ros.data.augment import mirror_detections, mirror_world
             seq = [mirror_world(f) for f in seq]
         if deskew:
             seq = deskewed(seq)
@@ -504,11 +502,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.memory_bytes.append(res.memory_bytes)
             if history is None and t + 1 in (2, 10):
                 out.memory_after.setdefault(t + 1, []).append(res.memory_bytes)
-            det = res.detections
-            if side == 'left':                    # back in the drive's own world
-                det = Detections(mirror_boxes(det.boxes), mirror_velocities(det.velocities),
-                                 det.scores, det.labels)
-            out.det.append(det)
+            out.det.append(res.detections if sides[drive] == 'right'   # in the drive's world
+                           else mirror_detections(res.detections))
             out.carried.append(res.carried)
             out.used_memory.append(res.used_memory)
             out.gt.append(given[t].gt)

@@ -47,11 +47,8 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help="sweeps taken over time put back at their stamps, as the node's "
                         "`deskew` does (frames with their returns' times: synthetic sweeps of "
                         'real sensors)')
-    parser.add_argument('--traffic-side', choices=['auto', 'right', 'left'], default='auto',
-                        help="the side of the road traffic keeps to, as the node's "
-                        '`traffic_side` would be set there (left: the model given each drive '
-                        "mirrored); auto: nuScenes' Singapore scenes left, everything else "
-                        'right')
+    from suit_ros.report import add_traffic_side_option
+    add_traffic_side_option(parser)
     parser.add_argument('--run-every', type=int, default=1, metavar='K',
                         help='run the model on every K-th frame only, as a node too slow for '
                         'its sensor does (the skipped frames feed its sweeps, as the node '

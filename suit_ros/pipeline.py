@@ -16,6 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.coverage import SectorCoverage
+from suit_ros.data.augment import mirror_detections
 from suit_ros.deskew import TIME_FIELDS, deskew_sweep, relative_times, sweep_speed
 from suit_ros.errors import ConfigError
 from suit_ros.model.streaming import StreamingDetector
@@ -24,13 +25,7 @@ from suit_ros.msg_adapters.detections import detections_to_markerarray, detectio
 from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
 from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_to_ns
 from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
-from suit_ros.ops.geometry import (
-    mirror_boxes,
-    mirror_points,
-    mirror_transform,
-    mirror_velocities,
-    pose_from_xyz_rpy,
-)
+from suit_ros.ops.geometry import mirror_points, mirror_transform, pose_from_xyz_rpy
 from suit_ros.ops.kernels import in_range, in_range_times
 from suit_ros.params import DetectorParams
 from suit_ros.structures import Detections
@@ -338,10 +333,7 @@ class DetectionPipeline:
 
     def _from_model(self, det: Detections) -> Detections:
         """The model's boxes back in the cloud's world (see :meth:`_as_trained`)."""
-        if self.params.traffic_side == 'right':
-            return det
-        return Detections(mirror_boxes(det.boxes), mirror_velocities(det.velocities), det.scores,
-                          det.labels)
+        return det if self.params.traffic_side == 'right' else mirror_detections(det)
 
     def _prepare(self, cloud: Any, out: PipelineOutput, coverage: bool = True
                  ) -> tuple[NDArray[np.float32], int, NDArray[np.float64] | None]:

@@ -527,11 +527,7 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--box-fit', choices=list(BOX_FIT_MODES), default='off',
                         help="car boxes moved onto the returns of their visible faces (the "
                         "node's `box_fit` parameter; suit_ros/box_fit.py)")
-    parser.add_argument('--traffic-side', choices=['auto', 'right', 'left'], default='auto',
-                        help="the side of the road traffic keeps to, as the node's "
-                        '`traffic_side` parameter would be set there (left gives the model '
-                        "each drive mirrored); auto: nuScenes' Singapore scenes left (their "
-                        'log location), everything else right')
+    add_traffic_side_option(parser)
     parser.add_argument('--deskew', choices=['on', 'off'], default='on',
                         help="sweeps taken over time put back at their stamps (the node's "
                         '`deskew` parameter; synthetic sweeps of real sensors; the readers of '
@@ -576,6 +572,15 @@ def _sequences(args: argparse.Namespace, class_names: Sequence[str], sweeps: int
     return synthetic_split(args.synthetic, 16, 40, args.cache_dir, args.preset), \
         f'synthetic {args.synthetic} split (16 drives' + \
         (f', world {args.preset})' if args.preset else ')'), None
+
+
+def add_traffic_side_option(parser: argparse.ArgumentParser) -> None:
+    """``--traffic-side`` of ``eval`` and ``report`` (read with :func:`traffic_sides`)."""
+    parser.add_argument('--traffic-side', choices=['auto', 'right', 'left'], default='auto',
+                        help="the side of the road traffic keeps to, as the node's "
+                        '`traffic_side` parameter would be set there (left gives the model '
+                        "each drive mirrored); auto: nuScenes' Singapore scenes left (their "
+                        'log location), everything else right')
 
 
 def traffic_sides(choice: Literal['auto', 'right', 'left'], count: int,

@@ -114,22 +114,21 @@ def apply(frame: Frame, aug: Augmentation) -> Frame:
                    owners=None)
 
 
+def mirror_detections(det: Detections) -> Detections:
+    """Boxes (or GT) mirrored across the x-z plane: y, yaw and vy negated."""
+    from suit_ros.ops.geometry import mirror_boxes
+    return Detections(mirror_boxes(det.boxes), det.velocities * np.array([1.0, -1.0], np.float32),
+                      det.scores, det.labels)
+
+
 def mirror_world(frame: Frame) -> Frame:
     """The frame of a drive mirrored across its LiDAR x-z plane, odometry frame included
     (``T' = M T M`` with ``M = diag(1, -1, 1)``): right-hand traffic becomes left-hand traffic,
     every pose stays a rotation (so a tracker, unlike a training clip's flip, sees a drive that
     could be real), and boxes, velocities and labels keep their objects. Mirroring twice gives
     the frame back."""
-    from suit_ros.ops.geometry import (
-        mirror_boxes,
-        mirror_points,
-        mirror_transform,
-        mirror_velocities,
-    )
-    gt = frame.gt
-    if gt is not None:
-        gt = Detections(mirror_boxes(gt.boxes), mirror_velocities(gt.velocities), gt.scores,
-                        gt.labels)
+    from suit_ros.ops.geometry import mirror_boxes, mirror_points, mirror_transform
+    gt = None if frame.gt is None else mirror_detections(frame.gt)
     ignore = None if frame.ignore_boxes is None else \
         mirror_boxes(frame.ignore_boxes).astype(np.float32)
     return replace(frame, points=mirror_points(frame.points), pose=mirror_transform(frame.pose),

@@ -53,7 +53,7 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
                rate_hz: float | None = None) -> str:
     from dataclasses import asdict
 
-    from suit_ros.data.sim import preset
+    from suit_ros.data.sim import Realism, preset
     rate = {} if rate_hz is None else {'rate_hz': float(rate_hz)}   # 10 and 10.0: one key
     cfg = asdict(preset(preset_name, sensor=sensor, frames=frames, **rate))
     for name in ('realism', 'exact_sectors'):   # off: the box world, keys as before they existed
@@ -62,7 +62,7 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
     for name in ('street_objects', 'real_car_ends', 'bystanders', 'dark_tops', 'parked_rows'):
         if cfg.get('realism') and not cfg['realism'][name]:
             del cfg['realism'][name]             # off: the world (and its key) as before
-    if cfg.get('realism') and cfg['realism']['parked_reversed'] == 0.15:
+    if cfg.get('realism') and cfg['realism']['parked_reversed'] == Realism.parked_reversed:
         del cfg['realism']['parked_reversed']    # the share the rows had before it was a field
     # v3: objects count their own returns where a moving sweep put them outside their box
     blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 3}, sort_keys=True, default=str)

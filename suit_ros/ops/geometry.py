@@ -80,13 +80,6 @@ def mirror_boxes(boxes: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
     return b
 
 
-def mirror_velocities(velocities: NDArray[np.floating[Any]]) -> NDArray[np.float64]:
-    """``(N, 2)`` velocities mirrored across the x-z plane: vy negated (a float64 copy)."""
-    out: NDArray[np.float64] = np.asarray(velocities, np.float64).reshape(-1, 2) * np.array(
-        [1.0, -1.0])
-    return out
-
-
 def wrap_angle(a: NDArray[np.floating[Any]] | float) -> NDArray[np.float64]:
     """Wrap angles to ``[-pi, pi)``."""
     return (np.asarray(a, np.float64) + np.pi) % (2.0 * np.pi) - np.pi
