@@ -198,6 +198,12 @@ def dark_top(instance_id: int, share: float) -> bool:
     return id_fraction(instance_id * 13 + 5) < share
 
 
+def real_roof(instance_id: int, share: float) -> bool:
+    """Whether a passenger car's greenhouse sits as on real cars (:attr:`Realism.real_car_roofs`):
+    drawn from its id (a hash apart from the others)."""
+    return id_fraction(instance_id * 17 + 3) < share
+
+
 def dress_actors(actors: list[Actor], realism: Realism, rng: np.random.Generator) -> None:
     """Give every actor a :class:`Body` (and a size that fits it): cars become sedans,
     hatchbacks, SUVs, vans or pickups; trucks and buses get cabs, cargo boxes or window bands;
@@ -208,7 +214,8 @@ def dress_actors(actors: list[Actor], realism: Realism, rng: np.random.Generator
             kind, a.size = vehicle_kind(rng)
             real = id_fraction(a.instance_id) < realism.real_car_ends
             a.body = car_body(kind, a.size, paint(rng, realism), realism, real_ends=real,
-                              dark_top=dark_top(a.instance_id, realism.dark_tops))
+                              dark_top=dark_top(a.instance_id, realism.dark_tops),
+                              real_roof=real_roof(a.instance_id, realism.real_car_roofs))
         elif name == 'truck':
             a.body = heavy_body(a.size, paint(rng, realism), realism)
         elif name == 'pedestrian':

@@ -87,8 +87,17 @@ DARK_ROOF = (0.05, 0.16, 0.0)               # a dark top: one hit in six returns
 DIM_SEATS = (0.1, 0.3, 0.0)                 # seats behind tinted glass
 
 
+# a raked screen's and back light's run along the car (m) where the roof is placed as on real
+# cars (:attr:`Realism.real_car_roofs`): the roof starts near the middle and runs back
+ROOF_RUNS = {'sedan': (0.95, 0.55), 'hatchback': (0.85, 0.0), 'suv': (0.75, 0.0),
+             'pickup': (0.7, 0.0)}
+TRUNK_DECK = 0.72                           # a sedan's trunk lid, of its height, on such cars
+GRAZING_GLASS = 0.15                        # a raked screen's returns, as a share of glass's
+
+
 def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, float],
-             realism: Realism, real_ends: bool = False, dark_top: bool = False) -> Body:
+             realism: Realism, real_ends: bool = False, dark_top: bool = False,
+             real_roof: bool = False) -> Body:
     """A passenger vehicle of ``kind`` (see :data:`VEHICLE_KINDS`) filling ``size``.
 
     :param real_ends: ends as real cars have them (:attr:`Realism.real_car_ends`): a bumper
@@ -99,6 +108,13 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
     :param dark_top: seen only below the belt (:attr:`Realism.dark_tops`): tinted glass that
         sends nothing back (rays it passes reach dim seats), a roof that returns one hit in
         six, as real cars' sloped glass and roofs do at grazing incidence beyond 20 m.
+    :param real_roof: the greenhouse placed as on real cars (:attr:`Realism.real_car_roofs`):
+        a windscreen raked over 0.75-0.95 m (:data:`ROOF_RUNS`) that returns little (grazing
+        glass, up to half the greenhouse's height), the roof from its top edge back to the
+        back light, and painted rear pillars: the top sits behind the middle, and a car's
+        front reads lower than its back. Real cars on the dev sweeps: their highest returns
+        over the front quarter reach 0.45 of their height, over the back quarter 0.8
+        (docs/experiments/car_front). Vans keep their body.
     """
     l, w, h = (float(v) for v in size)
     p = _Parts()
@@ -115,6 +131,9 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
     belt = {'sedan': 0.6, 'hatchback': 0.58, 'suv': 0.56, 'van': 0.5, 'pickup': 0.55}[kind] * h
     hood = {'sedan': 0.25, 'hatchback': 0.22, 'suv': 0.21, 'van': 0.13, 'pickup': 0.22}[kind] * l
     tail = {'sedan': 0.19, 'hatchback': 0.04, 'suv': 0.04, 'van': 0.0, 'pickup': 0.36}[kind] * l
+    raked = real_roof and kind in ROOF_RUNS
+    if raked and kind in ('hatchback', 'suv'):
+        tail = 0.0                          # the tailgate at the back, up to the roof
     cab_front, cab_rear = front - hood, rear + tail
     p.add((front - 0.45, front), (-wb, wb), (low, belt - 0.12), coat)           # nose, lower
     p.add((cab_front, front - 0.45), (-wb, wb), (low, belt), coat)              # hood
@@ -124,8 +143,9 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
         for side in (-1.0, 1.0):
             p.add((rear, cab_rear), _band(side * wb, -side * 0.07), (low, belt + 0.05), coat)
         p.add((rear, rear + 0.07), (-wb, wb), (low, belt + 0.05), coat)         # tailgate
-    elif tail > 0:
-        p.add((rear, cab_rear), (-wb, wb), (low + 0.05, belt + 0.04), coat)     # trunk step
+    elif tail > 0:                                                              # trunk step
+        deck = TRUNK_DECK * h if raked else belt + 0.04
+        p.add((rear, cab_rear), (-wb, wb), (low + 0.05, deck), coat)
     roof_top = h - 0.06
     pane = glass(realism)
     roof, seats = coat, SEATS
@@ -135,6 +155,18 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
         split = cab_front - 0.35 * (cab_front - cab_rear)
         p.add((split, cab_front), (-wb + 0.05, wb - 0.05), (belt, roof_top), pane)
         p.add((cab_rear, split), (-wb, wb), (belt, roof_top), coat)
+    elif raked:
+        run, back = ROOF_RUNS[kind]
+        screen = (pane[0], pane[1] * GRAZING_GLASS, pane[2])
+        mid = belt + 0.5 * (roof_top - belt)
+        p.add((cab_front - run, cab_front), (-wb + 0.1, wb - 0.1), (belt, mid), screen)
+        p.add((cab_rear + max(back, 0.12), cab_front - run), (-wb + 0.1, wb - 0.1),
+              (belt, roof_top), pane)
+        if back > 0:                        # a sedan's raked back light over its trunk
+            p.add((cab_rear, cab_rear + back), (-wb + 0.1, wb - 0.1), (belt, mid), screen)
+        else:                               # a tailgate (a pickup's cab back) to the roof
+            p.add((cab_rear, cab_rear + 0.12), (-wb, wb),
+                  (belt if kind == 'pickup' else low + 0.05, roof_top), coat)
     else:
         slope = 0.3 if real_ends else 0.0
         p.add((cab_rear + slope, cab_front - slope), (-wb + 0.1, wb - 0.1), (belt, roof_top),
@@ -142,8 +174,14 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
     if real_ends:                           # seats, seen through the glass
         p.add((cab_rear + 0.5, cab_front - 0.6), (-wb + 0.25, wb - 0.25),
               (belt - 0.1, belt + 0.45), seats)
-    inset = 0.12 if kind in ('van', 'suv') else 0.3
-    p.add((cab_rear + inset, cab_front - 0.4), (-wb + 0.12, wb - 0.12), (roof_top, h), roof)
+    if raked:
+        run, back = ROOF_RUNS[kind]
+        p.add((cab_rear + back + 0.02, cab_front - run), (-wb + 0.12, wb - 0.12), (roof_top, h),
+              roof)
+    else:
+        inset = 0.12 if kind in ('van', 'suv') else 0.3
+        p.add((cab_rear + inset, cab_front - 0.4), (-wb + 0.12, wb - 0.12), (roof_top, h),
+              roof)
     for side in (-1.0, 1.0):                                                    # mirrors
         p.add((cab_front - 0.2, cab_front), _band(side * w / 2, -side * 0.09),
               (belt, belt + 0.14), coat)

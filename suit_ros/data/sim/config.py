@@ -79,6 +79,11 @@ class Realism:
     :param parked_rows: about the share of the kerbs near the ego's path lined with rows of
         parked cars, as city streets are (:mod:`~suit_ros.data.sim.parked_rows`); 0 (default):
         none, the world byte for byte as before.
+    :param real_car_roofs: share of passenger cars (drawn from their ids) whose greenhouse
+        sits as on real cars: a raked windscreen that returns little, the roof from near the
+        middle back to the rear (:func:`~suit_ros.data.sim.bodies.car_body`), so the car's
+        own returns say which end is its front; 0 (default): none, the world byte for byte
+        as before.
     :param parked_reversed: share of those row cars parked against their side's traffic, as on
         one-way streets and in cities where cars park either way (0.15, the default, the world
         as it was; at 0.5 the side of the road says nothing of a parked car's heading).
@@ -96,6 +101,7 @@ class Realism:
     dark_tops: float = 0.0
     parked_rows: float = 0.0
     parked_reversed: float = 0.15
+    real_car_roofs: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -163,7 +169,7 @@ def _validate_realism(r: Realism) -> None:
     if r.clutter < 0:
         raise ConfigError(f'realism.clutter must be >= 0 (0: no clutter), got {r.clutter}')
     for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends', 'bystanders',
-                 'dark_tops', 'parked_rows', 'parked_reversed'):
+                 'dark_tops', 'parked_rows', 'parked_reversed', 'real_car_roofs'):
         value = getattr(r, name)
         if not 0.0 <= value <= 1.0:
             raise ConfigError(f'realism.{name} is a probability in [0, 1], got {value}')
@@ -276,3 +282,18 @@ def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConf
     if lidar_keys:
         cfg = replace(cfg, lidar=replace(cfg.lidar, **lidar_keys))  # type: ignore[arg-type]
     return replace(cfg, **other).validate()  # type: ignore[arg-type]
+# and every passenger car's greenhouse as on real cars: a raked windscreen, the roof behind
+# the middle (docs/experiments/car_front: the car's own front and back)
+_ROOFS = Realism(real_car_ends=1.0, real_car_roofs=1.0)
+PRESETS['train-ends-roofs'] = replace(PRESETS['train-real'], realism=_ROOFS)
+PRESETS['val-ends-roofs'] = replace(PRESETS['val-real'], realism=_ROOFS)
+PRESETS['train-street-roofs'] = replace(PRESETS['train-real'],
+                                        realism=replace(_ROOFS, street_objects=1.0))
+PRESETS['val-street-roofs'] = replace(PRESETS['val-real'],
+                                      realism=replace(_ROOFS, street_objects=1.0))
+PRESETS['train-parked-roofs'] = replace(
+    PRESETS['train-real'], realism=replace(_ROOFS, street_objects=1.0, parked_rows=0.5,
+                                           parked_reversed=0.5))
+PRESETS['val-parked-roofs'] = replace(
+    PRESETS['val-real'], realism=replace(_ROOFS, street_objects=1.0, parked_rows=0.5,
+                                         parked_reversed=0.5))

@@ -25,7 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros import CLASS_NAMES
-from suit_ros.data.sim.actors import Actor, Trajectories, _actor, dark_top, id_fraction
+from suit_ros.data.sim.actors import Actor, Trajectories, _actor, dark_top, id_fraction, real_roof
 from suit_ros.data.sim.bodies import car_body, paint, vehicle_kind
 from suit_ros.data.sim.config import Realism
 from suit_ros.data.sim.world import World
@@ -147,7 +147,8 @@ def park_rows(actors: Sequence[Actor], ego: Actor, world: World, realism: Realis
                     car.heading = yaw
                     car.body = car_body(kind, size, coat, realism,
                                         real_ends=id_fraction(next_id) < realism.real_car_ends,
-                                        dark_top=dark_top(next_id, realism.dark_tops))
+                                        dark_top=dark_top(next_id, realism.dark_tops),
+                                        real_roof=real_roof(next_id, realism.real_car_roofs))
                     out.append(car)
                     taken = np.concatenate([taken, box[None]])
                     next_id += 1
