@@ -3,7 +3,8 @@
 that added this page; cached drives of `val-street-roofs` needed), scored on its other 4 and
 on the real dev cars (to diagnose only).
 
-Usage: roofs_probe.py AV2_ROOT
+Usage: roofs_probe.py AV2_ROOT [PRESET]
+(PRESET: default val-street-roofs; its cached validation drives 9000-9007)
 """
 from __future__ import annotations
 
@@ -19,7 +20,9 @@ from probe import CAR, anti, collect, fit, profile, report  # noqa: E402
 from suit_ros.data.av2 import av2_sequences  # noqa: E402
 
 rng = np.random.default_rng(0)
-files = sorted(glob.glob('data_cache/val-street-roofs-*.npz'))
+preset_name = sys.argv[2] if len(sys.argv) > 2 else 'val-street-roofs'
+files = sorted(glob.glob(f'data_cache/{preset_name}-*-900[0-7]-40-*.npz'))
+assert len(files) == 8, files
 Xa, _ = collect(files[:4], rng, jitter=True, every=2)
 Xb, _ = collect(files[4:], rng, jitter=True, every=2)
 w = fit(Xa)

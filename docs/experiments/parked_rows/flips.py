@@ -5,7 +5,8 @@ their right) or stand against it, and the share of each whose predicted heading 
 135 degrees off. Validation drives in the rows world, the node's tracker (`--no-tracker`: the
 model's own boxes).
 
-Usage: flips.py [DRIVES] [FRAMES] [CHECKPOINT ...] [--no-tracker]
+Usage: flips.py [DRIVES] [FRAMES] [CHECKPOINT ...] [--no-tracker] [--preset=NAME]
+(NAME a rows world, default val-parked-rows; val-parked-roofs: docs/experiments/car_front)
 """
 from __future__ import annotations
 
@@ -23,9 +24,11 @@ from suit_ros.tracking import TrackerConfig
 drives = int(sys.argv[1]) if len(sys.argv) > 1 else 16
 frames = int(sys.argv[2]) if len(sys.argv) > 2 else 40
 NO_TRACKER = '--no-tracker' in sys.argv
-checkpoints = [a for a in sys.argv[3:] if a != '--no-tracker'] or ['suit_default']
-block = preset('val-parked-rows').block
-seqs = synthetic_split('val', drives, frames, 'data_cache', preset_name='val-parked-rows')
+PRESET = next((a.split('=', 1)[1] for a in sys.argv if a.startswith('--preset=')),
+              'val-parked-rows')
+checkpoints = [a for a in sys.argv[3:] if not a.startswith('--')] or ['suit_default']
+block = preset(PRESET).block
+seqs = synthetic_split('val', drives, frames, 'data_cache', preset_name=PRESET)
 for ckpt in checkpoints:
     model, cfg, _ = load_checkpoint(ckpt)
     car = list(cfg.class_names).index('car')

@@ -92,6 +92,9 @@ DIM_SEATS = (0.1, 0.3, 0.0)                 # seats behind tinted glass
 ROOF_RUNS = {'sedan': (0.95, 0.55), 'hatchback': (0.85, 0.0), 'suv': (0.75, 0.0),
              'pickup': (0.7, 0.0)}
 TRUNK_DECK = 0.72                           # a sedan's trunk lid, of its height, on such cars
+# the opaque rear pillars (C or D) along the greenhouse's sides on such cars (m)
+PILLARS = {'sedan': 0.75, 'hatchback': 0.5, 'suv': 0.5, 'pickup': 0.15}
+REAR_SET_BACK = 0.12                        # such a car's body behind the bumper (m)
 GRAZING_GLASS = 0.15                        # a raked screen's returns, as a share of glass's
 
 
@@ -125,13 +128,16 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
                   (0.25, 0.7), BUMPER)
         l -= 0.7                            # the painted body between the bumpers
     front, rear = l / 2, -l / 2
+    raked = real_roof and kind in ROOF_RUNS
+    if raked and real_ends:                 # a compact back: the body near the bumper
+        rear -= 0.35 - REAR_SET_BACK
+        l = front - rear
     wb = w / 2 - 0.09                       # body half width; mirrors reach w / 2
     r = 0.3 if kind in ('sedan', 'hatchback') else 0.36
     low = 0.2 if kind in ('sedan', 'hatchback') else 0.3
     belt = {'sedan': 0.6, 'hatchback': 0.58, 'suv': 0.56, 'van': 0.5, 'pickup': 0.55}[kind] * h
     hood = {'sedan': 0.25, 'hatchback': 0.22, 'suv': 0.21, 'van': 0.13, 'pickup': 0.22}[kind] * l
     tail = {'sedan': 0.19, 'hatchback': 0.04, 'suv': 0.04, 'van': 0.0, 'pickup': 0.36}[kind] * l
-    raked = real_roof and kind in ROOF_RUNS
     if raked and kind in ('hatchback', 'suv'):
         tail = 0.0                          # the tailgate at the back, up to the roof
     cab_front, cab_rear = front - hood, rear + tail
@@ -160,8 +166,12 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
         screen = (pane[0], pane[1] * GRAZING_GLASS, pane[2])
         mid = belt + 0.5 * (roof_top - belt)
         p.add((cab_front - run, cab_front), (-wb + 0.1, wb - 0.1), (belt, mid), screen)
-        p.add((cab_rear + max(back, 0.12), cab_front - run), (-wb + 0.1, wb - 0.1),
-              (belt, roof_top), pane)
+        pillar = PILLARS[kind]
+        p.add((cab_rear + pillar, cab_front - run), (-wb + 0.1, wb - 0.1), (belt, roof_top),
+              pane)
+        for side in (-1.0, 1.0):            # the rear pillars
+            p.add((cab_rear, cab_rear + pillar), _band(side * wb, -side * 0.08),
+                  (belt, roof_top), coat)
         if back > 0:                        # a sedan's raked back light over its trunk
             p.add((cab_rear, cab_rear + back), (-wb + 0.1, wb - 0.1), (belt, mid), screen)
         else:                               # a tailgate (a pickup's cab back) to the roof
