@@ -9,7 +9,7 @@ import pytest
 
 from suit_ros import CLASS_NAMES
 from suit_ros.data.sim import Realism, preset
-from suit_ros.data.sim.actors import real_roof
+from suit_ros.data.sim.actors import dark_top, id_fraction, real_roof
 from suit_ros.data.sim.bodies import VEHICLE_SIZES, Body, car_body
 from suit_ros.data.sim.scene import Simulation
 from suit_ros.errors import ConfigError
@@ -67,8 +67,38 @@ def test_a_real_greenhouse_stays_in_the_box_high_at_the_back_low_at_the_nose(kin
             assert _top(body, size, -1.0, -0.75) >= 0.7     # trunk deck or tailgate
             if ends:                                        # as the training worlds
                 assert _top(plain, size, -1.0, -0.75) < 0.7
-        # the rear pillars: opaque up to the roof at the greenhouse's back corners
-        assert _top(body, size, -0.75, -0.25) >= 0.9
+        # the rear pillars: narrow opaque parts at the sides of the back half, up to the roof
+        assert _pillar_top(body, size) >= 0.9
+        assert _pillar_top(plain, size) < 0.9
+
+
+def _pillar_top(body: Body, size: np.ndarray) -> float:
+    """The highest top (of the height) of a narrow opaque part along a side of the back half."""
+    x, y, z, _, wy, hz = body.parts[:, :6].T
+    side = (wy <= 0.1) & (np.abs(y) > size[1] / 2 - 0.2) & (x < 0)
+    opaque = (body.porosity == 0) & (body.return_prob > 0.5)
+    tops = (z + hz / 2)[side & opaque]
+    return float(tops.max() / size[2]) if len(tops) else 0.0
+
+
+def test_the_cars_are_chosen_by_id_apart_from_the_other_choices():
+    ids = range(1, 4001)
+    chosen = np.array([real_roof(i, 0.5) for i in ids])
+    ends = np.array([id_fraction(i) < 0.5 for i in ids])
+    tops = np.array([dark_top(i, 0.5) for i in ids])
+    assert abs(chosen.mean() - 0.5) < 0.03
+    assert abs((chosen & ends).mean() - 0.25) < 0.03 and abs((chosen & tops).mean() - 0.25) < 0.03
+    assert not any(real_roof(i, 0.0) for i in ids) and all(real_roof(i, 1.0) for i in ids)
+
+
+def test_the_rows_cars_get_them_too():
+    either = Simulation(preset('val-parked-either', sensor='hdl64e', frames=2), 9011)
+    roofs = Simulation(preset('val-parked-roofs', sensor='hdl64e', frames=2), 9011)
+    cars = [(a, b) for a, b in zip(either.actors, roofs.actors, strict=True) if a.label == CAR]
+    still = [(a, b) for a, b in cars if not a.v.any()]     # the rows' cars and other parked
+    assert len(still) > 30
+    changed = [not np.array_equal(a.body.parts, b.body.parts) for a, b in still]
+    assert np.mean(changed) > 0.8          # all but the vans
 
 
 def test_only_the_cars_change_and_their_backs_return_higher():
@@ -80,7 +110,6 @@ def test_only_the_cars_change_and_their_backs_return_higher():
         if a.label != CAR:
             assert np.array_equal(a.body.parts, b.body.parts)
         else:
-            assert real_roof(a.instance_id, 1.0)
             kinds_changed += int(not np.array_equal(a.body.parts, b.body.parts))
     assert kinds_changed > 10
     high = {False: 0, True: 0}      # cars' own returns in their back eighth above 0.6 h

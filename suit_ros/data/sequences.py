@@ -65,6 +65,9 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
             del cfg['realism'][name]             # off: the world (and its key) as before
     if cfg.get('realism') and cfg['realism']['parked_reversed'] == Realism.parked_reversed:
         del cfg['realism']['parked_reversed']    # the share the rows had before it was a field
+    if cfg.get('realism') and cfg['realism'].get('real_car_roofs'):
+        # the body the cars get (1: commit ab9fdcc's first greenhouse, never trained on)
+        cfg['realism']['roofs_geometry'] = 2
     # v3: objects count their own returns where a moving sweep put them outside their box
     blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 3}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
-"""The probe (probe.py) trained on 4 drives of the world with `real_car_roofs` (in the commit
-that added this page; cached drives of `val-street-roofs` needed), scored on its other 4 and
-on the real dev cars (to diagnose only).
+"""The probe (probe.py) trained on 4 validation drives of one world (drives 9000-9003: one per
+sensor) and scored on its other 4 (9004-9007: the same sensors) and on the real dev cars (to
+diagnose only; the KITTI sample has no car). The same drives and traffic in each world; only
+the cars' bodies differ.
 
-Usage: roofs_probe.py AV2_ROOT [PRESET]
-(PRESET: default val-street-roofs; its cached validation drives 9000-9007)
+Usage: roofs_probe.py AV2_ROOT [PRESET ...]
+(PRESET: default val-street-ends and val-street-roofs; their cached drives 9000-9007)
 """
 from __future__ import annotations
 
@@ -19,25 +20,30 @@ from probe import CAR, anti, collect, fit, profile, report  # noqa: E402
 
 from suit_ros.data.av2 import av2_sequences  # noqa: E402
 
-rng = np.random.default_rng(0)
-preset_name = sys.argv[2] if len(sys.argv) > 2 else 'val-street-roofs'
-files = sorted(glob.glob(f'data_cache/{preset_name}-*-900[0-7]-40-*.npz'))
-assert len(files) == 8, files
-Xa, _ = collect(files[:4], rng, jitter=True, every=2)
-Xb, _ = collect(files[4:], rng, jitter=True, every=2)
-w = fit(Xa)
-report('roofs A (train)', Xa, w)
-report('roofs B', Xb, w)
-X = []
-for seq in av2_sequences(sys.argv[1]):
-    for f in seq:
+
+def real_cars(frames: list) -> np.ndarray:  # type: ignore[type-arg]
+    X = []
+    for f in frames:
         g = f.gt
-        assert g is not None
-        pts = f.points[f.points[:, 4] < 0.01]
+        pts = f.points[f.points[:, 4] < 0.01] if f.points.shape[1] > 4 else f.points
         for k in np.nonzero(g.labels == CAR)[0]:
             if np.hypot(*g.boxes[k, :2]) > 50:
                 continue
             fp = profile(pts, g.boxes[k].astype(np.float64))
             if fp is not None:
                 X.append(anti(fp))
-report('real dev', np.array(X), w)
+    return np.array(X)
+
+
+av2 = real_cars([f for s in av2_sequences(sys.argv[1]) for f in s])
+for name in sys.argv[2:] or ['val-street-ends', 'val-street-roofs']:
+    files = {k: sorted(glob.glob(f'data_cache/{name}-*-{k}-40-*.npz')) for k in range(9000, 9008)}
+    assert all(len(v) == 1 for v in files.values()), files
+    rng = np.random.default_rng(0)
+    Xa, _ = collect([files[k][0] for k in range(9000, 9004)], rng, jitter=True, every=2)
+    Xb, _ = collect([files[k][0] for k in range(9004, 9008)], rng, jitter=True, every=2)
+    w = fit(Xa)
+    print(f'== {name}')
+    report('drives 9000-9003 (its own)', Xa, w)
+    report('drives 9004-9007', Xb, w)
+    report('real dev (Argoverse 2)', av2, w)

@@ -63,5 +63,5 @@ if __name__ == '__main__':
     from suit_ros.data.av2 import av2_sequences
     np.set_printoptions(precision=2, suppress=True, linewidth=160)
     show('real dev', gather(f for s in av2_sequences(sys.argv[1]) for f in s))
-    show('val-street-ends', gather(cached('data_cache/val-street-ends-*.npz')))
-    show('val-street-roofs', gather(cached('data_cache/val-street-roofs-*.npz')))
+    show('val-street-ends', gather(cached('data_cache/val-street-ends-*-900[0-7]-40-*.npz')))
+    show('val-street-roofs', gather(cached('data_cache/val-street-roofs-*-900[0-7]-40-*.npz')))

@@ -105,19 +105,25 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
 
     :param real_ends: ends as real cars have them (:attr:`Realism.real_car_ends`): a bumper
         of dark plastic, narrower than the body (rounded corners), 0.1 m inside the box's
-        ends; the painted body above it set back 0.35 m and the cabin's glass another 0.3 m
-        (a sloped screen); seats behind the glass. Real cars' returns start about 0.35 m
+        ends; the painted body above it set back 0.35 m (at the back 0.12 m with
+        ``real_roof``) and the cabin's glass another 0.3 m (a sloped screen); seats behind
+        the glass. Real cars' returns start about 0.35 m
         inside their labelled ends, synthetic boxy ones at them (docs/experiments/box_fit).
     :param dark_top: seen only below the belt (:attr:`Realism.dark_tops`): tinted glass that
         sends nothing back (rays it passes reach dim seats), a roof that returns one hit in
         six, as real cars' sloped glass and roofs do at grazing incidence beyond 20 m.
-    :param real_roof: the greenhouse placed as on real cars (:attr:`Realism.real_car_roofs`):
-        a windscreen raked over 0.75-0.95 m (:data:`ROOF_RUNS`) that returns little (grazing
-        glass, up to half the greenhouse's height), the roof from its top edge back to the
-        back light, and painted rear pillars: the top sits behind the middle, and a car's
-        front reads lower than its back. Real cars on the dev sweeps: their highest returns
-        over the front quarter reach 0.45 of their height, over the back quarter 0.8
-        (docs/experiments/car_front). Vans keep their body.
+    :param real_roof: the greenhouse placed as on real cars (:attr:`Realism.real_car_roofs`;
+        vans keep their body): opaque rear pillars (:data:`PILLARS`), a tailgate up to the
+        roof (a sedan's trunk lid at :data:`TRUNK_DECK` of its height), a windscreen raked
+        over 0.7-0.95 m (:data:`ROOF_RUNS`) that returns little (grazing glass, up to half the
+        greenhouse's height; a sedan's back light the same) and the roof from the screen's
+        top edge back to the tailgate. With ``real_ends`` the body's back sits
+        :data:`REAR_SET_BACK` inside the box, not 0.35 m; the hood and trunk, fractions of
+        that longer body, move back 0.03-0.06 m and the rear axle 0.23 m. The seats stay where
+        ``real_ends`` puts them, so the first 0.1-0.35 m of them show over the screen's top
+        edge, as real seats show through a windscreen. Real cars on the dev sweeps, seen from
+        the front: their highest returns over the last eighth of the box reach 0.76 of their
+        height, over the first 0.47 (docs/experiments/car_front).
     """
     l, w, h = (float(v) for v in size)
     p = _Parts()
@@ -169,14 +175,18 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
         pillar = PILLARS[kind]
         p.add((cab_rear + pillar, cab_front - run), (-wb + 0.1, wb - 0.1), (belt, roof_top),
               pane)
-        for side in (-1.0, 1.0):            # the rear pillars
+        for side in (-1.0, 1.0):            # the rear pillars (a dark top's look)
             p.add((cab_rear, cab_rear + pillar), _band(side * wb, -side * 0.08),
-                  (belt, roof_top), coat)
+                  (belt, roof_top), roof)
         if back > 0:                        # a sedan's raked back light over its trunk
             p.add((cab_rear, cab_rear + back), (-wb + 0.1, wb - 0.1), (belt, mid), screen)
         else:                               # a tailgate (a pickup's cab back) to the roof
-            p.add((cab_rear, cab_rear + 0.12), (-wb, wb),
-                  (belt if kind == 'pickup' else low + 0.05, roof_top), coat)
+            bottom = belt if kind == 'pickup' else low + 0.05
+            if dark_top:                    # its window a dark top's
+                p.add((cab_rear, cab_rear + 0.12), (-wb, wb), (bottom, belt), coat)
+                bottom = belt
+            p.add((cab_rear, cab_rear + 0.12), (-wb, wb), (bottom, roof_top),
+                  roof if dark_top else coat)
     else:
         slope = 0.3 if real_ends else 0.0
         p.add((cab_rear + slope, cab_front - slope), (-wb + 0.1, wb - 0.1), (belt, roof_top),

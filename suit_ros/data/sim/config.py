@@ -260,6 +260,21 @@ PRESETS['train-parked-either'] = replace(
 PRESETS['val-parked-either'] = replace(
     PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, parked_rows=0.5,
                                          parked_reversed=0.5))
+# every passenger car with a real car's greenhouse: rear pillars, a compact back, a raked
+# screen, the roof back to the tailgate (docs/experiments/car_front: a car's own front and back)
+_ROOFS = Realism(real_car_ends=1.0, real_car_roofs=1.0)
+PRESETS['train-ends-roofs'] = replace(PRESETS['train-real'], realism=_ROOFS)
+PRESETS['val-ends-roofs'] = replace(PRESETS['val-real'], realism=_ROOFS)
+PRESETS['train-street-roofs'] = replace(PRESETS['train-real'],
+                                        realism=replace(_ROOFS, street_objects=1.0))
+PRESETS['val-street-roofs'] = replace(PRESETS['val-real'],
+                                      realism=replace(_ROOFS, street_objects=1.0))
+PRESETS['train-parked-roofs'] = replace(
+    PRESETS['train-real'], realism=replace(_ROOFS, street_objects=1.0, parked_rows=0.5,
+                                           parked_reversed=0.5))
+PRESETS['val-parked-roofs'] = replace(
+    PRESETS['val-real'], realism=replace(_ROOFS, street_objects=1.0, parked_rows=0.5,
+                                         parked_reversed=0.5))
 
 
 def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConfig:
@@ -282,18 +297,3 @@ def preset(name: str, sensor: str | None = None, **overrides: object) -> SimConf
     if lidar_keys:
         cfg = replace(cfg, lidar=replace(cfg.lidar, **lidar_keys))  # type: ignore[arg-type]
     return replace(cfg, **other).validate()  # type: ignore[arg-type]
-# and every passenger car's greenhouse as on real cars: a raked windscreen, the roof behind
-# the middle (docs/experiments/car_front: the car's own front and back)
-_ROOFS = Realism(real_car_ends=1.0, real_car_roofs=1.0)
-PRESETS['train-ends-roofs'] = replace(PRESETS['train-real'], realism=_ROOFS)
-PRESETS['val-ends-roofs'] = replace(PRESETS['val-real'], realism=_ROOFS)
-PRESETS['train-street-roofs'] = replace(PRESETS['train-real'],
-                                        realism=replace(_ROOFS, street_objects=1.0))
-PRESETS['val-street-roofs'] = replace(PRESETS['val-real'],
-                                      realism=replace(_ROOFS, street_objects=1.0))
-PRESETS['train-parked-roofs'] = replace(
-    PRESETS['train-real'], realism=replace(_ROOFS, street_objects=1.0, parked_rows=0.5,
-                                           parked_reversed=0.5))
-PRESETS['val-parked-roofs'] = replace(
-    PRESETS['val-real'], realism=replace(_ROOFS, street_objects=1.0, parked_rows=0.5,
-                                         parked_reversed=0.5))
