@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import glob
 import sys
+from typing import Any
 
 import numpy as np
 
@@ -72,6 +73,23 @@ def collect(paths: list[str], rng: np.random.Generator, jitter: bool, every: int
     return np.array(X), np.array(meta)
 
 
+def real_cars(frames: list[Any], max_range: float = 50.0) -> tuple[np.ndarray, np.ndarray]:
+    """The antisymmetric profiles of a real dataset's labelled cars (the current sweep's
+    returns) and their centres."""
+    X, centres = [], []
+    for f in frames:
+        g = f.gt
+        pts = f.points[f.points[:, 4] < 0.01] if f.points.shape[1] > 4 else f.points
+        for k in np.nonzero(g.labels == CAR)[0]:
+            if np.hypot(*g.boxes[k, :2]) > max_range:
+                continue
+            fp = profile(pts, g.boxes[k].astype(np.float64))
+            if fp is not None:
+                X.append(anti(fp))
+                centres.append(g.boxes[k, :2])
+    return np.array(X), np.array(centres)
+
+
 def fit(X: np.ndarray, epochs: int = 300) -> np.ndarray:
     """Logistic regression without bias: y = 1 for each profile, 0 for it turned round."""
     A = np.concatenate([X, -X])
@@ -111,21 +129,10 @@ def main() -> None:
         report(pre + ' within 25 m', Xv[near], w)
     if len(sys.argv) > 1:
         from suit_ros.data.av2 import av2_sequences
-        X = []
-        for seq in av2_sequences(sys.argv[1]):
-            for f in seq:
-                g = f.gt
-                pts = f.points[f.points[:, 4] < 0.01]
-                for k in np.nonzero(g.labels == CAR)[0]:
-                    if np.hypot(*g.boxes[k, :2]) > 50:
-                        continue
-                    fp = profile(pts, g.boxes[k].astype(np.float64))
-                    if fp is not None:
-                        X.append(anti(fp))
-                        print(f'  real car at {g.boxes[k, 0]:6.1f} {g.boxes[k, 1]:6.1f}: '
-                              f'z {anti(fp) @ w:+.2f}')
-        report('real dev (labelled boxes)', np.array(X), w)
-
+        X, centres = real_cars([f for seq in av2_sequences(sys.argv[1]) for f in seq])
+        for x, c in zip(X, centres):
+            print(f'  real car at {c[0]:6.1f} {c[1]:6.1f}: z {x @ w:+.2f}')
+        report('real dev (labelled boxes)', X, w)
 
 if __name__ == '__main__':
     main()

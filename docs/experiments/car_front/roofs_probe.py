@@ -16,26 +16,11 @@ import sys
 import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-from probe import CAR, anti, collect, fit, profile, report  # noqa: E402
+from probe import collect, fit, real_cars, report  # noqa: E402
 
 from suit_ros.data.av2 import av2_sequences  # noqa: E402
 
-
-def real_cars(frames: list) -> np.ndarray:  # type: ignore[type-arg]
-    X = []
-    for f in frames:
-        g = f.gt
-        pts = f.points[f.points[:, 4] < 0.01] if f.points.shape[1] > 4 else f.points
-        for k in np.nonzero(g.labels == CAR)[0]:
-            if np.hypot(*g.boxes[k, :2]) > 50:
-                continue
-            fp = profile(pts, g.boxes[k].astype(np.float64))
-            if fp is not None:
-                X.append(anti(fp))
-    return np.array(X)
-
-
-av2 = real_cars([f for s in av2_sequences(sys.argv[1]) for f in s])
+av2, _ = real_cars([f for s in av2_sequences(sys.argv[1]) for f in s])
 for name in sys.argv[2:] or ['val-street-ends', 'val-street-roofs']:
     files = {k: sorted(glob.glob(f'data_cache/{name}-*-{k}-40-*.npz')) for k in range(9000, 9008)}
     assert all(len(v) == 1 for v in files.values()), files
