@@ -135,6 +135,7 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
         l -= 0.7                            # the painted body between the bumpers
     front, rear = l / 2, -l / 2
     raked = real_roof and kind in ROOF_RUNS
+    run, back = ROOF_RUNS[kind] if raked else (0.4, 0.0)    # (today's: the roof 0.4 m back)
     if raked and real_ends:                 # a compact back: the body near the bumper
         rear -= 0.35 - REAR_SET_BACK
         l = front - rear
@@ -168,7 +169,6 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
         p.add((split, cab_front), (-wb + 0.05, wb - 0.05), (belt, roof_top), pane)
         p.add((cab_rear, split), (-wb, wb), (belt, roof_top), coat)
     elif raked:
-        run, back = ROOF_RUNS[kind]
         screen = (pane[0], pane[1] * GRAZING_GLASS, pane[2])
         mid = belt + 0.5 * (roof_top - belt)
         p.add((cab_front - run, cab_front), (-wb + 0.1, wb - 0.1), (belt, mid), screen)
@@ -185,8 +185,7 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
             if dark_top:                    # its window a dark top's
                 p.add((cab_rear, cab_rear + 0.12), (-wb, wb), (bottom, belt), coat)
                 bottom = belt
-            p.add((cab_rear, cab_rear + 0.12), (-wb, wb), (bottom, roof_top),
-                  roof if dark_top else coat)
+            p.add((cab_rear, cab_rear + 0.12), (-wb, wb), (bottom, roof_top), roof)
     else:
         slope = 0.3 if real_ends else 0.0
         p.add((cab_rear + slope, cab_front - slope), (-wb + 0.1, wb - 0.1), (belt, roof_top),
@@ -194,14 +193,8 @@ def car_body(kind: str, size: NDArray[np.float64], coat: tuple[float, float, flo
     if real_ends:                           # seats, seen through the glass
         p.add((cab_rear + 0.5, cab_front - 0.6), (-wb + 0.25, wb - 0.25),
               (belt - 0.1, belt + 0.45), seats)
-    if raked:
-        run, back = ROOF_RUNS[kind]
-        p.add((cab_rear + back + 0.02, cab_front - run), (-wb + 0.12, wb - 0.12), (roof_top, h),
-              roof)
-    else:
-        inset = 0.12 if kind in ('van', 'suv') else 0.3
-        p.add((cab_rear + inset, cab_front - 0.4), (-wb + 0.12, wb - 0.12), (roof_top, h),
-              roof)
+    inset = back + 0.02 if raked else 0.12 if kind in ('van', 'suv') else 0.3
+    p.add((cab_rear + inset, cab_front - run), (-wb + 0.12, wb - 0.12), (roof_top, h), roof)
     for side in (-1.0, 1.0):                                                    # mirrors
         p.add((cab_front - 0.2, cab_front), _band(side * w / 2, -side * 0.09),
               (belt, belt + 0.14), coat)
