@@ -23,7 +23,7 @@ from suit_ros.params import (
     DetectorParams,
     GroundChoice,
     OverhangChoice,
-    TrafficSide,
+    TrafficSideParam,
 )
 
 DET_TOPIC = '/detector/detections'
@@ -53,9 +53,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument('--box-fit', default=None, choices=get_args(BoxFitParam),
                         help="car boxes moved onto the returns of their visible faces (the "
                         "node's box_fit parameter)")
-    parser.add_argument('--traffic-side', default=None, choices=get_args(TrafficSide),
+    parser.add_argument('--traffic-side', default=None, choices=get_args(TrafficSideParam),
                         help="the side of the road traffic keeps to (the node's traffic_side "
-                        'parameter: left gives the model the drive mirrored)')
+                        'parameter: left gives the model the drive mirrored; auto reads it '
+                        'from the oncoming vehicles)')
     parser.add_argument('--intensity-scale', type=float,
                         help='intensity / scale -> 0..1 (1 for 0..1 reflectance)')
     parser.add_argument('--score-threshold', type=float, nargs='+', metavar='T',
@@ -195,6 +196,7 @@ class Summary:
         self.resets: collections.Counter[str] = collections.Counter()
         self.gts: dict[int, Any] = {}
         self.dets: dict[int, Any] = {}
+        self.traffic_side = ''              # the last frame's (auto: and the votes)
 
     def add(self, stamp: int, out: Any) -> None:
         """Count one frame's output."""
@@ -207,6 +209,7 @@ class Summary:
             self.examples.setdefault(key, text)
         if out.reset_reason:
             self.resets[out.reset_reason.split(' (')[0]] += 1
+        self.traffic_side = out.traffic_side or self.traffic_side
 
     def print(self, seconds: float, names: tuple[str, ...]) -> None:
         """The summary on stdout (and the evaluation when the bag has GT)."""
@@ -220,6 +223,8 @@ class Summary:
             print(f'  warning {key}: {count} frames, e.g. {self.examples[key]}')
         for reason, count in self.resets.most_common():
             print(f'  memory reset: {reason}: {count}')
+        if self.traffic_side:
+            print(f'traffic side at the end: {self.traffic_side}')
         print('detections per class: ' + ', '.join(
             f'{c} {self.classes[i]}' for i, c in enumerate(names)))
         paired = [s for s in self.dets if s in self.gts]

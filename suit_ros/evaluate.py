@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from suit_ros.ground import GroundMode
     from suit_ros.model.inference import PrecisionChoice
     from suit_ros.overhang import OverhangMode
-    from suit_ros.params import TrafficSide
+    from suit_ros.params import TrafficSide, TrafficSideParam
     from suit_ros.tracking import TrackerConfig
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
@@ -369,6 +369,8 @@ class ModelRun:
     ignore: list[NDArray[np.float32] | None] = field(default_factory=list)
     carried: list[NDArray[np.bool_]] = field(default_factory=list)
     used_memory: list[bool] = field(default_factory=list)   # per frame: a memory was fused
+    # per frame the side of the road the model was given traffic on (``traffic_side``)
+    sides: list[str] = field(default_factory=list)
 
     def held(self) -> list[NDArray[np.bool_]]:
         """Per frame, which detections are held where the input had no returns (``carried``;
@@ -397,7 +399,7 @@ class ModelRun:
                        num_points=pick(self.num_points), latency_s=pick(self.latency_s),
                        memory_bytes=pick(self.memory_bytes), drive=pick(self.drive),
                        ignore=pick(self.ignore), carried=pick(self.carried),
-                       used_memory=pick(self.used_memory))
+                       used_memory=pick(self.used_memory), sides=pick(self.sides))
 
     def as_published(self, thresholds: Sequence[float], carry_thresholds: Sequence[float]
                      ) -> ModelRun:
@@ -430,7 +432,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
               overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
               deskew: bool = False, run_every: int = 1, buffer_skipped: bool = True,
               max_gap_s: float = 0.5,
-              traffic_side: TrafficSide | Sequence[TrafficSide] = 'right') -> ModelRun:
+              traffic_side: TrafficSideParam | Sequence[TrafficSideParam] = 'right'
+              ) -> ModelRun:
     """Run a SUITDetector over sequences of sensor frames (memory and sweeps carried within
     each, reset between them).
 
@@ -458,15 +461,17 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         the node, it drops a memory older than ``max_gap_s`` (the node's parameter; at 10 Hz
         from ``run_every`` 6 on), the sweeps kept; with ``run_every`` 1 the gap is not read.
     :param traffic_side: as the node's parameter: ``left`` gives the model each drive mirrored
-        (:func:`~suit_ros.data.augment.mirror_world`) and mirrors its boxes back; the GT is
-        the drive's own; one side, or one per drive.
+        (:func:`~suit_ros.data.augment.mirror_world`) and mirrors its boxes back; ``auto``
+        starts right and goes on mirrored from the frame after the tracked oncoming vehicles
+        say left (:mod:`suit_ros.traffic_side`; the memory and the tracks reset there, as in
+        the node); the GT is the drive's own; one side, or one per drive.
     """
     if run_every < 1:
         raise ValueError(f'run_every must be at least 1, got {run_every}')
     sides = ([traffic_side] * len(sequences) if isinstance(traffic_side, str)
              else list(traffic_side))
-    if not set(sides) <= {'right', 'left'} or len(sides) != len(sequences):
-        raise ValueError(f'traffic_side must be right or left, or one of them per drive '
+    if not set(sides) <= {'auto', 'right', 'left'} or len(sides) != len(sequences):
+        raise ValueError(f'traffic_side must be auto, right or left, or one per drive '
                          f'({len(sequences)}), got {traffic_side!r}')
     from suit_ros.model.streaming import StreamingDetector
     was_training = model.training
@@ -474,17 +479,18 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
                                tracker=tracker, ground=ground, overhang=overhang,
                                box_fit=box_fit)
     out = ModelRun([], [], [], [], [], {})
-    for drive, seq in enumerate(sequences):
+    from suit_ros.data.augment import mirror_detections
+    from suit_ros.traffic_side import TrafficSideVote
+    for drive, given in enumerate(sequences):
         runner.reset('new sequence')
         if transform is not None:
-            seq = [transform(f) for f in seq]
-        given = seq
-        if sides[drive] == 'left':
-            from suit_ros.data.augment import mirror_detections, mirror_world
-            seq = [mirror_world(f) for f in seq]
-        if deskew:
-            seq = deskewed(seq)
-        for t, frame in enumerate(seq):
+            given = [transform(f) for f in given]
+        worlds = _DriveWorlds(given, deskew)
+        vote = (TrafficSideVote(runner.cfg.class_names) if sides[drive] == 'auto' and
+                tracker is not None else None)
+        side: TrafficSide = 'left' if sides[drive] == 'left' else 'right'
+        for t in range(len(given)):
+            frame = worlds[side][t]
             if t % run_every:
                 if buffer_skipped:
                     runner.add_sweep(*step_inputs(frame))
@@ -495,15 +501,21 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
                 runner.reset('drop memory', sweeps=False)
             if history is not None:
                 runner.reset('window')
-                for past in seq[max(0, t - history + 1):t]:
+                for past in worlds[side][max(0, t - history + 1):t]:
                     runner.step(*step_inputs(past))
             res = runner.step(*step_inputs(frame))
             out.latency_s.append(res.timings['total'])
             out.memory_bytes.append(res.memory_bytes)
             if history is None and t + 1 in (2, 10):
                 out.memory_after.setdefault(t + 1, []).append(res.memory_bytes)
-            out.det.append(res.detections if sides[drive] == 'right'   # in the drive's world
-                           else mirror_detections(res.detections))
+            det = (res.detections if side == 'right'             # in the drive's world
+                   else mirror_detections(res.detections))
+            out.det.append(det)
+            out.sides.append(side)
+            if vote is not None and vote.update(det.boxes, det.velocities, det.labels,
+                                                res.track_ids, given[t].T_base_lidar):
+                side = vote.side             # from the next frame on, as the node
+                runner.reset('traffic side changed')
             out.carried.append(res.carried)
             out.used_memory.append(res.used_memory)
             out.gt.append(given[t].gt)
@@ -512,6 +524,24 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.ignore.append(given[t].ignore_boxes)
     model.train(was_training)
     return out
+
+
+class _DriveWorlds:
+    """One drive as the model is given it in right- and in left-hand traffic (mirrored,
+    :func:`~suit_ros.data.augment.mirror_world`), each made when first asked for, deskewed
+    where :func:`run_model` deskews."""
+
+    def __init__(self, given: Sequence[Frame], deskew: bool) -> None:
+        self.given, self.deskew = given, deskew
+        self.worlds: dict[TrafficSide, list[Frame]] = {}
+
+    def __getitem__(self, side: TrafficSide) -> list[Frame]:
+        if side not in self.worlds:
+            from suit_ros.data.augment import mirror_world
+            frames = (list(self.given) if side == 'right'
+                      else [mirror_world(f) for f in self.given])
+            self.worlds[side] = deskewed(frames) if self.deskew else frames
+        return self.worlds[side]
 
 
 def tracker_for(sequences: Sequence[Sequence[Frame]], config: TrackerConfig | None = None

@@ -133,6 +133,7 @@ def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
         'tracks': 'off' if last.tracks is None else str(last.tracks),
         'pose_source': last.pose_source, 'pose_age_s': f'{last.pose_age_s:.3f}',
         'deskew': last.deskew,
+        'traffic_side': last.traffic_side or 'n/a',
         # the last model input's sweeps and the oldest one's lag: an overloaded node still
         # gives the model the sweeps just before the cloud (skipped clouds buffered)
         'input_sweeps': (f'{len(last.input_lags_s)} over {max(last.input_lags_s):.2f} s'

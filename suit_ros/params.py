@@ -27,6 +27,7 @@ OverhangChoice = Literal['checkpoint', 'keep', 'drop']   # the node's: 'checkpoi
 GroundChoice = Literal['checkpoint', 'as_given', 'local']   # the node's: 'checkpoint' as it says
 BoxFitParam = Literal['off', 'faces']             # suit_ros.box_fit.BoxFitMode
 TrafficSide = Literal['right', 'left']
+TrafficSideParam = Literal['auto', 'right', 'left']   # auto: suit_ros.traffic_side
 Vector3 = tuple[float, float, float]
 
 
@@ -116,13 +117,15 @@ class DetectorParams:
         'off | faces: car boxes as the model places them, or moved toward the sensor onto the '
         'returns of the faces it sees (real LiDAR: the shipped models place parked cars about '
         '0.6 m too far; docs/experiments/box_fit)', choices=get_args(BoxFitParam)))
-    traffic_side: TrafficSide = field(default='right', metadata=_spec(
-        'right | left: the side of the road traffic keeps to. The shipped models learnt a '
-        "vehicle's front from the side of the road in right-hand traffic (left-hand: half the "
-        'car headings flipped, docs/experiments/either_way); left mirrors the cloud, the '
+    traffic_side: TrafficSideParam = field(default='right', metadata=_spec(
+        'auto | right | left: the side of the road traffic keeps to. The shipped models learnt '
+        "a vehicle's front from the side of the road in right-hand traffic (left-hand: half "
+        'the car headings flipped, docs/experiments/either_way); left mirrors the cloud, the '
         'odometry and the extrinsic across the x-z plane before the model and its boxes back, '
-        'so it sees right-hand traffic; a change resets the memory and the tracks',
-        choices=get_args(TrafficSide)))
+        'so it sees right-hand traffic; auto starts right and takes the side the oncoming '
+        'vehicles pass on (suit_ros/traffic_side.py; needs tracking and odometry); a change '
+        'of the side in use resets the memory and the tracks',
+        choices=get_args(TrafficSideParam)))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
     max_range: float = field(default=80.0, metadata=_spec(

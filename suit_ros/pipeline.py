@@ -27,9 +27,10 @@ from suit_ros.msg_adapters.odometry import PoseBuffer, odometry_to_pose, stamp_t
 from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
 from suit_ros.ops.geometry import mirror_points, mirror_transform, pose_from_xyz_rpy
 from suit_ros.ops.kernels import in_range, in_range_times
-from suit_ros.params import DetectorParams
+from suit_ros.params import DetectorParams, TrafficSide
 from suit_ros.structures import Detections
 from suit_ros.tracking import TrackerConfig
+from suit_ros.traffic_side import TrafficSideVote
 
 # the pipeline's settings are the node's: one owner (suit_ros.params)
 PipelineParams = DetectorParams
@@ -107,6 +108,7 @@ class PipelineOutput:
     deskew: str = 'off'                 # what deskew did (diagnostics)
     input_lags_s: tuple[float, ...] = ()   # the model input's sweeps, lags newest first
     buffered: bool = False              # a skipped cloud taken into the sweep buffer
+    traffic_side: str = ''              # the side in use (auto: and the votes behind it)
     warnings: dict[str, str] = field(default_factory=dict)
     timings: dict[str, float] = field(default_factory=dict)
 
@@ -139,6 +141,7 @@ class DetectionPipeline:
         self.last_odom_error = ''
         self.last_odom_refused = False          # whether the last odometry message was refused
         self.coverage = SectorCoverage()
+        self.side_vote = TrafficSideVote(self.class_names)    # traffic_side: auto
         self.configure(params or DetectorParams())
 
     def configure(self, params: DetectorParams) -> None:
@@ -152,7 +155,7 @@ class DetectionPipeline:
         :raises ConfigError: an invalid set (nothing is applied then).
         """
         params.validate(len(self.class_names))
-        old = self.params
+        old, old_side = self.params, self.traffic_side
         self.params = params
         chosen = params.class_thresholds(len(self.class_names))   # the user's, for every box
         self.detector.set_thresholds(chosen or self.detector.published_thresholds,
@@ -175,7 +178,9 @@ class DetectionPipeline:
             self.reset('overhang changed')     # the memory was made of other returns
         self.poses.max_age_ns = int(params.odom_buffer_s * 1e9)
         self.poses.tolerance_ns = int(params.odom_tolerance_s * 1e9)
-        if old.traffic_side != params.traffic_side and self.last_stamp_ns is not None:
+        if params.traffic_side == 'auto' and old.traffic_side != 'auto':
+            self.side_vote.restart(old_side)    # auto goes on from the side in use
+        if self.traffic_side != old_side and self.last_stamp_ns is not None:
             self.reset('traffic side changed')   # what is held was seen in the other world
         if (old.extrinsic_xyz, old.extrinsic_rpy) != (params.extrinsic_xyz,
                                                       params.extrinsic_rpy):
@@ -220,6 +225,13 @@ class DetectionPipeline:
     def odom_rewinds(self) -> int:
         """How often odometry went back in time (the pose buffer emptied: PoseBuffer)."""
         return self.poses.rewinds
+
+    @property
+    def traffic_side(self) -> TrafficSide:
+        """The side of the road the model is given traffic on: the parameter's, or with
+        ``auto`` the side the oncoming vehicles say (:mod:`suit_ros.traffic_side`)."""
+        side = self.params.traffic_side
+        return self.side_vote.side if side == 'auto' else side
 
     def reset(self, reason: str, tracks: bool = True) -> None:
         """Forget the temporal memory: the feature memory, the sweeps and (with ``tracks``)
@@ -268,11 +280,16 @@ class DetectionPipeline:
         if self.detector.tracks is not None:
             if len(points):
                 out.track_ids, out.velocity_std = result.track_ids, result.velocity_std
+                self._vote_side(out)
             out.tracks = len(self.detector.tracks)
         else:       # the same fields, so that a consumer sees one layout (ids 0: not tracked)
             d, head = out.detections, TrackerConfig()
             out.track_ids = np.zeros(len(d), np.int64)
             out.velocity_std = head.published_std(head.vel_sigma, d.velocities)
+        out.traffic_side = (self.params.traffic_side if self.params.traffic_side != 'auto'
+                            else self.side_vote.describe() if self.detector.tracks is not None
+                            else f'{self.side_vote.side} (auto reads the side from tracks: '
+                                 'tracking is off)')
         t2 = time.perf_counter()
         if self.classes is not None:
             d = out.detections
@@ -326,14 +343,27 @@ class DetectionPipeline:
         they are in right-hand traffic, mirrored across the x-z plane in left-hand traffic
         (``traffic_side``; the whole world mirrored, odometry frame too, so every pose stays
         a rotation and the memory and the tracks move as in a right-hand drive)."""
-        if self.params.traffic_side == 'right':
+        if self.traffic_side == 'right':
             return points, pose, self.T_base_lidar
         return (mirror_points(points), None if pose is None else mirror_transform(pose),
                 mirror_transform(self.T_base_lidar))
 
     def _from_model(self, det: Detections) -> Detections:
         """The model's boxes back in the cloud's world (see :meth:`_as_trained`)."""
-        return det if self.params.traffic_side == 'right' else mirror_detections(det)
+        return det if self.traffic_side == 'right' else mirror_detections(det)
+
+    def _vote_side(self, out: PipelineOutput) -> None:
+        """``traffic_side: auto``: this frame's tracked vehicles vote; when the side in use
+        changes, the memory and the tracks go (the next cloud is the model's in the other
+        world; this frame's boxes stand)."""
+        if self.params.traffic_side != 'auto':
+            return
+        d = out.detections
+        if self.side_vote.update(d.boxes, d.velocities, d.labels, out.track_ids,
+                                 self.T_base_lidar):
+            reason = f'traffic side {self.side_vote.describe()}'
+            self.reset(reason)
+            out.reset_reason = '; '.join(filter(None, (out.reset_reason, reason)))
 
     def _prepare(self, cloud: Any, out: PipelineOutput, coverage: bool = True
                  ) -> tuple[NDArray[np.float32], int, NDArray[np.float64] | None]:

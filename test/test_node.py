@@ -97,6 +97,7 @@ def test_plays_bag_and_publishes_stamped_detections(node_and_recorder, bag):
     last = rec.diags[-1]
     assert last['pose_source'] == 'odometry' and last['used_memory'] == 'True'
     assert last['deskew'].startswith('on: sweep 0.1'), last['deskew']
+    assert last['traffic_side'].startswith('right'), last['traffic_side']   # the drive's
     assert int(last['memory_bytes']) > 0 and float(last['model_ms_p50']) > 0
     # the tracker (on by default): track ids over the wire, kept across frames
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections

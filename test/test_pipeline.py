@@ -902,3 +902,65 @@ def test_the_ego_crop_is_the_box_in_base_link():
     # base_link x = 0.5 - y, y = x: (2.0, 0), (1.9, 0), (0.5, 1.0), (0.5, 0) z 1, z 1.5,
     # (0.5, 0.9) (the rotation transposed: y -0.9, out), (2.2, 0) (no translation: 1.7, in)
     assert pipe._in_ego_box(pts).tolist() == [True, True, True, True, False, True, False]
+
+
+@pytest.mark.slow
+def test_traffic_side_auto_goes_over_to_left_hand_traffic_on_a_left_hand_drive(model, classes):
+    """``traffic_side: auto`` in the node's pipeline, the shipped model: a left-hand drive (a
+    validation drive mirrored, with oncoming traffic) fed as clouds and odometry. The
+    oncoming vehicles pass on the ego's right, so within its first second the side in use
+    goes over to left, the memory and the tracks reset once with the reason given, and from
+    the next cloud on the boxes are those of ``traffic_side: left`` started there; the
+    diagnostics' line says the side and the votes. Set to a fixed side again, it resets."""
+    from suit_ros.data.augment import mirror_world
+    from suit_ros.data.sequences import synthetic_split
+    from suit_ros.msg_adapters.odometry import matrix_to_quaternion
+    from suit_ros.ops.geometry import se3_inverse
+    drive = [mirror_world(f) for f in synthetic_split('val', 1, 12, first=13)[0]]
+    T_bl = np.asarray(drive[0].T_base_lidar)
+    R = T_bl[:3, :3]
+    rpy = (float(np.arctan2(R[2, 1], R[2, 2])), float(-np.arcsin(R[2, 0])),
+           float(np.arctan2(R[1, 0], R[0, 0])))
+
+    def run(side, frames):
+        pipe = make_pipeline(model, classes, traffic_side=side, intensity_scale=1.0,
+                             deskew=False, extrinsic_xyz=tuple(float(v) for v in T_bl[:3, 3]),
+                             extrinsic_rpy=rpy)
+        outs = []
+        for f in frames:
+            T = np.asarray(f.pose) @ se3_inverse(T_bl)
+            m = odom(f.stamp_ns)
+            p, q = m.pose.pose.position, m.pose.pose.orientation
+            p.x, p.y, p.z = (float(v) for v in T[:3, 3])
+            q.x, q.y, q.z, q.w = (float(v) for v in matrix_to_quaternion(T[:3, :3]))
+            assert pipe.add_odometry(m)
+            array = np.zeros(len(f.points), [(k, '<f4') for k in ('x', 'y', 'z', 'intensity')])
+            for i, k in enumerate(('x', 'y', 'z', 'intensity')):
+                array[k] = f.points[:, i]
+            outs.append(pipe.process(cloud(classes, f.stamp_ns, array)))
+        return pipe, outs
+
+    pipe, auto = run('auto', drive)
+    assert pipe.params.traffic_side == 'auto' and pipe.traffic_side == 'left'
+    switch = next(k for k, o in enumerate(auto) if o.reset_reason)
+    assert 2 <= switch <= 10 and pipe.resets == 1
+    assert auto[switch].reset_reason.startswith('traffic side left (auto: of the latest ')
+    assert pipe.last_reset_reason == auto[switch].reset_reason
+    assert all(o.traffic_side.startswith('right (auto: ') for o in auto[:switch])
+    assert all(o.traffic_side.startswith('left (auto: ') for o in auto[switch:])
+    right, left_votes = pipe.side_vote.counts
+    assert left_votes >= 3 and left_votes >= 4 * right
+    said = f'{right} passed on the left, {left_votes} on the right)'
+    assert auto[-1].traffic_side.endswith(said)
+    _, left = run('left', drive[switch + 1:])
+    assert all(o.traffic_side == 'left' for o in left)
+    for a, b in zip(auto[switch + 1:], left):
+        assert len(a.detections) > 3
+        np.testing.assert_allclose(a.detections.boxes, b.detections.boxes, atol=1e-3)
+        np.testing.assert_allclose(a.detections.scores, b.detections.scores, atol=1e-4)
+    pipe.configure(replace(pipe.params, traffic_side='left'))     # the side in use: no reset
+    assert pipe.resets == 1
+    pipe.configure(replace(pipe.params, traffic_side='auto'))     # goes on from left
+    assert pipe.resets == 1 and pipe.traffic_side == 'left'
+    pipe.configure(replace(pipe.params, traffic_side='right'))
+    assert pipe.resets == 2 and pipe.last_reset_reason == 'traffic side changed'
