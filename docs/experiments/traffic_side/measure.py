@@ -36,7 +36,7 @@ print('| drives | traffic_side | mAP | NDS | cars flipped | standing cars flippe
 print('|---|---|---|---|---|---|---|')
 for world, transform in (('as they are (right-hand)', None), ('mirrored (left-hand)',
                                                                mirror_world)):
-    for side in ('right', 'left', 'auto'):
+    for side in (('right', 'auto') if transform is None else ('right', 'left', 'auto')):
         run = run_model(model, seqs, tracker=TrackerConfig(), transform=transform,
                         traffic_side=side)
         res = run.evaluate(cfg.class_names)
