@@ -39,7 +39,7 @@ from suit_ros.place_bootstrap import CELL, APIntervals
 from suit_ros.structures import Detections
 
 if TYPE_CHECKING:
-    from suit_ros.params import TrafficSide
+    from suit_ros.params import TrafficSide, TrafficSideParam
 
 SWEEP = tuple(round(0.1 + 0.05 * i, 2) for i in range(18))     # 0.10 .. 0.95
 FLIP_RAD = np.deg2rad(135.0)
@@ -580,16 +580,20 @@ def add_traffic_side_option(parser: argparse.ArgumentParser) -> None:
                         help="the side of the road traffic keeps to, as the node's "
                         '`traffic_side` parameter would be set there (left gives the model '
                         "each drive mirrored); auto: nuScenes' Singapore scenes left (their "
-                        'log location), everything else right')
+                        "log location), everything else as the node's default")
 
 
 def traffic_sides(choice: Literal['auto', 'right', 'left'], count: int,
-                  own: list[TrafficSide] | None) -> list[TrafficSide]:
+                  own: list[TrafficSide] | None) -> list[TrafficSideParam]:
     """The side of the road each of ``count`` sequences keeps to: ``--traffic-side``, or
-    with ``auto`` the recording's own where the dataset says it (``own``), else right."""
+    with ``auto`` the recording's own where the dataset says it (``own``), else the node's
+    default ``traffic_side`` (``auto``: read from the traffic, :mod:`suit_ros.traffic_side`)."""
     if choice == 'right' or choice == 'left':
         return [choice] * count
-    return list(own) if own is not None else ['right'] * count
+    if own is not None:
+        return list(own)
+    from suit_ros.params import DetectorParams
+    return [DetectorParams().traffic_side] * count
 
 
 def report_thresholds(meta: dict[str, Any], class_names: Sequence[str],
@@ -658,6 +662,11 @@ def run(args: argparse.Namespace) -> int:
         notes.append(f'traffic side left in {sides.count("left")} of {len(sides)} sequences '
                      "(the node's `traffic_side`: the model given the drive mirrored, its "
                      'boxes mirrored back)')
+    if 'auto' in sides:
+        went_left = len({d for d, side in zip(result.drive, result.sides) if side == 'left'})
+        notes.append(f'traffic side read from the oncoming traffic in {sides.count("auto")} '
+                     f"of {len(sides)} sequences (the node's `traffic_side: auto`); it went "
+                     f'over to left-hand traffic in {went_left}')
     if args.box_fit != 'off':
         notes.append(f'box fit {args.box_fit}: car boxes moved onto the returns of the faces '
                      'the sensor sees (suit_ros/box_fit.py)')

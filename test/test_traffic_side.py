@@ -160,3 +160,13 @@ def test_the_shipped_model_reads_left_hand_traffic_from_a_mirrored_drive():
     assert set(plain.sides) == {'right'}
     for a, b in zip(plain.det, right.det):
         np.testing.assert_array_equal(a.boxes, b.boxes)
+
+
+def test_report_and_eval_take_the_recordings_side_else_the_nodes_default():
+    """``--traffic-side auto`` of ``report`` and ``eval``: the side a dataset says (nuScenes'
+    log location), else the node's default ``traffic_side``; a side given is every drive's."""
+    from suit_ros.params import DetectorParams
+    from suit_ros.report import traffic_sides
+    assert traffic_sides('left', 2, ['right', 'right']) == ['left', 'left']
+    assert traffic_sides('auto', 2, ['left', 'right']) == ['left', 'right']
+    assert traffic_sides('auto', 3, None) == [DetectorParams().traffic_side] * 3
