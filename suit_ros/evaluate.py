@@ -464,12 +464,16 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         (:func:`~suit_ros.data.augment.mirror_world`) and mirrors its boxes back; ``auto``
         starts right and goes on mirrored from the frame after the tracked oncoming vehicles
         say left (:mod:`suit_ros.traffic_side`; the memory and the tracks reset there, as in
-        the node); the GT is the drive's own; one side, or one per drive.
+        the node; without a ``tracker`` nothing votes and it stays right, as the node; not
+        with ``history``); the GT is the drive's own; one side, or one per drive.
     """
     if run_every < 1:
         raise ValueError(f'run_every must be at least 1, got {run_every}')
     sides = ([traffic_side] * len(sequences) if isinstance(traffic_side, str)
              else list(traffic_side))
+    if 'auto' in sides and history is not None:
+        raise ValueError('traffic_side auto reads the side from tracks, which a history '
+                         'window resets every frame: give the side')
     if not set(sides) <= {'auto', 'right', 'left'} or len(sides) != len(sequences):
         raise ValueError(f'traffic_side must be auto, right or left, or one per drive '
                          f'({len(sequences)}), got {traffic_side!r}')
@@ -487,7 +491,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             given = [transform(f) for f in given]
         worlds = _DriveWorlds(given, deskew)
         vote = (TrafficSideVote(runner.cfg.class_names) if sides[drive] == 'auto' and
-                tracker is not None else None)
+                tracker is not None else None)      # (untracked: no votes, as the node)
         side: TrafficSide = 'left' if sides[drive] == 'left' else 'right'
         for t in range(len(given)):
             frame = worlds[side][t]
@@ -513,7 +517,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.det.append(det)
             out.sides.append(side)
             if vote is not None and vote.update(det.boxes, det.velocities, det.labels,
-                                                res.track_ids, given[t].T_base_lidar):
+                                                res.track_ids, given[t].T_base_lidar,
+                                                step_inputs(given[t])[2], given[t].stamp_ns):
                 side = vote.side             # from the next frame on, as the node
                 runner.reset('traffic side changed')
             out.carried.append(res.carried)

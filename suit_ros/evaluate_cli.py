@@ -102,7 +102,8 @@ def _from_kitti(args: argparse.Namespace) -> Any:
     from suit_ros.report import traffic_sides
     run = camera_fov_run(run_model(model, seqs, history=args.history, tracker=filt,
                                    traffic_side=traffic_sides(args.traffic_side, len(seqs),
-                                                              None)),
+                                                              None, filt is not None
+                                                              and args.history is None)),
                          seqs, args.image_width)
     result = run.evaluate(model.cfg.class_names)
     result.extra['scored_region'] = f'camera field of view ({args.image_width:g} px)'
@@ -184,7 +185,8 @@ def run(args: argparse.Namespace) -> int:
         from suit_ros.report import traffic_sides
         result = run_model(model, seqs, history=args.history, tracker=filt,
                            deskew=args.deskew == 'on', run_every=args.run_every,
-                           traffic_side=traffic_sides(args.traffic_side, len(seqs), own_sides)
+                           traffic_side=traffic_sides(args.traffic_side, len(seqs), own_sides,
+                                                      filt is not None and args.history is None)
                            ).evaluate(model.cfg.class_names)
     print(result.table())
     if args.json_out:

@@ -280,16 +280,18 @@ class DetectionPipeline:
         if self.detector.tracks is not None:
             if len(points):
                 out.track_ids, out.velocity_std = result.track_ids, result.velocity_std
-                self._vote_side(out)
             out.tracks = len(self.detector.tracks)
         else:       # the same fields, so that a consumer sees one layout (ids 0: not tracked)
             d, head = out.detections, TrackerConfig()
             out.track_ids = np.zeros(len(d), np.int64)
             out.velocity_std = head.published_std(head.vel_sigma, d.velocities)
+        # the side this frame's boxes were made in; then its tracked vehicles vote
         out.traffic_side = (self.params.traffic_side if self.params.traffic_side != 'auto'
                             else self.side_vote.describe() if self.detector.tracks is not None
                             else f'{self.side_vote.side} (auto reads the side from tracks: '
                                  'tracking is off)')
+        if len(points) and self.detector.tracks is not None:
+            self._vote_side(out, pose, stamp_ns)
         t2 = time.perf_counter()
         if self.classes is not None:
             d = out.detections
@@ -352,7 +354,8 @@ class DetectionPipeline:
         """The model's boxes back in the cloud's world (see :meth:`_as_trained`)."""
         return det if self.traffic_side == 'right' else mirror_detections(det)
 
-    def _vote_side(self, out: PipelineOutput) -> None:
+    def _vote_side(self, out: PipelineOutput, pose: NDArray[np.float64] | None,
+                   stamp_ns: int) -> None:
         """``traffic_side: auto``: this frame's tracked vehicles vote; when the side in use
         changes, the memory and the tracks go (the next cloud is the model's in the other
         world; this frame's boxes stand)."""
@@ -360,7 +363,7 @@ class DetectionPipeline:
             return
         d = out.detections
         if self.side_vote.update(d.boxes, d.velocities, d.labels, out.track_ids,
-                                 self.T_base_lidar):
+                                 self.T_base_lidar, pose, stamp_ns):
             reason = f'traffic side {self.side_vote.describe()}'
             self.reset(reason)
             out.reset_reason = '; '.join(filter(None, (out.reset_reason, reason)))

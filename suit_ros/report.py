@@ -584,16 +584,20 @@ def add_traffic_side_option(parser: argparse.ArgumentParser) -> None:
 
 
 def traffic_sides(choice: Literal['auto', 'right', 'left'], count: int,
-                  own: list[TrafficSide] | None) -> list[TrafficSideParam]:
+                  own: list[TrafficSide] | None, tracked: bool = True
+                  ) -> list[TrafficSideParam]:
     """The side of the road each of ``count`` sequences keeps to: ``--traffic-side``, or
     with ``auto`` the recording's own where the dataset says it (``own``), else the node's
-    default ``traffic_side`` (``auto``: read from the traffic, :mod:`suit_ros.traffic_side`)."""
+    default ``traffic_side`` (``auto``: read from the tracked traffic,
+    :mod:`suit_ros.traffic_side`; right where the run has no tracks, untracked or in history
+    windows, as the node without tracking stays right)."""
     if choice == 'right' or choice == 'left':
         return [choice] * count
     if own is not None:
         return list(own)
     from suit_ros.params import DetectorParams
-    return [DetectorParams().traffic_side] * count
+    default = DetectorParams().traffic_side
+    return [default if default != 'auto' or tracked else 'right'] * count
 
 
 def report_thresholds(meta: dict[str, Any], class_names: Sequence[str],
@@ -641,7 +645,7 @@ def run(args: argparse.Namespace) -> int:
         from suit_ros.evaluate import tracker_for
         filt = tracker_for(seqs, filt)          # keyframes 0.5 s apart: see tracker_for
     deskew = args.deskew == 'on'
-    sides = traffic_sides(args.traffic_side, len(seqs), own_sides)
+    sides = traffic_sides(args.traffic_side, len(seqs), own_sides, filt is not None)
     result = run_model(model, seqs, tracker=filt, ground=args.ground, overhang=args.overhang,
                        box_fit=args.box_fit, deskew=deskew, traffic_side=sides)
     base_run = None if baseline is None else run_model(

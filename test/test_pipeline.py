@@ -908,15 +908,16 @@ def test_the_ego_crop_is_the_box_in_base_link():
 def test_traffic_side_auto_goes_over_to_left_hand_traffic_on_a_left_hand_drive(model, classes):
     """``traffic_side: auto`` in the node's pipeline, the shipped model: a left-hand drive (a
     validation drive mirrored, with oncoming traffic) fed as clouds and odometry. The
-    oncoming vehicles pass on the ego's right, so within its first second the side in use
+    oncoming vehicles pass on the ego's right, so within its first 4 seconds the side in use
     goes over to left, the memory and the tracks reset once with the reason given, and from
     the next cloud on the boxes are those of ``traffic_side: left`` started there; the
-    diagnostics' line says the side and the votes. Set to a fixed side again, it resets."""
+    diagnostics' line says the side each frame's boxes were made in and the votes. Set to a
+    fixed side again, it resets."""
     from suit_ros.data.augment import mirror_world
     from suit_ros.data.sequences import synthetic_split
     from suit_ros.msg_adapters.odometry import matrix_to_quaternion
     from suit_ros.ops.geometry import se3_inverse
-    drive = [mirror_world(f) for f in synthetic_split('val', 1, 12, first=13)[0]]
+    drive = [mirror_world(f) for f in synthetic_split('val', 1, 40, first=13)[0]]
     T_bl = np.asarray(drive[0].T_base_lidar)
     R = T_bl[:3, :3]
     rpy = (float(np.arctan2(R[2, 1], R[2, 2])), float(-np.arcsin(R[2, 0])),
@@ -943,13 +944,13 @@ def test_traffic_side_auto_goes_over_to_left_hand_traffic_on_a_left_hand_drive(m
     pipe, auto = run('auto', drive)
     assert pipe.params.traffic_side == 'auto' and pipe.traffic_side == 'left'
     switch = next(k for k, o in enumerate(auto) if o.reset_reason)
-    assert 2 <= switch <= 10 and pipe.resets == 1
+    assert 10 <= switch <= 38 and pipe.resets == 1
     assert auto[switch].reset_reason.startswith('traffic side left (auto: of the latest ')
     assert pipe.last_reset_reason == auto[switch].reset_reason
-    assert all(o.traffic_side.startswith('right (auto: ') for o in auto[:switch])
-    assert all(o.traffic_side.startswith('left (auto: ') for o in auto[switch:])
+    assert all(o.traffic_side.startswith('right (auto: ') for o in auto[:switch + 1])
+    assert all(o.traffic_side.startswith('left (auto: ') for o in auto[switch + 1:])
     right, left_votes = pipe.side_vote.counts
-    assert left_votes >= 3 and left_votes >= 4 * right
+    assert left_votes >= 4 and right <= 1
     said = f'{right} passed on the left, {left_votes} on the right)'
     assert auto[-1].traffic_side.endswith(said)
     _, left = run('left', drive[switch + 1:])

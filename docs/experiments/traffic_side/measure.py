@@ -7,7 +7,7 @@ matched cars (score >= 0.3 within 2 m) whose heading is more than 135 degrees of
 standing ones (GT speed < 0.5 m/s), and for ``auto`` the drives whose side changed and the
 frame it changed at (the model runs in the other world from the next frame on).
 
-Usage: measure.py DRIVES FRAMES [CHECKPOINT] [--preset=NAME]
+Usage: measure.py DRIVES FRAMES [CHECKPOINT] [--preset=NAME] [--only=plain|mirrored]
 """
 from __future__ import annotations
 
@@ -26,6 +26,7 @@ drives, frames = int(sys.argv[1]), int(sys.argv[2])
 args = [a for a in sys.argv[3:] if not a.startswith('--')]
 ckpt = args[0] if args else 'suit_default'
 PRESET = next((a.split('=', 1)[1] for a in sys.argv if a.startswith('--preset=')), None)
+ONLY = next((a.split('=', 1)[1] for a in sys.argv if a.startswith('--only=')), None)
 seqs = synthetic_split('val', drives, frames, 'data_cache', preset_name=PRESET)
 model, cfg, _ = load_checkpoint(ckpt)
 car = list(cfg.class_names).index('car')
@@ -36,6 +37,8 @@ print('| drives | traffic_side | mAP | NDS | cars flipped | standing cars flippe
 print('|---|---|---|---|---|---|---|')
 for world, transform in (('as they are (right-hand)', None), ('mirrored (left-hand)',
                                                                mirror_world)):
+    if ONLY is not None and ONLY != ('plain' if transform is None else 'mirrored'):
+        continue
     for side in (('right', 'auto') if transform is None else ('right', 'left', 'auto')):
         run = run_model(model, seqs, tracker=TrackerConfig(), transform=transform,
                         traffic_side=side)
