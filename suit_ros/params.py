@@ -122,9 +122,9 @@ class DetectorParams:
         "a vehicle's front from the side of the road in right-hand traffic (left-hand: half "
         'the car headings flipped, docs/experiments/either_way); left mirrors the cloud, the '
         'odometry and the extrinsic across the x-z plane before the model and its boxes back, '
-        'so it sees right-hand traffic; auto starts right and takes the side the oncoming '
-        'vehicles pass on (suit_ros/traffic_side.py; needs tracking and odometry); a change '
-        'of the side in use resets the memory and the tracks',
+        'so it sees right-hand traffic; auto starts right (or goes on from the side in use) '
+        'and takes the side the oncoming vehicles pass on (suit_ros/traffic_side.py; needs '
+        'tracking and odometry); a change of the side in use resets the memory and the tracks',
         choices=get_args(TrafficSideParam)))
     min_range: float = field(default=1.0, metadata=_spec(
         'drop points closer than this (m, xy, LiDAR frame)', lo=0.0, hi=50.0))
