@@ -370,7 +370,7 @@ class ModelRun:
     carried: list[NDArray[np.bool_]] = field(default_factory=list)
     used_memory: list[bool] = field(default_factory=list)   # per frame: a memory was fused
     # per frame the side of the road the model was given traffic on (``traffic_side``)
-    sides: list[str] = field(default_factory=list)
+    sides: list[TrafficSide] = field(default_factory=list)
 
     def held(self) -> list[NDArray[np.bool_]]:
         """Per frame, which detections are held where the input had no returns (``carried``;

@@ -80,8 +80,8 @@ class TrafficSideVote:
         self.updates = 0
         self.ego_speed = math.nan          # m/s forward at the last update (nan: unknown)
         self._last_pose: tuple[NDArray[np.float64], int] | None = None
-        # track id -> [updates seen oncoming, sum of its lateral offsets, last update seen,
-        # voted (1) or not (0)]
+        # track id -> [updates seen oncoming, sum of its lateral offsets, last update seen];
+        # it votes at the update its count reaches ``frames``
         self._tracks: dict[int, list[float]] = {}
 
     def restart(self, start: TrafficSide) -> None:
@@ -155,12 +155,11 @@ class TrafficSideVote:
                         & (lateral >= cfg.min_lateral) & (lateral <= cfg.max_lateral)
                         & (np.abs(centre[:, 0]) <= cfg.max_ahead))
             for tid, y in zip(ids[keep][oncoming].tolist(), centre[oncoming, 1].tolist()):
-                entry = self._tracks.setdefault(tid, [0.0, 0.0, 0.0, 0.0])
+                entry = self._tracks.setdefault(tid, [0.0, 0.0, 0.0])
                 entry[0] += 1.0
                 entry[1] += y
                 entry[2] = self.updates
-                if entry[3] == 0.0 and entry[0] >= cfg.frames:
-                    entry[3] = 1.0
+                if entry[0] == cfg.frames:
                     self.votes.append('right' if entry[1] > 0 else 'left')
         for tid in [t for t, e in self._tracks.items() if self.updates - e[2] > 50]:
             del self._tracks[tid]               # long gone (the tracker forgets in ~6 frames)
