@@ -216,3 +216,75 @@ def test_the_past_term_beside_the_encoder_gives_the_same_steps():
     del beside.model.past_term
     # the memory of frame 7 is still there, and fused again (the second thread started anew)
     assert beside.step(frame(9).points, frame(9).stamp_ns, frame(9).pose).used_memory
+
+
+def test_a_step_that_settles_after_its_boxes_gives_the_same_stream():
+    """``step(settle=False)`` returns the boxes before the next memory is sampled; settled
+    afterwards (or by whatever reads the memory next) the stream is the same, frame by frame:
+    boxes, scores, carried flags, memory samples and bytes, with a carry branch, lost returns,
+    a frame without a pose, a sweep buffered between steps and a reset."""
+    import numpy as np
+    model = carry_branch_model()
+    with torch.no_grad():
+        model.fusion.past.weight.normal_(0, 0.2)
+    now = StreamingDetector(model, beside=False)
+    later = StreamingDetector(model, beside=False)
+    for t in range(9):
+        f = frame(t)
+        pts = f.points if t not in (3, 4) else f.points[f.points[:, 0] < 0]
+        pose = None if t == 5 else f.pose
+        if t == 7:                                   # a skipped cloud buffered as a sweep
+            for r in (now, later):
+                r.add_sweep(frame(20).points, f.stamp_ns - 10**7, f.pose)
+        a = now.step(pts, f.stamp_ns, pose)
+        b = later.step(pts, f.stamp_ns, pose, settle=False)
+        assert 'sampling' in a.timings
+        assert later.unsettled == (pose is not None)
+        assert ('sampling' in b.timings) == (pose is None)
+        assert np.array_equal(a.detections.boxes, b.detections.boxes)
+        assert np.array_equal(a.detections.scores, b.detections.scores)
+        assert np.array_equal(a.carried, b.carried) and a.used_memory == b.used_memory
+        if t % 2:
+            seconds = later.settle()                 # as the node: once the boxes are out
+            assert later.settle() == 0.0 and not later.unsettled
+            assert (seconds > 0) == (pose is not None)
+            # the result is filled in by the settle
+            assert (b.memory_samples, b.memory_bytes) == (a.memory_samples, a.memory_bytes)
+            assert b.timings['sampling'] == seconds or pose is None
+        # (even frames: the next step settles it first)
+        assert (a.used_memory, t) != (False, 2)                # the memory was fused
+    assert later.memory_bytes == now.memory_bytes > 0        # reading the memory settles
+    assert not later.unsettled
+    # a reset drops an update not yet run: the next frame runs without a memory
+    f = frame(9)
+    later.step(f.points, f.stamp_ns, f.pose, settle=False)
+    later.reset('test')
+    assert not later.unsettled and later.memory is None
+    assert not later.step(frame(10).points, frame(10).stamp_ns, frame(10).pose).used_memory
+
+
+def test_a_memory_update_that_fails_forgets_the_memory_and_leaves_nothing_pending():
+    """The sampling raised after the boxes went out: the error reaches the caller of
+    ``settle``, the memory is forgotten (the next frame runs without one), the stream goes
+    on; the memory older than ``max_age_s`` is checked on the settled one."""
+    model = carry_branch_model()
+    runner = StreamingDetector(model, beside=False)
+    for t in range(2):
+        runner.step(frame(t).points, frame(t).stamp_ns, frame(t).pose)
+    real = runner.model.sample_memory
+
+    def broken(*args):
+        raise RuntimeError('sampling failed')
+    runner.model.sample_memory = broken
+    f = frame(2)
+    assert len(runner.step(f.points, f.stamp_ns, f.pose, settle=False).detections) >= 0
+    with pytest.raises(RuntimeError, match='sampling failed'):
+        runner.settle()
+    assert not runner.unsettled and runner.memory is None
+    assert runner.last_reset_reason == 'memory update failed'
+    runner.model.sample_memory = real
+    f = frame(3)
+    assert not runner.step(f.points, f.stamp_ns, f.pose, settle=False).used_memory
+    # the memory just sampled (pending) is not stale at the next stamp: it is settled first
+    assert runner.drop_stale_memory(frame(4).stamp_ns, 0.5) is None
+    assert runner.memory is not None and not runner.unsettled
