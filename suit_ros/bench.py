@@ -58,11 +58,7 @@ def _model(args: argparse.Namespace, temporal: TemporalMode) -> Any:
 def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C: Any
                ) -> dict[str, Any]:
     """Per stage, SUIT (memory carried) and single frame; the models step frame by frame in
-    turn, so a change of the machine's speed hits all of them alike. Each as the node runs
-    it: the step to the detections, their messages, then the next memory sampled
-    (``step(settle=False)``, then :meth:`~suit_ros.model.streaming.StreamingDetector.settle`);
-    ``step_ms`` is the step to the detections, ``frame_ms`` the model's whole work on the
-    frame (the step and the sampling after it)."""
+    turn, so a change of the machine's speed hits all of them alike."""
     from suit_ros.evaluate import step_inputs
     from suit_ros.msg_adapters.detections import (
         detections_to_markerarray,
@@ -75,7 +71,6 @@ def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C:
     temporals = tuple(runners)
     names = runners['suit'].cfg.class_names
     steps: dict[str, list[float]] = {t: [] for t in temporals}
-    whole: dict[str, list[float]] = {t: [] for t in temporals}
     memory: dict[str, dict[int, int]] = {t: {} for t in temporals}
     for i, (f, msg) in enumerate(zip(frames, clouds)):
         for temporal, runner in runners.items():
@@ -83,7 +78,7 @@ def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C:
             pts = pointcloud2_to_xyzi(msg).points
             pts[:, 3] /= 255.0
             t1 = time.perf_counter()
-            r = runner.step(pts, *step_inputs(f)[1:], settle=False)
+            r = runner.step(pts, *step_inputs(f)[1:])
             t2 = time.perf_counter()
             d = r.detections
             detections_to_pointcloud2(d.boxes, d.velocities, d.scores, d.labels,
@@ -94,13 +89,11 @@ def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C:
             detections_to_markerarray(d.boxes, d.velocities, d.scores, d.labels, msg.header,
                                       names, C, track_ids=r.track_ids)
             t3 = time.perf_counter()
-            settled = runner.settle()                    # the next memory, once they are out
             if i + 1 in (2, 10):
                 memory[temporal][i + 1] = r.memory_bytes
             if i < 3:
                 continue                                  # warm-up
             steps[temporal].append(t2 - t1)
-            whole[temporal].append(t2 - t1 + settled)
             if temporal == 'suit':
                 stage_times['convert'].append(t1 - t0)
                 stage_times['output'].append(t3 - t2)
@@ -111,9 +104,6 @@ def _per_stage(runners: dict[Any, Any], frames: list[Any], clouds: list[Any], C:
                         stage_times.items()}
     res['step_ms'] = {k: {'p50': pct(v, 50), 'p95': pct(v, 95)} for k, v in steps.items()}
     res['suit_over_single'] = res['step_ms']['suit']['p50'] / res['step_ms']['none']['p50']
-    res['frame_ms'] = {k: {'p50': pct(v, 50), 'p95': pct(v, 95)} for k, v in whole.items()}
-    res['suit_over_single_frame'] = (res['frame_ms']['suit']['p50']
-                                     / res['frame_ms']['none']['p50'])
     res['memory_bytes'] = memory
     res['memory_ratio_suit_dense'] = {k: memory['suit'].get(k, 0) / max(memory['dense'].get(k, 1),
                                                                           1) for k in (2, 10)}
@@ -276,16 +266,10 @@ def table(r: dict[str, Any]) -> str:
              f'{"stage (SUIT step, memory carried)":<36}{"p50 ms":>9}{"p95 ms":>9}']
     for k, v in r['stages_ms'].items():
         lines.append(f'{k:<36}{v["p50"]:>9.1f}{v["p95"]:>9.1f}')
-    lines += ['', f'{"model step (to the detections)":<36}{"p50 ms":>9}{"p95 ms":>9}'
-              + (f'{"frame p50":>11}{"frame p95":>11}' if 'frame_ms' in r else '')]
+    lines += ['', f'{"model step":<36}{"p50 ms":>9}{"p95 ms":>9}']
     for k, v in r['step_ms'].items():
-        lines.append(f'{k:<36}{v["p50"]:>9.1f}{v["p95"]:>9.1f}' + (
-            f'{r["frame_ms"][k]["p50"]:>11.1f}{r["frame_ms"][k]["p95"]:>11.1f}'
-            if 'frame_ms' in r else ''))
-    lines.append(f'SUIT / single-frame step (p50): {r["suit_over_single"]:.2f}x' + (
-        f"; the model's whole work on a frame (frame: the step and the next memory sampled "
-        f'after the detections went out) {r["suit_over_single_frame"]:.2f}x'
-        if 'frame_ms' in r else ''))
+        lines.append(f'{k:<36}{v["p50"]:>9.1f}{v["p95"]:>9.1f}')
+    lines.append(f'SUIT / single-frame step (p50): {r["suit_over_single"]:.2f}x')
     m = r['memory_bytes']
     for k in (2, 10):
         lines.append(f'temporal memory after {k:>2} frames: SUIT {m["suit"].get(k, 0):,} B, '

@@ -97,12 +97,11 @@ def _input(s: HealthSnapshot, levels: list[tuple[int, str]], values: dict[str, s
 def _timing(s: HealthSnapshot, period: float | None, levels: list[tuple[int, str]],
             values: dict[str, str]) -> None:
     """Per-stage times, processing against the period, latency and what it is measured from."""
-    for key in ('convert', 'model', 'publish', 'markers', 'memory', 'buffer'):
+    for key in ('convert', 'model', 'publish', 'markers', 'buffer'):
         values[f'{key}_ms_p50'] = _ms([st.get(key, 0.0) for st in s.stats], 'p50')
-    # the markers are built and the next memory sampled after the detections go out, but
-    # before the next cloud is taken
+    # the markers are built after the detections go out, but before the next cloud is taken
     processing = [st['convert'] + st['model'] + st['publish'] + st.get('markers', 0.0)
-                  + st.get('memory', 0.0) for st in s.stats]
+                  for st in s.stats]
     if processing and period and float(np.median(processing)) > period:
         levels.append((WARN, f'processing {np.median(processing) * 1e3:.0f} ms exceeds the '
                               f'input period {period * 1e3:.0f} ms: clouds are dropped'))

@@ -152,9 +152,7 @@ def _summary(clouds: dict[int, float], dets: dict[int, float], last: dict[str, s
     (cloud received -> detections received), the node's model time and its overhead."""
     lat = [dets[s] - clouds[s] for s in dets if s in clouds]
     span = max(dets.values()) - min(clouds.values()) if dets and clouds else 0.0
-    # the model's work on a frame: to its detections, and its next memory sampled after they
-    # went out
-    model = float(last.get('model_ms_p50', 'nan')) + float(last.get('memory_ms_p50', 0.0))
+    model = float(last.get('model_ms_p50', 'nan'))
     overhead = sum(float(last.get(k, 'nan')) for k in ('convert_ms_p50', 'publish_ms_p50')) \
         + float(last.get('buffer_ms_p50', 0.0)) + float(last.get('markers_ms_p50', 0.0))
     return {'frames_in': len(clouds), 'frames_out': len(dets),

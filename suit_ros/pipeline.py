@@ -19,7 +19,7 @@ from suit_ros.coverage import SectorCoverage
 from suit_ros.data.augment import mirror_detections
 from suit_ros.deskew import TIME_FIELDS, deskew_sweep, relative_times, sweep_speed
 from suit_ros.errors import ConfigError
-from suit_ros.model.streaming import StepResult, StreamingDetector
+from suit_ros.model.streaming import StreamingDetector
 from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.detections import detections_to_markerarray, detections_to_pointcloud2
 from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
@@ -142,7 +142,6 @@ class DetectionPipeline:
         self.last_odom_refused = False          # whether the last odometry message was refused
         self.coverage = SectorCoverage()
         self.side_vote = TrafficSideVote(self.class_names)    # traffic_side: auto
-        self._unsettled: StepResult | None = None   # a process(settle=False)'s model step
         self.configure(params or DetectorParams())
 
     def configure(self, params: DetectorParams) -> None:
@@ -248,16 +247,12 @@ class DetectionPipeline:
         self.configure(self.params.updated({'extrinsic_xyz': xyz, 'extrinsic_rpy': rpy}))
 
     # ------------------------------------------------------------------ the step
-    def process(self, cloud: Any, markers: bool = True, settle: bool = True
-                ) -> PipelineOutput:
+    def process(self, cloud: Any, markers: bool = True) -> PipelineOutput:
         """Detect in one PointCloud2; never raises for bad input.
 
         :param markers: build the MarkerArray too (``detect-bag``; the node builds it with
             :meth:`markers` after it has published the detections, and only while someone
             subscribes).
-        :param settle: sample the model's next memory before returning; False (the node):
-            return first, and :meth:`settle` once the detections are out
-            (:meth:`StreamingDetector.step`).
         """
         t0 = time.perf_counter()
         out = PipelineOutput(cloud.header, Detections.empty())
@@ -272,9 +267,7 @@ class DetectionPipeline:
         model_timings: dict[str, float] = {}
         if len(points):
             pts, T_odom_base, T_base_lidar = self._as_trained(points, pose)
-            result = self.detector.step(pts, stamp_ns, T_odom_base, T_base_lidar,
-                                        settle=settle)
-            self._unsettled = result
+            result = self.detector.step(pts, stamp_ns, T_odom_base, T_base_lidar)
             out.input_lags_s = self.detector.sweeps.last_lags_s
             out.detections = self._from_model(result.detections)
             out.used_memory = result.used_memory
@@ -312,20 +305,6 @@ class DetectionPipeline:
         out.timings = {'convert': t1 - t0, 'model': t2 - t1, 'publish': t3 - t2}
         out.timings.update({f'model.{k}': v for k, v in model_timings.items()})
         return out
-
-    def settle(self, out: PipelineOutput) -> float:
-        """Sample the memory a ``process(settle=False)`` left (no-op without one) and put its
-        figures in ``out`` (that frame's output): ``memory_samples``, ``memory_bytes``,
-        ``timings['model.sampling']``.
-
-        :return: the seconds it took.
-        """
-        result, self._unsettled = self._unsettled, None
-        seconds = self.detector.settle()
-        if result is not None and 'sampling' in result.timings:
-            out.memory_samples, out.memory_bytes = result.memory_samples, result.memory_bytes
-            out.timings['model.sampling'] = result.timings['sampling']
-        return seconds
 
     def markers(self, out: PipelineOutput) -> Any:
         """The MarkerArray of a processed frame's detections (with their track ids), in its

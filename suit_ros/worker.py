@@ -62,9 +62,7 @@ class Pipeline(Protocol):
 
     def add_odometry(self, msg: Any, now_ns: int) -> bool: ...
 
-    def process(self, msg: Any, markers: bool = True, settle: bool = True) -> Any: ...
-
-    def settle(self, out: Any) -> float: ...
+    def process(self, msg: Any, markers: bool = True) -> Any: ...
 
     def markers(self, out: Any) -> Any: ...
 
@@ -235,9 +233,7 @@ class FrameWorker:
         """
         markers = self.want_markers()
         later = markers and self.publish_markers is not None
-        # the model's next memory is sampled once the frame is out (below): this frame's
-        # boxes do not need it, the next cloud does
-        out = self.pipeline.process(received.msg, markers=markers and not later, settle=False)
+        out = self.pipeline.process(received.msg, markers=markers and not later)
         out.timings['buffer'] = buffer_s
         t0 = time.perf_counter()
         self.publish(out)
@@ -267,17 +263,6 @@ class FrameWorker:
                                          f'{type(exc).__name__}: {exc}'}, time.monotonic())
             with self.lock:     # the worker's time on the frame: in the processing figure
                 stats['markers'] = time.perf_counter() - t1
-        t2 = time.perf_counter()
-        try:
-            self.pipeline.settle(out)
-        except Exception as exc:  # noqa: BLE001 - said (held, rate-limited); the frame went out
-            # the memory is forgotten (the next frame runs without it); the node goes on
-            if not self.stopping:
-                self.log.error(f'memory update failed: {type(exc).__name__}: {exc}')
-                self.reasons.report({'memory_failed': 'memory update failed, the memory was '
-                                     f'reset: {type(exc).__name__}: {exc}'}, time.monotonic())
-        with self.lock:         # after the frame went out, before the next cloud is taken
-            stats['memory'] = time.perf_counter() - t2
 
     def _log_reset(self, reason: str) -> None:
         """Log a memory reset: the first of a kind, then at most every

@@ -144,11 +144,11 @@ def test_a_frame_that_fails_is_counted_and_held_in_the_diagnostics(worker):
     real = w.pipeline.process
     calls = []
 
-    def failing_once(msg, markers=True, settle=True):
+    def failing_once(msg, markers=True):
         calls.append(1)
         if len(calls) == 1:
             raise RuntimeError('out of memory')
-        return real(msg, markers, settle)
+        return real(msg, markers)
 
     w.pipeline.process = failing_once
     put_cloud(w, mc, T0)
@@ -297,55 +297,6 @@ def test_the_detections_go_out_before_their_markers_are_built(request):
         assert events[3:] == [('detections', None)] and w.frames_failed == 0
         _, message, _ = health_report(w.snapshot({}))
         assert 'markers not published: RuntimeError: no markers today' in message
-    finally:
-        w.stop()
-        thread.join(5.0)
-
-
-def test_the_next_memory_is_sampled_after_the_detections_go_out(request):
-    """The worker publishes a frame's detections, then samples the model's next memory
-    (before it takes the next cloud): at publishing the memory update is pending, after it
-    the frame's figures hold the new memory and its time counts in the processing figure; a
-    memory update that fails forgets the memory, the diagnostics say so, the node goes on."""
-    from test_pipeline import make_pipeline
-    mc = request.getfixturevalue('classes')
-    pipe = make_pipeline(request.getfixturevalue('model'), mc)
-    for t in range(T0 - S // 2, T0 + S, S // 50):
-        assert pipe.add_odometry(odom(t))
-    seen, log = [], Log()
-    w = FrameWorker(pipe, lambda: DetectorParams(), lambda: T0,
-                    lambda out: seen.append((pipe.detector.unsettled, out.used_memory)),
-                    lambda: False, lambda: True, Reasons(lambda _: None, 5.0, 30.0), log)
-    thread = threading.Thread(target=w.run, daemon=True)
-    thread.start()
-    try:
-        for k in range(2):
-            put_cloud(w, mc, T0 + k * S // 10)
-            assert until(lambda n=k: w.frames_out == n + 1 and 'memory' in w.stats[-1])
-        assert seen == [(True, False), (True, True)]   # pending at publishing; then fused
-        assert not pipe.detector.unsettled
-        assert w.last.memory_samples > 0 and w.last.memory_bytes == pipe.detector.memory_bytes
-        assert w.stats[-1]['memory'] > 0 and w.last.timings['model.sampling'] > 0
-        _, _, values = health_report(w.snapshot({}))
-        assert float(values['memory_ms_p50']) > 0
-        assert not [line for kind, line in log.lines if kind == 'error']
-
-        real = pipe.detector.model.sample_memory
-
-        def broken(*args):
-            raise RuntimeError('sampling failed')
-        pipe.detector.model.sample_memory = broken
-        put_cloud(w, mc, T0 + 2 * S // 10)
-        assert until(lambda: w.frames_out == 3 and 'memory' in w.stats[-1])
-        assert seen[2] == (True, True) and w.frames_failed == 0
-        _, message, _ = health_report(w.snapshot({}))
-        assert 'memory update failed, the memory was reset: RuntimeError: sampling failed' \
-            in message
-        assert any('memory update failed' in line for kind, line in log.lines if kind == 'error')
-        pipe.detector.model.sample_memory = real
-        put_cloud(w, mc, T0 + 3 * S // 10)                 # runs on, without a memory
-        assert until(lambda: w.frames_out == 4 and 'memory' in w.stats[-1])
-        assert seen[3] == (True, False) and pipe.detector.memory is not None
     finally:
         w.stop()
         thread.join(5.0)

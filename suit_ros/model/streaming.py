@@ -52,10 +52,6 @@ class StepResult:
         (published at the carry thresholds).
     :param velocity_std: per detection, the standard deviation of each velocity component
         (m/s; :attr:`suit_ros.tracking.Tracker.velocity_std`); empty without a tracker.
-
-    A step run with ``settle=False`` returns before the next memory is sampled: until
-    :meth:`StreamingDetector.settle`, ``memory_samples`` and ``memory_bytes`` are those of the
-    memory this frame fused and ``timings`` has no ``sampling``; the settle fills them in.
     """
 
     detections: Detections
@@ -132,13 +128,6 @@ class StreamingDetector:
         ends it. None: where this process may use more than one core (on the CPU). The next
         memory's sampling stays in the step's own thread: beside the tracker (both mostly
         interpreter work) it lengthened the step (docs/experiments/step_beside).
-
-    The next memory is sampled from this frame's maps; this frame's boxes do not need it. A
-    caller that publishes (the node) steps with ``settle=False``: the boxes come back before
-    the sampling, and :meth:`settle` samples once they are out. Anything that reads or replaces
-    the memory settles first (the next step, :attr:`memory`, :meth:`drop_stale_memory`); a
-    reset drops an update not yet settled. The same boxes and memories either way
-    (docs/experiments/settle_after).
     """
 
     def __init__(self, model: SUITDetector, device: torch.device | str | None = None,
@@ -160,9 +149,6 @@ class StreamingDetector:
         self.cfg = model.cfg
         # the memory sampled at the last frame: the next frame fuses it
         self._memory: Memory | None = None
-        # a step's memory update not yet run (``step(settle=False)``), and that step's result
-        self._pending: Callable[[], Memory | None] | None = None
-        self._pending_result: StepResult | None = None
         self.sweeps = SweepBuffer(self.cfg.sweeps)
         self.set_ground(ground)
         self.set_overhang(overhang)
@@ -262,7 +248,6 @@ class StreamingDetector:
         the tracker's tracks (``tracks``: whether the tracks go too; None: with the sweeps):
         the next frame runs single-frame."""
         self._memory = None
-        self._pending = self._pending_result = None      # an update not yet run goes too
         if sweeps:
             self.sweeps.clear()
         if (sweeps if tracks is None else tracks) and self.tracks is not None:
@@ -303,49 +288,13 @@ class StreamingDetector:
 
     @property
     def memory(self) -> Memory | None:
-        """The memory the next frame fuses (None after a reset); settles a pending update."""
-        self.settle()
+        """The memory the next frame fuses (None after a reset)."""
         return self._memory
 
     @property
     def memory_bytes(self) -> int:
-        """Bytes held by the temporal feature memory now (the sweep buffer not included);
-        settles a pending update."""
-        self.settle()
+        """Bytes held by the temporal feature memory now (the sweep buffer not included)."""
         return self._memory.nbytes if self._memory is not None else 0
-
-    @property
-    def unsettled(self) -> bool:
-        """Whether a step's memory update waits for :meth:`settle`."""
-        return self._pending is not None
-
-    def settle(self) -> float:
-        """Run the memory update a ``step(settle=False)`` left (no-op without one): the next
-        memory sampled from that frame's maps; its result's ``memory_samples``,
-        ``memory_bytes`` and ``timings['sampling']`` filled in.
-
-        :return: the seconds it took (0.0 without one).
-        :raises: what the sampling raised; the memory is then forgotten (the next frame runs
-            without one) and nothing is left pending.
-        """
-        update, result = self._pending, self._pending_result
-        if update is None:
-            return 0.0
-        self._pending = self._pending_result = None
-        t0 = self._sync()
-        try:
-            memory = update()
-        except BaseException:
-            self.reset('memory update failed', sweeps=False, tracks=False)
-            raise
-        if memory is not None:
-            self._memory = memory
-        seconds = self._sync() - t0
-        if result is not None:
-            result.memory_samples = self._memory.num_samples if self._memory is not None else 0
-            result.memory_bytes = self._memory.nbytes if self._memory is not None else 0
-            result.timings['sampling'] = seconds
-        return seconds
 
     def _start(self, fn: Callable[..., Result], *args: Any) -> Future[Result] | None:
         """``fn(*args)`` started in the step's second thread (:attr:`beside`; in inference
@@ -405,7 +354,6 @@ class StreamingDetector:
 
         :return: why it was dropped, or None (kept, or none held).
         """
-        self.settle()
         if self._memory is None:
             return None
         age = (stamp_ns - max(self._memory.stamps_ns)) * 1e-9
@@ -465,8 +413,7 @@ class StreamingDetector:
     @torch.inference_mode()
     def step(self, points: NDArray[np.float32], stamp_ns: int,
              T_odom_base: NDArray[np.float64] | None,
-             T_base_lidar: NDArray[np.float64] | None = None,
-             settle: bool = True) -> StepResult:
+             T_base_lidar: NDArray[np.float64] | None = None) -> StepResult:
         """Detect in one sweep.
 
         :param points: ``(N, 4)`` x, y, z, intensity (0..1) (or ``(N, 5)`` with a time lag) in
@@ -474,12 +421,9 @@ class StreamingDetector:
         :param T_odom_base: the vehicle pose at the stamp, or None: the frame runs single-frame
             and the memory and sweep buffer are reset (no way to move them without a pose).
         :param T_base_lidar: the LiDAR extrinsic (identity when None: points in base_link).
-        :param settle: sample the next memory before returning; False: return the boxes first
-            and leave the sampling to :meth:`settle` (or to whatever reads the memory next).
         :return: detections in the LiDAR frame (the input cloud's frame).
         """
         m = self.model
-        self.settle()       # the last step's update, if it was left
         t0 = self._sync()
         pts = _as_points(points)
         T_bl = np.eye(4) if T_base_lidar is None else np.asarray(T_base_lidar, np.float64)
@@ -520,20 +464,14 @@ class StreamingDetector:
                                shown.dense() if isinstance(shown, PastTerm) else shown)
         t3 = self._sync()
         preds = m.predict(current, past, fused, observed)
-        last = self._memory
-
-        def sample_next() -> Memory | None:
-            # the next memory, from this frame's maps (and what the last one carries)
-            with torch.inference_mode(), one_thread(small):
-                return m.sample_memory(fused, preds, poses, [stamp_ns],
-                                       m.carried(last, aux, poses, [stamp_ns]), observed)
-        update = sample_next if T_odom_base is not None else None
         with one_thread(small):     # the small work that is left, on one torch thread
             out = m.decode(preds, observed, self.candidates, self.decode_thresholds,
                            self.nms_iou_threshold, self.max_detections)
             t4 = self._sync()
-            if settle and update is not None:
-                memory = update()
+            if T_odom_base is not None:
+                memory = m.sample_memory(fused, preds, poses, [stamp_ns],
+                                         m.carried(self.memory, aux, poses, [stamp_ns]),
+                                         observed)
                 if memory is not None:
                     self._memory = memory
             t5 = self._sync()
@@ -541,13 +479,8 @@ class StreamingDetector:
                 out, pts, model_points, stamp_ns, poses, T_odom_base is not None, T_bl)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
-                   'head_decode': t4 - t3, 'tracking': t6 - t5, 'total': t6 - t0}
-        if settle or update is None:
-            timings['sampling'] = t5 - t4
+                   'head_decode': t4 - t3, 'sampling': t5 - t4, 'tracking': t6 - t5,
+                   'total': t6 - t0}
         samples = self._memory.num_samples if self._memory is not None else 0
-        nbytes = self._memory.nbytes if self._memory is not None else 0
-        result = StepResult(det, samples, nbytes, used, len(model_points), timings, ids,
-                            num_points, carried, vel_std)
-        if not settle and update is not None:
-            self._pending, self._pending_result = update, result
-        return result
+        return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings,
+                          ids, num_points, carried, vel_std)
