@@ -10,31 +10,21 @@ import argparse
 import sys
 import time
 
+from bench_settle import demo_drive
 import numpy as np
-import torch
 
 from suit_ros import bench
-from suit_ros.data.sim import preset
-from suit_ros.data.sim.scene import Simulation, to_frame
 from suit_ros.evaluate import step_inputs
-from suit_ros.heap import keep_freed_memory
 from suit_ros.model.streaming import StreamingDetector
-from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.detections import (
     detections_to_markerarray,
     detections_to_pointcloud2,
 )
-from suit_ros.msg_adapters.pointcloud2 import array_to_pointcloud2, pointcloud2_to_xyzi
+from suit_ros.msg_adapters.pointcloud2 import pointcloud2_to_xyzi
 from suit_ros.tracking import TrackerConfig
 
-keep_freed_memory()
 threads, n, ck = int(sys.argv[1]), int(sys.argv[2]), sys.argv[3]
-torch.set_num_threads(threads)
-sim = Simulation(preset('demo-real', frames=max(n, 12)), 7)
-rendered = [sim.render(k) for k in range(n)]
-frames = [to_frame(f, 7) for f in rendered]
-C = MessageClasses.from_rclpy()
-clouds = [array_to_pointcloud2(f.cloud, C.header(f.stamp_ns, 'lidar'), C) for f in rendered]
+frames, clouds, C = demo_drive(threads, n)
 args = argparse.Namespace(config=None, checkpoint=ck)
 model, single = bench._model(args, 'suit'), bench._model(args, 'none')
 runners = {name: StreamingDetector(m, 'cpu', precision='auto', tracker=TrackerConfig())
