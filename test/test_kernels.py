@@ -435,6 +435,69 @@ def test_the_cell_flags_and_the_carry_cells_are_the_tensor_code_s():
         kernels.feeding_map(np.array([B * H * W]), B, H, W)
 
 
+def _random_memory(g: torch.Generator, M: int, B: int, grid: Any, ages: bool,
+                   own: bool) -> Any:
+    from suit_ros.model.memory import SparseMemory
+    P, C = 9, 5
+    centre = torch.rand(M, 2, generator=g) * 110 - 55          # some off the map
+    centre[: M // 4] = centre[M // 4: 2 * (M // 4)] + 0.3       # neighbours to suppress
+    xy = centre[:, None] + torch.linspace(-0.4, 0.4, P)[None, :, None]
+    probs = torch.rand(M, P, generator=g)
+    probs[:3, P // 2] = probs[3, P // 2]                        # ties, kept in row order
+    boxes = torch.cat([centre, torch.rand(M, 1, generator=g),
+                       1 + 3 * torch.rand(M, 3, generator=g),
+                       torch.rand(M, 1, generator=g) * 6], 1)
+    return SparseMemory(torch.randint(0, B, (M,), generator=g), xy,
+                        torch.randn(M, P, C, generator=g), probs,
+                        torch.rand(M, P, generator=g) < 0.8, boxes,
+                        torch.randn(M, 2, generator=g), [7] * B, np.stack([np.eye(4)] * B), 3,
+                        torch.randint(0, 12, (M,), generator=g) if ages else None,
+                        torch.rand(M, generator=g) < 0.5 if own else None)
+
+
+@pytest.mark.parametrize('keep_new', [False, True])
+@pytest.mark.parametrize('seed', [0, 1, 2])
+def test_the_next_memory_s_samples_are_the_tensor_code_s(keep_new, seed):
+    """The carry's choice of the next memory's samples (``keep_carried``: this frame's and the
+    carried ones, by tier, centre probability and the refined NMS) in one compiled pass and
+    numpy, and by the tensor code: the same samples, rows and order; two frames, samples off
+    the map and next to each other, tied probabilities, carried ones too old, with and
+    without ages and own flags."""
+    from suit_ros.config import SamplingConfig
+    from suit_ros.model.grid import BEVGrid
+    from suit_ros.model.sampling import _keep_carried_compiled, keep_carried
+    grid = BEVGrid((-51.2, -51.2, -2.0, 51.2, 51.2, 4.5), 0.4, 2)
+    g = torch.Generator().manual_seed(seed)
+    B = 2
+    observed = torch.rand(B, grid.H, grid.W, generator=g) < 0.5
+    new = _random_memory(g, 40, B, grid, ages=False, own=seed == 2)
+    carried = _random_memory(g, 60, B, grid, ages=seed != 1, own=False)
+    cfg = SamplingConfig(carry_frames=8)
+    with torch.no_grad():
+        fast = _keep_carried_compiled(new, carried, observed, cfg, grid, keep_new)
+        assert fast is not None
+        via = keep_carried(new, carried, observed, cfg, grid, keep_new)
+    with torch.enable_grad():
+        slow = keep_carried(new, carried, observed, cfg, grid, keep_new)
+    for got in (fast, via):
+        for f in ('batch_index', 'cell_xy', 'features', 'probs', 'mask', 'boxes', 'velocities'):
+            assert torch.equal(getattr(got, f), getattr(slow, f)), f
+        assert torch.equal(got.age(), slow.age())
+        assert (got.own is None) == (slow.own is None)
+        assert torch.equal(got.owned(), slow.owned())
+        assert got.stamps_ns == slow.stamps_ns and got.window == slow.window
+    # both kinds of sample survive, and some of each are dropped
+    n_new = int(slow.owned().sum()) if keep_new else None
+    assert 0 < slow.num_samples < new.num_samples + carried.num_samples
+    if n_new is not None:
+        assert 0 < n_new < slow.num_samples
+    # a tensor the pass cannot take (bfloat16 features): the tensor code's way
+    low = _random_memory(g, 4, B, grid, ages=False, own=False)
+    low.features = low.features.to(torch.bfloat16)
+    with torch.no_grad():
+        assert _keep_carried_compiled(low, carried, observed, cfg, grid, keep_new) is None
+
+
 @pytest.mark.parametrize('low', [False, True])
 def test_the_dense_spread_adds_what_the_sparse_term_adds(low):
     """A fold's ``K past`` and edge correction added into a whole channels-last map in one

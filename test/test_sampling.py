@@ -62,10 +62,12 @@ def _memory(xy, probs, ages=None, P=9):
                         None if ages is None else torch.tensor(ages))
 
 
-def test_keep_carried_keeps_unseen_objects_until_their_age_runs_out():
+@pytest.mark.parametrize('grad', [True, False])
+def test_keep_carried_keeps_unseen_objects_until_their_age_runs_out(grad):
     """A carried sample survives where the input has no returns and no seen detection covers
     it, up to ``carry_frames``; a seen detection replaces it; a place seen empty drops it; a
-    detection at an unseen place is not carried further (it cannot keep itself alive)."""
+    detection at an unseen place is not carried further (it cannot keep itself alive). In
+    training (the tensor code) and at inference (a compiled pass)."""
     from suit_ros.model.sampling import keep_carried
     cfg = SamplingConfig(carry_frames=3)
     observed = torch.zeros(1, GRID.H, GRID.W, dtype=torch.bool)
@@ -79,7 +81,8 @@ def test_keep_carried_keeps_unseen_objects_until_their_age_runs_out():
     carried = _memory([(4.3, 4.2), (-5.2, -5.1), (12.0, -8.0), (15.0, 3.0), empty_xy,
                        (40.0, 0.0)],
                       [0.9, 0.2, 0.5, 0.5, 0.8, 0.8], ages=[1, 1, 3, 4, 1, 1])
-    out = keep_carried(new, carried, observed, cfg, GRID)
+    with torch.set_grad_enabled(grad):
+        out = keep_carried(new, carried, observed, cfg, GRID)
     centres = {tuple(round(v, 1) for v in b[:2].tolist()): int(a)
                for b, a in zip(out.boxes, out.age())}
     assert centres == {seen_xy: 0,          # seen now: the new sample, age 0

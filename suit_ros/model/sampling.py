@@ -17,7 +17,10 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
 import torch
 from torch import Tensor
 
@@ -198,6 +201,9 @@ def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
         model's own memory is what it would be without a carry; a carried sample stays only
         where no new one is; :attr:`SparseMemory.own` marks the new ones.
     """
+    kept = _keep_carried_compiled(new, carried, observed, cfg, grid, keep_new)
+    if kept is not None:
+        return kept
     P = new.cell_xy.shape[1]
     seen_new = cell_flags(observed, new.batch_index, new.cell_xy[:, P // 2], grid)
     unseen_old = cell_flags(~observed, carried.batch_index, carried.cell_xy[:, P // 2], grid)
@@ -215,6 +221,51 @@ def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
     keep = refined_nms(both.boxes.detach(), tier + centre_p, both.batch_index,
                        cfg.nms_iou_threshold, grid.cell)
     return both.select(keep)
+
+
+_PLAIN = (torch.float32, torch.int64, torch.bool)
+
+
+def _keep_carried_compiled(new: SparseMemory, carried: SparseMemory, observed: Tensor,
+                           cfg: SamplingConfig, grid: BEVGrid, keep_new: bool
+                           ) -> SparseMemory | None:
+    """:func:`keep_carried` at inference on the CPU: the samples chosen in one compiled pass
+    (:func:`suit_ros.ops.kernels.carry_selection`) and their rows taken in numpy, instead of
+    some 150 tensor operations on a few dozen rows; the same memory. None where it does not
+    apply (autograd, another device, dtypes other than float32 positions and boxes)."""
+    fields = ('batch_index', 'cell_xy', 'features', 'probs', 'mask', 'boxes', 'velocities')
+    a = [getattr(new, f) for f in fields]
+    b = [getattr(carried, f) for f in fields]
+    if not (compiled_ok(observed, *a, *b)
+            and all(t.dtype in _PLAIN and t.dtype == u.dtype for t, u in zip(a, b))
+            and new.cell_xy.dtype == new.probs.dtype == new.boxes.dtype == torch.float32
+            and new.batch_index.dtype == carried.age().dtype == torch.int64
+            and new.cell_xy.shape[1:] == carried.cell_xy.shape[1:]):
+        return None
+    from suit_ros.ops.kernels import carry_selection
+    origin, cell = grid.origin_and_cell()
+    ages = carried.age()
+    c = np.ascontiguousarray          # (the kernel's compiled types: C-ordered arrays)
+    index, seen = carry_selection(
+        c(observed.numpy()), c(new.batch_index.numpy()), c(new.cell_xy.numpy()),
+        c(new.probs.numpy()), c(new.boxes.numpy()), c(carried.batch_index.numpy()),
+        c(carried.cell_xy.numpy()), c(carried.probs.numpy()), c(carried.boxes.numpy()),
+        c(ages.numpy()), int(cfg.carry_frames), bool(keep_new), origin, cell,
+        np.float32(cfg.nms_iou_threshold), float(grid.cell))
+
+    def rows(x: NDArray[Any], y: NDArray[Any]) -> Tensor:
+        return torch.from_numpy(np.concatenate((x, y))[index])
+
+    bi, xy, feats, probs, mask, boxes, vel = (rows(t.numpy(), u.numpy()) for t, u in zip(a, b))
+    new_ages = np.where(seen, 0, cfg.carry_frames).astype(ages.numpy().dtype)
+    if keep_new:
+        own: Tensor | None = torch.from_numpy(index < new.num_samples)
+    elif new.own is None and carried.own is None:
+        own = None
+    else:
+        own = rows(new.owned().numpy(), carried.owned().numpy())
+    return SparseMemory(bi, xy, feats, probs, mask, boxes, vel, new.stamps_ns, new.poses,
+                        new.window, rows(new_ages, ages.numpy()), own)
 
 
 def concat_memories(a: SparseMemory, b: SparseMemory) -> SparseMemory:

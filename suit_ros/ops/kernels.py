@@ -45,8 +45,9 @@ threshold the other way):
 - :func:`sum_triples`: the sparse past term's weighted features summed per destination cell
   (projected afterwards, once per cell: the same sums up to float rounding);
   :func:`move_cells` and :func:`move_boxes`: a memory's samples moved by ego motion;
-  :func:`flags_at`: a flag map read at metric positions; :func:`pool_occupancy`: the head
-  cells with returns, grown by the gate's radius;
+  :func:`flags_at`: a flag map read at metric positions; :func:`carry_selection`: which
+  samples, this frame's and the carried ones, the next memory keeps; :func:`pool_occupancy`:
+  the head cells with returns, grown by the gate's radius;
 - :func:`height_histograms` and :func:`level_heights`: the local ground under a model input
   and the input leveled to it (:mod:`suit_ros.ground`, ``ground: local``; new computations,
   tested against numpy);
@@ -862,6 +863,55 @@ def flags_at(flags: Any, batch_index: Any, xy: Any, origin: Any, cell: Any
 
 
 @_jit
+def carry_selection(observed: Any, new_index: Any, new_xy: Any, new_probs: Any, new_boxes: Any,
+                    old_index: Any, old_xy: Any, old_probs: Any, old_boxes: Any, old_ages: Any,
+                    carry_frames: int, keep_new: bool, origin: Any, cell: Any,
+                    iou_threshold: Any, min_distance: float) -> Any:  # pragma: no cover
+    """The next memory's samples from this frame's (``new_*``) and the carried ones
+    (``old_*``), as :func:`suit_ros.model.sampling.keep_carried`'s tensor code picks them:
+    each sample's centre cell (``*_xy`` ``(M, P, 2)`` float32, the window's middle cell) read
+    in ``observed`` (``(B, H, W)`` bool, :func:`flags_at`); a carried sample stays a
+    candidate where its centre is on the map without returns and its age is at most
+    ``carry_frames``; each candidate's priority is its tier (a new sample seen now, or every
+    new one with ``keep_new``: 2; a carried one: 1; a new one unseen: 0) plus its centre
+    probability (float32), and :func:`greedy_bev_nms` over the frame keeps one per object
+    in that order (stable). Returns the kept samples as rows of the new ones followed by
+    all the carried ones ``(K,)`` int64, in priority order, and whether each new sample's
+    centre has returns ``(N,)`` bool."""
+    N = new_index.shape[0]
+    R = old_index.shape[0]
+    c = new_xy.shape[1] // 2
+    seen = flags_at(observed, new_index, new_xy[:, c, :], origin, cell)
+    unseen = flags_at(np.logical_not(observed), old_index, old_xy[:, c, :], origin, cell)
+    rows = np.empty(N + R, np.int64)
+    for i in range(N):
+        rows[i] = i
+    T = N
+    for j in range(R):
+        if unseen[j] and old_ages[j] <= carry_frames:
+            rows[T] = N + j
+            T += 1
+    rows = rows[:T]
+    priority = np.empty(T, np.float32)
+    group = np.empty(T, np.int64)
+    boxes = np.empty((T, 7), np.float32)
+    for t in range(T):
+        r = rows[t]
+        if r < N:
+            tier = np.float32(2.0) if seen[r] or keep_new else np.float32(0.0)
+            priority[t] = tier + np.float32(new_probs[r, c])
+            group[t] = new_index[r]
+            boxes[t] = new_boxes[r]
+        else:
+            priority[t] = np.float32(1.0) + np.float32(old_probs[r - N, c])
+            group[t] = old_index[r - N]
+            boxes[t] = old_boxes[r - N]
+    order = np.argsort(-priority, kind='mergesort')      # descending, ties in row order
+    keep = greedy_bev_nms(boxes[order], group[order], iou_threshold, min_distance)
+    return rows[order][keep], seen
+
+
+@_jit
 def move_cells(cell_xy: Any, z: Any, T: Any, batch_index: Any, out: Any
                ) -> None:  # pragma: no cover
     """Memory sample cells ``(M, P, 2)`` float32 lifted to 3D at their sample's height ``z``
@@ -1365,6 +1415,12 @@ def warm_up() -> None:
     feeding_map(np.zeros(1, np.int64), 1, 2, 2)
     flags_at(np.zeros((1, 2, 2), np.bool_), np.zeros(1, np.int64), np.zeros((1, 2), np.float32),
              np.zeros(2, np.float32), np.float32(1.0))
+    f32c = np.zeros((1, 3, 2), np.float32)
+    carry_selection(np.zeros((1, 2, 2), np.bool_), np.zeros(1, np.int64), f32c,
+                    np.zeros((1, 3), np.float32), np.ones((1, 7), np.float32),
+                    np.zeros(1, np.int64), f32c, np.zeros((1, 3), np.float32),
+                    np.ones((1, 7), np.float32), np.zeros(1, np.int64), 8, True,
+                    np.zeros(2, np.float32), np.float32(1.0), np.float32(0.1), 0.5)
     T1 = np.eye(4)[None]
     move_cells(np.zeros((1, 1, 2), np.float32), np.zeros(1, np.float32), T1,
                np.zeros(1, np.int64), np.zeros((1, 1, 2), np.float32))
