@@ -435,8 +435,7 @@ def test_the_cell_flags_and_the_carry_cells_are_the_tensor_code_s():
         kernels.feeding_map(np.array([B * H * W]), B, H, W)
 
 
-def _random_memory(g: torch.Generator, M: int, B: int, grid: Any, ages: bool,
-                   own: bool) -> Any:
+def _random_memory(g: torch.Generator, M: int, B: int, ages: bool, own: bool) -> Any:
     from suit_ros.model.memory import SparseMemory
     P, C = 9, 5
     centre = torch.rand(M, 2, generator=g) * 110 - 55          # some off the map
@@ -456,13 +455,13 @@ def _random_memory(g: torch.Generator, M: int, B: int, grid: Any, ages: bool,
 
 
 @pytest.mark.parametrize('keep_new', [False, True])
-@pytest.mark.parametrize('seed', [0, 1, 2])
+@pytest.mark.parametrize('seed', [0, 1, 2, 3])
 def test_the_next_memory_s_samples_are_the_tensor_code_s(keep_new, seed):
     """The carry's choice of the next memory's samples (``keep_carried``: this frame's and the
     carried ones, by tier, centre probability and the refined NMS) in one compiled pass and
     numpy, and by the tensor code: the same samples, rows and order; two frames, samples off
-    the map and next to each other, tied probabilities, carried ones too old, with and
-    without ages and own flags."""
+    the map, next to each other and next to the other memory's, tied probabilities, carried
+    ones too old, with and without ages and own flags, no new or no carried samples."""
     from suit_ros.config import SamplingConfig
     from suit_ros.model.grid import BEVGrid
     from suit_ros.model.sampling import _keep_carried_compiled, keep_carried
@@ -470,32 +469,44 @@ def test_the_next_memory_s_samples_are_the_tensor_code_s(keep_new, seed):
     g = torch.Generator().manual_seed(seed)
     B = 2
     observed = torch.rand(B, grid.H, grid.W, generator=g) < 0.5
-    new = _random_memory(g, 40, B, grid, ages=False, own=seed == 2)
-    carried = _random_memory(g, 60, B, grid, ages=seed != 1, own=False)
+    new = _random_memory(g, 40, B, ages=False, own=seed == 2)
+    carried = _random_memory(g, 60, B, ages=seed != 1, own=seed == 3)
+    # carried samples on this frame's objects, 0.3 m off: the tiers decide between them
+    carried.cell_xy[:15] = new.cell_xy[:15] + 0.3
+    carried.boxes[:15] = new.boxes[:15]
+    carried.boxes[:15, :2] += 0.3
+    carried.batch_index[:15] = new.batch_index[:15]
+    none = torch.zeros(0, dtype=torch.long)
     cfg = SamplingConfig(carry_frames=8)
-    with torch.no_grad():
-        fast = _keep_carried_compiled(new, carried, observed, cfg, grid, keep_new)
-        assert fast is not None
-        via = keep_carried(new, carried, observed, cfg, grid, keep_new)
-    with torch.enable_grad():
-        slow = keep_carried(new, carried, observed, cfg, grid, keep_new)
-    for got in (fast, via):
-        for f in ('batch_index', 'cell_xy', 'features', 'probs', 'mask', 'boxes', 'velocities'):
-            assert torch.equal(getattr(got, f), getattr(slow, f)), f
-        assert torch.equal(got.age(), slow.age())
-        assert (got.own is None) == (slow.own is None)
-        assert torch.equal(got.owned(), slow.owned())
-        assert got.stamps_ns == slow.stamps_ns and got.window == slow.window
-    # both kinds of sample survive, and some of each are dropped
-    n_new = int(slow.owned().sum()) if keep_new else None
-    assert 0 < slow.num_samples < new.num_samples + carried.num_samples
-    if n_new is not None:
-        assert 0 < n_new < slow.num_samples
-    # a tensor the pass cannot take (bfloat16 features): the tensor code's way
-    low = _random_memory(g, 4, B, grid, ages=False, own=False)
+    results = []
+    for a, b in ((new, carried), (new.select(none), carried), (new, carried.select(none))):
+        with torch.no_grad():
+            fast = _keep_carried_compiled(a, b, observed, cfg, grid, keep_new)
+            assert fast is not None
+            via = keep_carried(a, b, observed, cfg, grid, keep_new)
+        with torch.enable_grad():
+            slow = keep_carried(a, b, observed, cfg, grid, keep_new)
+        for got in (fast, via):
+            for f in ('batch_index', 'cell_xy', 'features', 'probs', 'mask', 'boxes',
+                      'velocities'):
+                assert torch.equal(getattr(got, f), getattr(slow, f)), f
+            assert torch.equal(got.age(), slow.age())
+            assert (got.own is None) == (slow.own is None)
+            assert torch.equal(got.owned(), slow.owned())
+            assert got.stamps_ns == slow.stamps_ns and got.window == slow.window
+        results.append(slow)
+    # with both memories: some of each kind kept and some dropped
+    both = results[0]
+    assert 0 < both.num_samples < new.num_samples + carried.num_samples
+    is_new = (both.cell_xy[:, None] == new.cell_xy[None]).all(-1).all(-1).any(1)
+    assert 0 < int(is_new.sum()) < both.num_samples
+    # what the pass does not take (bfloat16 features, a map of another dtype): tensor code
+    low = _random_memory(g, 4, B, ages=False, own=False)
     low.features = low.features.to(torch.bfloat16)
     with torch.no_grad():
         assert _keep_carried_compiled(low, carried, observed, cfg, grid, keep_new) is None
+        assert _keep_carried_compiled(new, carried, observed.to(torch.uint8), cfg, grid,
+                                      keep_new) is None
 
 
 @pytest.mark.parametrize('low', [False, True])

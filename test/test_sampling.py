@@ -68,7 +68,7 @@ def test_keep_carried_keeps_unseen_objects_until_their_age_runs_out(grad):
     it, up to ``carry_frames``; a seen detection replaces it; a place seen empty drops it; a
     detection at an unseen place is not carried further (it cannot keep itself alive). In
     training (the tensor code) and at inference (a compiled pass)."""
-    from suit_ros.model.sampling import keep_carried
+    from suit_ros.model.sampling import _keep_carried_compiled, keep_carried
     cfg = SamplingConfig(carry_frames=3)
     observed = torch.zeros(1, GRID.H, GRID.W, dtype=torch.bool)
     seen_xy = (4.1, 4.1)
@@ -83,6 +83,8 @@ def test_keep_carried_keeps_unseen_objects_until_their_age_runs_out(grad):
                       [0.9, 0.2, 0.5, 0.5, 0.8, 0.8], ages=[1, 1, 3, 4, 1, 1])
     with torch.set_grad_enabled(grad):
         out = keep_carried(new, carried, observed, cfg, GRID)
+        # (at inference the compiled pass answers, not the tensor code)
+        assert (_keep_carried_compiled(new, carried, observed, cfg, GRID, False) is None) == grad
     centres = {tuple(round(v, 1) for v in b[:2].tolist()): int(a)
                for b, a in zip(out.boxes, out.age())}
     assert centres == {seen_xy: 0,          # seen now: the new sample, age 0

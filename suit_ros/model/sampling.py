@@ -223,7 +223,8 @@ def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
     return both.select(keep)
 
 
-_PLAIN = (torch.float32, torch.int64, torch.bool)
+# the memory's dtypes whose numpy views the compiled selection takes as they are
+_PLAIN: tuple[torch.dtype, ...] = (torch.float32, torch.int64, torch.bool)
 
 
 def _keep_carried_compiled(new: SparseMemory, carried: SparseMemory, observed: Tensor,
@@ -232,11 +233,15 @@ def _keep_carried_compiled(new: SparseMemory, carried: SparseMemory, observed: T
     """:func:`keep_carried` at inference on the CPU: the samples chosen in one compiled pass
     (:func:`suit_ros.ops.kernels.carry_selection`) and their rows taken in numpy, instead of
     some 150 tensor operations on a few dozen rows; the same memory. None where it does not
-    apply (autograd, another device, dtypes other than float32 positions and boxes)."""
+    apply: autograd, another device, an ``observed`` map that is not ``(B, H, W)`` bool,
+    positions, probabilities and boxes not float32, batch indices or ages not int64, a field
+    whose dtype differs between the two memories or is none of :data:`_PLAIN`, windows of
+    different sizes."""
     fields = ('batch_index', 'cell_xy', 'features', 'probs', 'mask', 'boxes', 'velocities')
     a = [getattr(new, f) for f in fields]
     b = [getattr(carried, f) for f in fields]
-    if not (compiled_ok(observed, *a, *b)
+    if not (compiled_ok(observed, *a, *b) and observed.dtype == torch.bool
+            and observed.dim() == 3
             and all(t.dtype in _PLAIN and t.dtype == u.dtype for t, u in zip(a, b))
             and new.cell_xy.dtype == new.probs.dtype == new.boxes.dtype == torch.float32
             and new.batch_index.dtype == carried.age().dtype == torch.int64
@@ -245,19 +250,20 @@ def _keep_carried_compiled(new: SparseMemory, carried: SparseMemory, observed: T
     from suit_ros.ops.kernels import carry_selection
     origin, cell = grid.origin_and_cell()
     ages = carried.age()
-    c = np.ascontiguousarray          # (the kernel's compiled types: C-ordered arrays)
+    def arr(t: Tensor) -> NDArray[Any]:     # C-ordered, as the kernel is compiled for
+        return np.ascontiguousarray(t.numpy())
+
     index, seen = carry_selection(
-        c(observed.numpy()), c(new.batch_index.numpy()), c(new.cell_xy.numpy()),
-        c(new.probs.numpy()), c(new.boxes.numpy()), c(carried.batch_index.numpy()),
-        c(carried.cell_xy.numpy()), c(carried.probs.numpy()), c(carried.boxes.numpy()),
-        c(ages.numpy()), int(cfg.carry_frames), bool(keep_new), origin, cell,
+        arr(observed), arr(new.batch_index), arr(new.cell_xy), arr(new.probs), arr(new.boxes),
+        arr(carried.batch_index), arr(carried.cell_xy), arr(carried.probs),
+        arr(carried.boxes), arr(ages), int(cfg.carry_frames), bool(keep_new), origin, cell,
         np.float32(cfg.nms_iou_threshold), float(grid.cell))
 
     def rows(x: NDArray[Any], y: NDArray[Any]) -> Tensor:
         return torch.from_numpy(np.concatenate((x, y))[index])
 
     bi, xy, feats, probs, mask, boxes, vel = (rows(t.numpy(), u.numpy()) for t, u in zip(a, b))
-    new_ages = np.where(seen, 0, cfg.carry_frames).astype(ages.numpy().dtype)
+    new_ages = np.where(seen, 0, cfg.carry_frames).astype(np.int64)
     if keep_new:
         own: Tensor | None = torch.from_numpy(index < new.num_samples)
     elif new.own is None and carried.own is None:

@@ -844,11 +844,11 @@ def pool_occupancy(occupied: Any, B: int, ny: int, nx: int, stride: int,
 
 
 @_jit
-def flags_at(flags: Any, batch_index: Any, xy: Any, origin: Any, cell: Any
-             ) -> Any:  # pragma: no cover
-    """``flags[b, row, col]`` (``(B, H, W)`` bool) at the cells of metric positions ``xy``
-    ``(M, 2)`` float32 (``floor((xy - origin) / cell)``, float32 as the tensor code), False
-    off the map (:func:`suit_ros.model.sampling.cell_flags`)."""
+def flags_at(flags: Any, batch_index: Any, xy: Any, origin: Any, cell: Any,
+             invert: bool = False) -> Any:  # pragma: no cover
+    """``flags[b, row, col]`` (``(B, H, W)`` bool; with ``invert`` its negation) at the cells
+    of metric positions ``xy`` ``(M, 2)`` float32 (``floor((xy - origin) / cell)``, float32 as
+    the tensor code), False off the map (:func:`suit_ros.model.sampling.cell_flags`)."""
     B, H, W = flags.shape
     out = np.zeros(xy.shape[0], np.bool_)
     for m in range(xy.shape[0]):
@@ -858,7 +858,7 @@ def flags_at(flags: Any, batch_index: Any, xy: Any, origin: Any, cell: Any
         if b < 0 or b >= B:
             raise IndexError('flags_at: a position of a frame the flags do not have')
         if 0 <= col < W and 0 <= row < H:
-            out[m] = flags[b, int(row), int(col)]
+            out[m] = flags[b, int(row), int(col)] != invert
     return out
 
 
@@ -875,14 +875,14 @@ def carry_selection(observed: Any, new_index: Any, new_xy: Any, new_probs: Any, 
     ``carry_frames``; each candidate's priority is its tier (a new sample seen now, or every
     new one with ``keep_new``: 2; a carried one: 1; a new one unseen: 0) plus its centre
     probability (float32), and :func:`greedy_bev_nms` over the frame keeps one per object
-    in that order (stable). Returns the kept samples as rows of the new ones followed by
-    all the carried ones ``(K,)`` int64, in priority order, and whether each new sample's
-    centre has returns ``(N,)`` bool."""
+    in that order (stable; the priorities are finite: probabilities). Returns the kept
+    samples as rows of the new ones followed by all the carried ones ``(K,)`` int64, in
+    priority order, and whether each new sample's centre has returns ``(N,)`` bool."""
     N = new_index.shape[0]
     R = old_index.shape[0]
     c = new_xy.shape[1] // 2
     seen = flags_at(observed, new_index, new_xy[:, c, :], origin, cell)
-    unseen = flags_at(np.logical_not(observed), old_index, old_xy[:, c, :], origin, cell)
+    unseen = flags_at(observed, old_index, old_xy[:, c, :], origin, cell, True)
     rows = np.empty(N + R, np.int64)
     for i in range(N):
         rows[i] = i
