@@ -1,0 +1,62 @@
+"""In one process, frame by frame in turn over the demo drive: the single frame (suit_carry's
+weights run as temporal none), suit_carry as shipped (its carry head at its cells on one torch
+thread) and suit_carry with the carry head on every torch thread; p50 of each step.
+
+Usage: python ab_carryhead.py THREADS FRAMES
+"""
+from collections.abc import Iterator
+from contextlib import contextmanager
+import sys
+import time
+
+import numpy as np
+import torch
+
+from suit_ros.checkpoint import load_model_as
+from suit_ros.data.sim import preset
+from suit_ros.data.sim.scene import Simulation, to_frame
+from suit_ros.evaluate import step_inputs
+from suit_ros.heap import keep_freed_memory
+import suit_ros.model.detector as detector
+from suit_ros.model.streaming import StreamingDetector
+from suit_ros.tracking import TrackerConfig
+
+keep_freed_memory()
+threads, n = int(sys.argv[1]), int(sys.argv[2])
+torch.set_num_threads(threads)
+checkpoint = 'suit_ros/checkpoints/suit_carry.safetensors'
+sim = Simulation(preset('demo-real', frames=n), 7)
+inputs = [step_inputs(to_frame(sim.render(k), 7)) for k in range(n)]
+runners = {k: StreamingDetector(load_model_as(checkpoint, t), 'cpu', precision='auto',
+                                tracker=TrackerConfig())
+           for k, t in (('none', 'none'), ('carry', None), ('carry_all_threads', None))}
+one_thread = detector.one_thread
+every = runners['carry_all_threads'].model
+
+
+@contextmanager
+def carry_head_threads(enabled: bool = True) -> Iterator[None]:
+    """predict's one_thread: a no-op for the model under trial."""
+    if current is every:
+        yield
+    else:
+        with one_thread(enabled):
+            yield
+
+
+detector.one_thread = carry_head_threads
+for r in runners.values():
+    current = r.model
+    r.warm_up()
+steps: dict[str, list[float]] = {k: [] for k in runners}
+for i, args in enumerate(inputs):
+    for k, r in runners.items():
+        current = r.model
+        t = time.perf_counter()
+        r.step(*args)
+        if i >= 3:
+            steps[k].append(time.perf_counter() - t)
+p = {k: float(np.median(v)) * 1e3 for k, v in steps.items()}
+print(f"threads {threads}: none {p['none']:.2f} carry {p['carry']:.2f} "
+      f"({p['carry'] / p['none']:.3f}x) carry, head on all threads "
+      f"{p['carry_all_threads']:.2f} ({p['carry_all_threads'] / p['none']:.3f}x) ms")
