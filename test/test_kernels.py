@@ -174,22 +174,32 @@ def test_distinct_values_equal_numpy_unique():
     assert len(kernels.distinct_values(np.full(4, np.nan, np.float32))) == 0
 
 
-def test_after_the_warm_up_a_detector_step_compiles_nothing():
+@pytest.mark.parametrize('carry', [False, True])
+def test_after_the_warm_up_a_detector_step_compiles_nothing(carry):
     """The node warms the kernels up when it loads its model: its first cloud compiles no
-    kernel (a multi-second stall) for the types a step uses."""
+    kernel (a multi-second stall) for the types a step uses, also with a carry branch (the
+    carried samples' moves and the next memory's choice)."""
+    from dataclasses import replace
+
     from suit_ros.model.streaming import StreamingDetector
     from suit_ros.tracking import TrackerConfig
     kernels.warm_up()
     dispatchers = [getattr(kernels, n) for n in dir(kernels)
                    if hasattr(getattr(kernels, n), 'signatures')]
     before = {d: set(map(str, d.signatures)) for d in dispatchers}
-    runner = StreamingDetector(SUITDetector(small_config()).eval(), tracker=TrackerConfig())
+    cfg = small_config()
+    if carry:
+        cfg = replace(cfg, fusion_gate='carry_branch',
+                      sampling=replace(cfg.sampling, carry_frames=3, alpha=0.01, top_k=20))
+    runner = StreamingDetector(SUITDetector(cfg).eval(), tracker=TrackerConfig())
     pose = np.eye(4)
     for t in range(3):
         pose[0, 3] = 0.5 * t
         runner.step(lidar_like(3000, 7 + t, lags=(0.0,))[:, :4], int(1e9 + t * 1e8), pose)
     new = {d.__name__: set(map(str, d.signatures)) - before[d] for d in dispatchers}
     assert not any(new.values()), new
+    if carry:       # the carry chose the memory (only its choice sets the ages)
+        assert runner.memory is not None and runner.memory.ages is not None
 
 
 def test_a_moved_sweep_equals_the_float32_matrix_product():

@@ -250,6 +250,7 @@ def _keep_carried_compiled(new: SparseMemory, carried: SparseMemory, observed: T
     from suit_ros.ops.kernels import carry_selection
     origin, cell = grid.origin_and_cell()
     ages = carried.age()
+
     def arr(t: Tensor) -> NDArray[Any]:     # C-ordered, as the kernel is compiled for
         return np.ascontiguousarray(t.numpy())
 
