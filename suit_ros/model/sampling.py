@@ -240,16 +240,16 @@ def _keep_carried_compiled(new: SparseMemory, carried: SparseMemory, observed: T
     fields = ('batch_index', 'cell_xy', 'features', 'probs', 'mask', 'boxes', 'velocities')
     a = [getattr(new, f) for f in fields]
     b = [getattr(carried, f) for f in fields]
+    ages = carried.age()
     if not (compiled_ok(observed, *a, *b) and observed.dtype == torch.bool
             and observed.dim() == 3
             and all(t.dtype in _PLAIN and t.dtype == u.dtype for t, u in zip(a, b))
             and new.cell_xy.dtype == new.probs.dtype == new.boxes.dtype == torch.float32
-            and new.batch_index.dtype == carried.age().dtype == torch.int64
+            and new.batch_index.dtype == ages.dtype == torch.int64
             and new.cell_xy.shape[1:] == carried.cell_xy.shape[1:]):
         return None
     from suit_ros.ops.kernels import carry_selection
     origin, cell = grid.origin_and_cell()
-    ages = carried.age()
 
     def arr(t: Tensor) -> NDArray[Any]:     # C-ordered, as the kernel is compiled for
         return np.ascontiguousarray(t.numpy())

@@ -11,6 +11,7 @@ import sys
 from typing import Any
 
 import numpy as np
+from probe import heatmaps  # this folder's (the script's folder is on the path)
 import torch
 
 from suit_ros.checkpoint import load_model_as
@@ -49,20 +50,6 @@ def without(f: Any, radius: float, above: float | None) -> Any:
     keep = ~near
     times = None if f.times is None else f.times[keep]
     return replace(f, points=p[keep], times=times), int(near.sum())
-
-
-def heatmaps(model: Any) -> dict[str, torch.Tensor]:
-    """The model's class probabilities of its last frame, kept under ``'map'``."""
-    heat: dict[str, torch.Tensor] = {}
-    predict = model.predict
-
-    def keep_heatmap(*a: Any, **k: Any) -> Any:
-        out = predict(*a, **k)
-        heat['map'] = torch.sigmoid(out['heatmap'].float())[0]
-        return out
-
-    model.predict = keep_heatmap
-    return heat
 
 
 variants: list[tuple[str, float, float | None, str]] = [

@@ -7,9 +7,9 @@ outside it (count; 10th - 90th percentile heights).
 Usage: python real_pedestrians.py [CHECKPOINT_NAME]   (default suit_default)
 """
 import sys
-from typing import Any
 
 import numpy as np
+from probe import heatmaps  # this folder's (the script's folder is on the path)
 import torch
 
 from suit_ros.checkpoint import load_model_as
@@ -24,17 +24,7 @@ seq = av2_sequences('../shared/data/real-dev/av2')[0]
 runner = StreamingDetector(load_model_as(f'suit_ros/checkpoints/{name}.safetensors', None),
                            'cpu', precision='float32', tracker=TrackerConfig(), ground='local')
 model = runner.model
-heat: dict[str, torch.Tensor] = {}
-predict = model.predict
-
-
-def keep_heatmap(*a: Any, **k: Any) -> Any:
-    out = predict(*a, **k)
-    heat['map'] = torch.sigmoid(out['heatmap'].float())[0]
-    return out
-
-
-model.predict = keep_heatmap                            # type: ignore[method-assign]
+heat = heatmaps(model)
 names = model.cfg.class_names
 for i in range(len(seq)):
     f = seq[i]
