@@ -38,7 +38,10 @@ checkpoint changed in one way:
   :attr:`~suit_ros.data.sim.config.Realism.dark_tops`); ``parked rows`` and ``tracking,
   parked rows``: the street-objects drives with about half the kerbs near the ego lined with
   rows of parked cars (preset ``val-parked-rows``, :mod:`~suit_ros.data.sim.parked_rows`;
-  scored against their own labels, the rows' cars among them);
+  scored against their own labels, the rows' cars among them); ``fronts`` and ``tracking,
+  fronts``: the street-objects drives with half the pedestrians standing close in front of a
+  building or a wall (preset ``val-fronts``,
+  :func:`~suit_ros.data.sim.bystanders.place_at_fronts`);
 - ``mirrored`` and ``tracking, mirrored``: the drives mirrored across the LiDAR's x-z plane,
   odometry frame included (:func:`~suit_ros.data.augment.mirror_world`): left-hand traffic,
   every car parked facing the other way from where it would stand in right-hand traffic, so
@@ -81,13 +84,13 @@ VARIANTS = ('memory dropped', 'zero displacement', 'no intensity', 'bfloat16', '
             'tracking, street objects', 'bystanders', 'tracking, bystanders', 'dark tops',
             'tracking, dark tops', 'occluders', 'tracking, occluders', 'deskewed',
             'tracking, deskewed', 'parked rows', 'tracking, parked rows', 'mirrored',
-            'tracking, mirrored')
+            'tracking, mirrored', 'fronts', 'tracking, fronts')
 # the validation drives regenerated in another world: passenger cars shaped at their ends as
 # real cars are; and with the street objects of real sidewalks too; and pedestrians beside them;
 # or cars seen only below the belt; or the kerbs lined with parked cars
 WORLDS = {'real car ends': 'val-ends', 'all car ends': 'val-ends-all',
           'street objects': 'val-street-ends', 'bystanders': 'val-bystanders',
-          'dark tops': 'val-dark-tops', 'parked rows': 'val-parked-rows'}
+          'dark tops': 'val-dark-tops', 'parked rows': 'val-parked-rows', 'fronts': 'val-fronts'}
 WORTH = ('memory dropped', 'zero displacement')      # paired as checkpoint minus variant
 SHOW = ['mAP', 'NDS', 'mAP moving', 'mAP vis 1-5', 'mAP vis 6-20', 'mAP vis >20', 'mAVE', 'mAOE',
         'car heading err', 'car flipped %', 'moving car vel err', 'moving car speed slope']

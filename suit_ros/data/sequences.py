@@ -60,7 +60,7 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
         if not cfg[name]:
             del cfg[name]
     for name in ('street_objects', 'real_car_ends', 'bystanders', 'dark_tops', 'parked_rows',
-                 'real_car_roofs'):
+                 'real_car_roofs', 'at_fronts'):
         if cfg.get('realism') and not cfg['realism'][name]:
             del cfg['realism'][name]             # off: the world (and its key) as before
     if cfg.get('realism') and cfg['realism']['parked_reversed'] == Realism.parked_reversed:

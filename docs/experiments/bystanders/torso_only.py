@@ -11,7 +11,7 @@ import sys
 import numpy as np
 import torch
 
-from suit_ros.checkpoint import load_model_as
+from suit_ros.checkpoint import load_checkpoint, published_thresholds
 from suit_ros.data.sequences import synthetic_split
 from suit_ros.evaluate import step_inputs
 from suit_ros.model.streaming import StreamingDetector
@@ -19,8 +19,11 @@ from suit_ros.model.streaming import StreamingDetector
 torch.set_num_threads(2)
 name = sys.argv[1] if len(sys.argv) > 1 else 'suit_default'
 drives = int(sys.argv[2]) if len(sys.argv) > 2 else 16
-runner = StreamingDetector(load_model_as(f'suit_ros/checkpoints/{name}.safetensors', None),
-                           'cpu', precision='auto')
+model, cfg, meta = load_checkpoint(f'suit_ros/checkpoints/{name}.safetensors')
+runner = StreamingDetector(model, 'cpu', precision='auto')
+# the published thresholds (the runner alone decodes at the evaluation threshold, 0.1;
+# before stop 60 this script used that and called it published)
+runner.set_thresholds(published_thresholds(meta, cfg.class_names))
 names = runner.cfg.class_names
 ped = names.index('pedestrian')
 BINS = ((0.0, 0.3), (0.3, 0.8), (0.8, 9.0))       # lowest own return above the ground (m)

@@ -145,3 +145,81 @@ def _stand(a: Actor, spot: NDArray[np.float64], anchor_yaw: float,
     a.v = np.zeros_like(a.v)
     a.heading = float(anchor_yaw + rng.integers(4) * np.pi / 2 + rng.normal(0.0, 0.3))
     a.body = pedestrian_body(a.size, rng, moving=False)
+
+
+# ------------------------------------------------------------------ close in front of buildings
+FRONT_TYPES = ('building', 'wall')
+FRONT_TRIES = 4       # places drawn along each face of a front before the next front is tried
+
+
+def front_chosen(instance_id: int, share: float) -> bool:
+    """Whether a pedestrian stands in front of a building (:attr:`Realism.at_fronts`): drawn
+    from its id, a hash apart from the bystanders' and the car shapes'."""
+    return id_fraction(instance_id * 37 + 11) < share
+
+
+def _front_spots(front: NDArray[np.float64], size: NDArray[np.float64],
+                 rng: np.random.Generator) -> list[tuple[NDArray[np.float64], float]]:
+    """Candidate places close in front of each face of a building's footprint: a random place
+    along the face (clear of its corners), 0.1-0.6 m off it; with the face's direction."""
+    x, y, _, length, width, _, yaw = front
+    c, s = np.cos(yaw), np.sin(yaw)
+    half = float(max(size[0], size[1])) / 2
+    out = []
+    for along, across in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+        extent = float(width if along else length) / 2 - half - 0.2   # along the face
+        if extent <= 0:
+            continue
+        for _ in range(FRONT_TRIES):
+            gap = float(rng.uniform(0.1, 0.6)) + half
+            t = float(rng.uniform(-extent, extent))
+            du = along * (length / 2 + gap) + across * t
+            dv = across * (width / 2 + gap) + along * t
+            out.append((np.array([x + c * du - s * dv, y + s * du + c * dv]),
+                        float(yaw + (np.pi / 2 if along else 0.0))))
+    order = rng.permutation(len(out))
+    return [out[i] for i in order]
+
+
+def place_at_fronts(actors: Sequence[Actor], scene: StaticScene, world: World, share: float,
+                    rng: np.random.Generator, taken: Sequence[int] = ()) -> list[int]:
+    """Move ``share`` of the pedestrians (by id; not the actors ``taken``, the bystanders) to
+    stand still close in front of the nearest building or wall near their start that has a
+    free place on the sidewalk, clear of every other solid thing and pedestrian; each gets a
+    standing body drawn from ``rng``. :return: the indices of the actors moved."""
+    if share <= 0:
+        return []
+    fronts = scene.objects[np.isin(scene.types, [CLUTTER_ID[t] for t in FRONT_TYPES])]
+    if not len(fronts):
+        return []
+    solid = scene.objects[np.isin(scene.types, [CLUTTER_ID[t] for t in SOLID_TYPES])]
+    parked = [np.array([a.poly[0, 0], a.poly[0, 1], a.size[2] / 2, *a.size, a.heading])
+              for a in actors if len(a.poly) == 1 and CLASS_NAMES[a.label] in ('car', 'truck')]
+    blocked = np.concatenate([solid, np.array(parked, np.float64).reshape(-1, 7)])
+    stood = [np.asarray(actors[i].poly[0], np.float64) for i in taken]
+    lo = world.road_half_width + 0.2
+    hi = world.road_half_width + world.sidewalk_width + 0.9    # the buildings start 1 m past
+    moved = []
+    for i, a in enumerate(actors):
+        if (CLASS_NAMES[a.label] != 'pedestrian' or i in taken
+                or not front_chosen(a.instance_id, share)):
+            continue
+        start = np.array(a.state(0.0)[:2])
+        # the nearest fronts by the distance from the start to their footprint
+        d = start[None, :] - fronts[:, :2]
+        c, s = np.cos(fronts[:, 6]), np.sin(fronts[:, 6])
+        u = np.maximum(np.abs(c * d[:, 0] + s * d[:, 1]) - fronts[:, 3] / 2, 0)
+        v = np.maximum(np.abs(-s * d[:, 0] + c * d[:, 1]) - fronts[:, 4] / 2, 0)
+        dist = np.hypot(u, v)
+        for k in np.argsort(dist):
+            if dist[k] > REACH:
+                break
+            spot = next(((p, face) for p, face in _front_spots(fronts[k], a.size, rng)
+                         if _free(p, a.size, fronts[k], blocked, stood, lo, hi, world)), None)
+            if spot is None:
+                continue
+            stood.append(spot[0])
+            _stand(a, spot[0], spot[1], rng)
+            moved.append(i)
+            break
+    return moved

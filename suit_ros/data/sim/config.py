@@ -84,6 +84,11 @@ class Realism:
         middle back to the rear (:func:`~suit_ros.data.sim.bodies.car_body`), so the car's
         own returns say which end is its front; 0 (default): none, the world byte for byte
         as before.
+    :param at_fronts: share of pedestrians (drawn from their ids; not the bystanders) that
+        stand on the sidewalk close in front of a building or a wall, 0.1-0.6 m off it, as
+        real ones wait at a door or look in a shop window
+        (:func:`~suit_ros.data.sim.bystanders.place_at_fronts`; the world's walkers keep 1.5 m
+        or more off the building line); 0 (default): none, the world byte for byte as before.
     :param parked_reversed: share of those row cars parked against their side's traffic, as on
         one-way streets and in cities where cars park either way (0.15, the default, the world
         as it was; at 0.5 the side of the road says nothing of a parked car's heading).
@@ -102,6 +107,7 @@ class Realism:
     parked_rows: float = 0.0
     parked_reversed: float = 0.15
     real_car_roofs: float = 0.0
+    at_fronts: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -169,7 +175,7 @@ def _validate_realism(r: Realism) -> None:
     if r.clutter < 0:
         raise ConfigError(f'realism.clutter must be >= 0 (0: no clutter), got {r.clutter}')
     for name in ('glass_porosity', 'glass_return', 'dark_paint', 'real_car_ends', 'bystanders',
-                 'dark_tops', 'parked_rows', 'parked_reversed', 'real_car_roofs'):
+                 'dark_tops', 'parked_rows', 'parked_reversed', 'real_car_roofs', 'at_fronts'):
         value = getattr(r, name)
         if not 0.0 <= value <= 1.0:
             raise ConfigError(f'realism.{name} is a probability in [0, 1], got {value}')
@@ -260,6 +266,12 @@ PRESETS['train-parked-either'] = replace(
 PRESETS['val-parked-either'] = replace(
     PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, parked_rows=0.5,
                                          parked_reversed=0.5))
+# and half the pedestrians standing close in front of buildings and walls, as real ones do
+# (docs/experiments/at_fronts: the real dev pedestrian at 13 m stands within 1.5 m of a facade)
+PRESETS['train-fronts'] = replace(
+    PRESETS['train-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, at_fronts=0.5))
+PRESETS['val-fronts'] = replace(
+    PRESETS['val-real'], realism=Realism(real_car_ends=1.0, street_objects=1.0, at_fronts=0.5))
 # every passenger car with a real car's greenhouse: rear pillars, a compact back, a raked
 # screen, the roof back to the tailgate (docs/experiments/car_front: a car's own front and back)
 _ROOFS = Realism(real_car_ends=1.0, real_car_roofs=1.0)

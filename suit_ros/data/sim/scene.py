@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from suit_ros.data.sim.actors import Actor, Trajectories, dress_actors, make_actors, make_ego
 from suit_ros.data.sim.bodies import ego_body
-from suit_ros.data.sim.bystanders import place_bystanders
+from suit_ros.data.sim.bystanders import place_at_fronts, place_bystanders
 from suit_ros.data.sim.clutter import CLUTTER_ID, StaticScene, furnish
 from suit_ros.data.sim.config import Realism, SimConfig
 from suit_ros.data.sim.lidar import GROUND, Porosity, RangeImage, cast, ray_directions
@@ -124,8 +124,10 @@ class Simulation:
         rng = np.random.default_rng([self.seed, 0xDE7A])
         dress_actors(self.actors, realism, rng)
         self.scene = furnish(self.world, self.cfg, realism, rng)
-        place_bystanders(self.actors, self.scene, self.world, realism.bystanders,
-                         np.random.default_rng([self.seed, 0xB757]))
+        taken = place_bystanders(self.actors, self.scene, self.world, realism.bystanders,
+                                 np.random.default_rng([self.seed, 0xB757]))
+        place_at_fronts(self.actors, self.scene, self.world, realism.at_fronts,
+                        np.random.default_rng([self.seed, 0xF407]), taken)
         self.actors += park_rows(self.actors, self.ego, self.world, realism,
                                  np.random.default_rng([self.seed, 0x9A2C]))
         self.trajectories = Trajectories.sample(self.actors)

@@ -1,0 +1,135 @@
+"""Pedestrians standing close in front of buildings and walls (``Realism.at_fronts``): the worlds
+without it keep their bytes and cache keys; those moved stand still on the sidewalk 0.1-0.6 m
+in front of a building or a wall, clear of everything else and of the bystanders, and the sensor
+sees them."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from suit_ros import CLASS_NAMES
+from suit_ros.compare import VARIANTS, WORLDS
+from suit_ros.data.sim import Realism, preset
+from suit_ros.data.sim.bystanders import (
+    FRONT_TYPES,
+    SOLID_TYPES,
+    chosen,
+    front_chosen,
+    place_at_fronts,
+    sidewalk_distance,
+)
+from suit_ros.data.sim.clutter import CLUTTER_ID
+from suit_ros.data.sim.scene import Simulation
+from suit_ros.errors import ConfigError
+
+PED = CLASS_NAMES.index('pedestrian')
+
+
+@pytest.fixture(scope='module')
+def worlds():
+    return (Simulation(preset('val-street-ends', frames=4), 9001),
+            Simulation(preset('val-fronts', frames=4), 9001))
+
+
+def box_gap(p, boxes):
+    """Distance from a point to each oriented footprint's edge (0 inside)."""
+    d = p[None, :] - boxes[:, :2]
+    c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
+    u = np.abs(c * d[:, 0] + s * d[:, 1]) - boxes[:, 3] / 2
+    v = np.abs(-s * d[:, 0] + c * d[:, 1]) - boxes[:, 4] / 2
+    return np.hypot(np.maximum(u, 0), np.maximum(v, 0))
+
+
+def test_worlds_without_fronts_keep_their_keys():
+    from suit_ros.data.sequences import _cache_key
+    # the keys these drives were cached under before the option existed (cache version 3)
+    assert _cache_key('val-street-ends', 'hdl32e', 9001, 40) == '52d36ca031398c1e'
+    assert _cache_key('val-real', 'sim32', 9000, 40) == 'a66fafdfe5c2ae10'
+    assert _cache_key('val-fronts', 'hdl32e', 9001, 40) != '52d36ca031398c1e'
+    assert preset('val-street-ends').realism.at_fronts == 0.0
+    for name in ('train-fronts', 'val-fronts'):
+        r = preset(name).realism
+        assert (r.at_fronts, r.street_objects, r.real_car_ends, r.bystanders) == (
+            0.5, 1.0, 1.0, 0.0)
+    assert WORLDS['fronts'] == 'val-fronts' and {'fronts', 'tracking, fronts'} <= set(VARIANTS)
+    with pytest.raises(ConfigError, match='at_fronts'):
+        preset('test', realism=Realism(at_fronts=-0.1))
+
+
+def test_only_the_chosen_pedestrians_move(worlds):
+    plain, fronts = worlds
+    assert len(plain.actors) == len(fronts.actors)
+    moved = 0
+    for a, b in zip(plain.actors, fronts.actors):
+        assert a.instance_id == b.instance_id and np.array_equal(a.size, b.size)
+        same = np.array_equal(a.poly, b.poly) and np.array_equal(a.s, b.s)
+        if a.label != PED or not front_chosen(a.instance_id, 0.5):
+            assert same and np.array_equal(a.body.parts, b.body.parts)
+        elif not same:
+            moved += 1
+    peds = [a for a in plain.actors if a.label == PED]
+    wanted = sum(front_chosen(a.instance_id, 0.5) for a in peds)
+    assert 0.3 * len(peds) < wanted < 0.7 * len(peds)
+    assert moved >= 0.8 * wanted                     # nearly all find a front within reach
+    np.testing.assert_array_equal(plain.scene.objects, fronts.scene.objects)
+
+
+def test_they_stand_close_in_front_of_a_building_on_the_sidewalk(worlds):
+    plain, busy = worlds
+    scene, world = busy.scene, busy.world
+    front = scene.objects[np.isin(scene.types, [CLUTTER_ID[t] for t in FRONT_TYPES])]
+    parked = np.array([[a.poly[0, 0], a.poly[0, 1], 0, *a.size, a.heading] for a in busy.actors
+                       if len(a.poly) == 1 and a.label != PED])
+    solid = np.concatenate([scene.objects[np.isin(scene.types, [CLUTTER_ID[t]
+                                                                for t in SOLID_TYPES])], parked])
+    spots, others = [], []
+    for a, b in zip(plain.actors, busy.actors):
+        if b.label != PED:
+            continue
+        if np.array_equal(a.poly, b.poly):
+            others.append(np.asarray(a.state(0.0)[:2]))
+            continue
+        assert len(b.poly) == 1 and b.v.max() == 0 and b.s.max() == 0
+        p = b.poly[0]
+        half = max(b.size[0], b.size[1]) / 2
+        gaps = box_gap(p, front) - half
+        assert 0.05 < gaps.min() < 0.65, gaps.min()       # 0.1-0.6 m in front of it
+        assert (box_gap(p, solid) - half > 0.05).all()    # inside nothing
+        d = sidewalk_distance(p[None, :], world)[0]
+        assert world.road_half_width + 0.2 + half - 1e-9 <= d   # not on the road
+        assert d <= world.road_half_width + world.sidewalk_width + 1.0   # street side
+        spots.append(p)
+    spots = np.array(spots)
+    pair = np.linalg.norm(spots[:, None] - spots[None], axis=2) + 9 * np.eye(len(spots))
+    assert pair.min() > 1.0
+    # what the option adds: the other pedestrians start 1.5 m or more off the building line
+    assert min(box_gap(p, front).min() for p in others) > 1.0
+
+
+def test_the_sensor_sees_them(worlds):
+    plain, busy = worlds
+    moved = {b.instance_id for a, b in zip(plain.actors, busy.actors)
+             if b.label == PED and not np.array_equal(a.poly, b.poly)}
+    seen = 0
+    for k in range(4):
+        f = busy.render(k)
+        seen += sum(int(i in moved and n > 0) for i, n in zip(f.instance_ids, f.num_points))
+    assert seen > 0
+
+
+def test_bystanders_are_left_where_they_stand():
+    both = Simulation(preset('val-fronts', frames=1, realism=Realism(
+        real_car_ends=1.0, street_objects=1.0, bystanders=0.5, at_fronts=0.5)), 9001)
+    alone = Simulation(preset('val-bystanders', frames=1), 9001)
+    for a, b in zip(alone.actors, both.actors):
+        if a.label == PED and chosen(a.instance_id, 0.5) and len(a.poly) == 1:
+            np.testing.assert_array_equal(a.poly, b.poly)      # a bystander stays put
+
+
+def test_nothing_moves_without_a_share_or_fronts(worlds):
+    _, busy = worlds
+    assert place_at_fronts(busy.actors, busy.scene, busy.world, 0.0,
+                           np.random.default_rng(0)) == []
+    empty = type(busy.scene)(*(getattr(busy.scene, n)[:0] for n in (
+        'parts', 'reflectivity', 'return_prob', 'porosity', 'owner', 'objects', 'types')))
+    assert place_at_fronts(busy.actors, empty, busy.world, 1.0, np.random.default_rng(0)) == []
