@@ -1,7 +1,7 @@
 """Pedestrians standing close in front of buildings and walls (``Realism.at_fronts``): the worlds
-without it keep their bytes and cache keys; those moved stand still on the sidewalk 0.1-0.6 m
-in front of a building or a wall, clear of everything else and of the bystanders, and the sensor
-sees them."""
+without it keep their bytes and cache keys; those moved stand still on the sidewalk 0.1-0.5 m
+in front of a building or a lot wall (their turned boxes), out of the walkers' way, clear of
+everything else and of the bystanders, and the sensor sees them."""
 from __future__ import annotations
 
 import numpy as np
@@ -11,10 +11,11 @@ from suit_ros import CLASS_NAMES
 from suit_ros.compare import VARIANTS, WORLDS
 from suit_ros.data.sim import Realism, preset
 from suit_ros.data.sim.bystanders import (
-    FRONT_TYPES,
+    FRONT_DEPTH,
     SOLID_TYPES,
     chosen,
     front_chosen,
+    fronts,
     place_at_fronts,
     sidewalk_distance,
 )
@@ -38,6 +39,16 @@ def box_gap(p, boxes):
     u = np.abs(c * d[:, 0] + s * d[:, 1]) - boxes[:, 3] / 2
     v = np.abs(-s * d[:, 0] + c * d[:, 1]) - boxes[:, 4] / 2
     return np.hypot(np.maximum(u, 0), np.maximum(v, 0))
+
+
+def outline(a, n=12):
+    """Points along the edges of a standing actor's turned footprint ``(4 n, 2)``."""
+    c, s = np.cos(a.heading), np.sin(a.heading)
+    t = np.linspace(-0.5, 0.5, n)
+    local = np.concatenate([np.stack([t, np.full(n, k)], 1) for k in (-0.5, 0.5)]
+                           + [np.stack([np.full(n, k), t], 1) for k in (-0.5, 0.5)])
+    local = local * a.size[:2]
+    return a.poly[0] + local @ np.array([[c, s], [-s, c]])
 
 
 def test_worlds_without_fronts_keep_their_keys():
@@ -77,33 +88,42 @@ def test_only_the_chosen_pedestrians_move(worlds):
 def test_they_stand_close_in_front_of_a_building_on_the_sidewalk(worlds):
     plain, busy = worlds
     scene, world = busy.scene, busy.world
-    front = scene.objects[np.isin(scene.types, [CLUTTER_ID[t] for t in FRONT_TYPES])]
+    front, _ = fronts(scene, world)
+    line = world.road_half_width + world.sidewalk_width + 1.0
+    # the layout's buildings and lot walls' pieces, not the garden walls nor the gates
+    walls = scene.objects[scene.types == CLUTTER_ID['wall']]
+    garden = walls[sidewalk_distance(walls[:, :2], world) < line - 0.2]
+    assert len(garden) > 0 and len(front) > 0
+    assert (sidewalk_distance(front[:, :2], world) > line - 0.2).all()
     parked = np.array([[a.poly[0, 0], a.poly[0, 1], 0, *a.size, a.heading] for a in busy.actors
                        if len(a.poly) == 1 and a.label != PED])
     solid = np.concatenate([scene.objects[np.isin(scene.types, [CLUTTER_ID[t]
                                                                 for t in SOLID_TYPES])], parked])
-    spots, others = [], []
+    spots = []
     for a, b in zip(plain.actors, busy.actors):
         if b.label != PED:
             continue
         if np.array_equal(a.poly, b.poly):
-            others.append(np.asarray(a.state(0.0)[:2]))
             continue
         assert len(b.poly) == 1 and b.v.max() == 0 and b.s.max() == 0
         p = b.poly[0]
-        half = max(b.size[0], b.size[1]) / 2
-        gaps = box_gap(p, front) - half
-        assert 0.05 < gaps.min() < 0.65, gaps.min()       # 0.1-0.6 m in front of it
-        assert (box_gap(p, solid) - half > 0.05).all()    # inside nothing
-        d = sidewalk_distance(p[None, :], world)[0]
-        assert world.road_half_width + 0.2 + half - 1e-9 <= d   # not on the road
-        assert d <= world.road_half_width + world.sidewalk_width + 1.0   # street side
+        edge = outline(b)
+        gaps = np.array([box_gap(q, front) for q in edge]).min(0)
+        assert 0.1 - 1e-6 < gaps.min() < 0.5 + 1e-6, gaps.min()   # its box 0.1-0.5 m off
+        assert (np.array([box_gap(q, solid) for q in edge]) > 0).all()   # inside nothing
+        d = sidewalk_distance(edge, world)
+        assert d.min() >= max(line - FRONT_DEPTH, world.road_half_width + 0.2) - 1e-6
+        assert sidewalk_distance(p[None, :], world)[0] <= line          # the street side
         spots.append(p)
     spots = np.array(spots)
     pair = np.linalg.norm(spots[:, None] - spots[None], axis=2) + 9 * np.eye(len(spots))
     assert pair.min() > 1.0
-    # what the option adds: the other pedestrians start 1.5 m or more off the building line
-    assert min(box_gap(p, front).min() for p in others) > 1.0
+    # what the option adds: the walkers keep 1.5 m or more off the building line, so none
+    # walks through one standing there
+    walkers = [a for a in busy.actors if a.label == PED and len(a.poly) > 1]
+    path = np.concatenate([a.poly for a in walkers])
+    near = path[sidewalk_distance(path, world) < line]
+    assert (line - sidewalk_distance(near, world)).min() > FRONT_DEPTH + 0.35
 
 
 def test_the_sensor_sees_them(worlds):
@@ -121,9 +141,16 @@ def test_bystanders_are_left_where_they_stand():
     both = Simulation(preset('val-fronts', frames=1, realism=Realism(
         real_car_ends=1.0, street_objects=1.0, bystanders=0.5, at_fronts=0.5)), 9001)
     alone = Simulation(preset('val-bystanders', frames=1), 9001)
+    standing, at_front = [], []
     for a, b in zip(alone.actors, both.actors):
         if a.label == PED and chosen(a.instance_id, 0.5) and len(a.poly) == 1:
             np.testing.assert_array_equal(a.poly, b.poly)      # a bystander stays put
+            standing.append(a.poly[0])
+        elif b.label == PED and len(b.poly) == 1:
+            at_front.append(b.poly[0])
+    assert standing and at_front
+    gap = np.linalg.norm(np.array(standing)[:, None] - np.array(at_front)[None], axis=2)
+    assert gap.min() > 1.0                                     # none stands on a bystander
 
 
 def test_nothing_moves_without_a_share_or_fronts(worlds):

@@ -68,6 +68,10 @@ def _cache_key(preset_name: str, sensor: str, seed: int, frames: int,
     if cfg.get('realism') and cfg['realism'].get('real_car_roofs'):
         # the body the cars get (1: commit ab9fdcc's first greenhouse, never trained on)
         cfg['realism']['roofs_geometry'] = 2
+    if cfg.get('realism') and cfg['realism'].get('at_fronts'):
+        # where they stand (1: commit c9bb7e2's, which run 38 trained on: garden walls and
+        # gates counted as fronts, the box not turned when its gap was drawn)
+        cfg['realism']['fronts_geometry'] = 2
     # v3: objects count their own returns where a moving sweep put them outside their box
     blob = json.dumps({'cfg': cfg, 'seed': seed, 'v': 3}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]

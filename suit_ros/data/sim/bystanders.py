@@ -22,7 +22,7 @@ from suit_ros import CLASS_NAMES
 from suit_ros.data.sim.actors import Actor, id_fraction
 from suit_ros.data.sim.bodies import pedestrian_body
 from suit_ros.data.sim.clutter import CLUTTER_ID, StaticScene
-from suit_ros.data.sim.world import World
+from suit_ros.data.sim.world import MATERIAL_IDS, World
 
 # clutter a pedestrian stands beside (footprint boxes of the static scene)
 ANCHOR_TYPES = ('pole', 'sign', 'bollard', 'bench', 'parked_bicycle', 'trash_can', 'hydrant',
@@ -136,20 +136,25 @@ def _free(p: NDArray[np.float64], size: NDArray[np.float64], anchor: NDArray[np.
 
 
 def _stand(a: Actor, spot: NDArray[np.float64], anchor_yaw: float,
-           rng: np.random.Generator) -> None:
-    """Make ``a`` stand still at ``spot``, facing along or across the anchor, standing
-    limbs."""
+           rng: np.random.Generator, turned: bool = True) -> None:
+    """Make ``a`` stand still at ``spot``, facing along or across the anchor (``turned``: a
+    quarter turn and a little drawn from ``rng``; else ``anchor_yaw`` is the heading),
+    standing limbs."""
     a.poly = spot.reshape(1, 2).astype(np.float64)
     a.cum = np.zeros(1)
     a.s = np.zeros_like(a.s)
     a.v = np.zeros_like(a.v)
-    a.heading = float(anchor_yaw + rng.integers(4) * np.pi / 2 + rng.normal(0.0, 0.3))
+    a.heading = (float(anchor_yaw + rng.integers(4) * np.pi / 2 + rng.normal(0.0, 0.3))
+                 if turned else float(anchor_yaw))
     a.body = pedestrian_body(a.size, rng, moving=False)
 
 
 # ------------------------------------------------------------------ close in front of buildings
 FRONT_TYPES = ('building', 'wall')
 FRONT_TRIES = 4       # places drawn along each face of a front before the next front is tried
+FRONT_GAP = (0.1, 0.5)    # m between the front and the pedestrian's box
+FRONT_DEPTH = 1.5     # m: the pedestrian's box ends within this of the building line (the
+#                       walkers keep 1.5 m or more off it, so none walks through one standing)
 
 
 def front_chosen(instance_id: int, share: float) -> bool:
@@ -158,68 +163,113 @@ def front_chosen(instance_id: int, share: float) -> bool:
     return id_fraction(instance_id * 37 + 11) < share
 
 
-def _front_spots(front: NDArray[np.float64], size: NDArray[np.float64],
-                 rng: np.random.Generator) -> list[tuple[NDArray[np.float64], float]]:
-    """Candidate places close in front of each face of a building's footprint: a random place
-    along the face (clear of its corners), 0.1-0.6 m off it; with the face's direction."""
-    x, y, _, length, width, _, yaw = front
-    c, s = np.cos(yaw), np.sin(yaw)
-    half = float(max(size[0], size[1])) / 2
-    out = []
-    for along, across in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-        extent = float(width if along else length) / 2 - half - 0.2   # along the face
-        if extent <= 0:
+def fronts(scene: StaticScene, world: World) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """What pedestrians stand in front of: the layout's buildings and the pieces of the walls
+    round walled lots (not their gates; not the low garden walls along the sidewalk, which
+    are street furniture). :return: the faces ``(F, 7)`` and, per face, the footprint of the
+    scene object it belongs to ``(F, 7)`` (the one solid thing a spot may touch)."""
+    layout = world.boxes[np.isin(world.materials, [MATERIAL_IDS[t] for t in FRONT_TYPES])]
+    faces: list[NDArray[np.float64]] = []
+    owners: list[NDArray[np.float64]] = []
+    for k in np.flatnonzero(np.isin(scene.types, [CLUTTER_ID[t] for t in FRONT_TYPES])):
+        if not len(layout) or not np.any(np.all(np.abs(layout - scene.objects[k]) < 1e-9, 1)):
             continue
+        pieces = scene.parts[scene.owner == k]
+        faces += list(pieces)
+        owners += [scene.objects[k]] * len(pieces)
+    return (np.array(faces, np.float64).reshape(-1, 7),
+            np.array(owners, np.float64).reshape(-1, 7))
+
+
+def _reach(size: NDArray[np.float64], angle: float) -> tuple[float, float]:
+    """A ``(length, width)`` box turned by ``angle`` from an axis: its half extent along the
+    axis and across it."""
+    c, s = abs(np.cos(angle)), abs(np.sin(angle))
+    l, w = float(size[0]) / 2, float(size[1]) / 2
+    return l * c + w * s, l * s + w * c
+
+
+def _front_spots(face: NDArray[np.float64], size: NDArray[np.float64],
+                 rng: np.random.Generator) -> list[tuple[NDArray[np.float64], float, float]]:
+    """Candidate places in front of each side of a face: a heading (along or across the face,
+    give or take), a random place along the side clear of its corners, the turned box
+    0.1-0.5 m off it. :return: ``(spot, heading, the box's half extent off the face)``."""
+    x, y, _, length, width, _, yaw = face
+    out = []
+    for normal, half_depth, half_side in ((0.0, length / 2, width / 2),
+                                          (np.pi, length / 2, width / 2),
+                                          (np.pi / 2, width / 2, length / 2),
+                                          (-np.pi / 2, width / 2, length / 2)):
+        n = float(yaw + normal)
         for _ in range(FRONT_TRIES):
-            gap = float(rng.uniform(0.1, 0.6)) + half
+            heading = float(yaw + rng.integers(4) * np.pi / 2 + rng.normal(0.0, 0.3))
+            off, along = _reach(size, heading - n)
+            extent = half_side - along - 0.2
+            if extent <= 0:
+                continue
+            d = half_depth + float(rng.uniform(*FRONT_GAP)) + off
             t = float(rng.uniform(-extent, extent))
-            du = along * (length / 2 + gap) + across * t
-            dv = across * (width / 2 + gap) + along * t
-            out.append((np.array([x + c * du - s * dv, y + s * du + c * dv]),
-                        float(yaw + (np.pi / 2 if along else 0.0))))
+            spot = np.array([x + d * np.cos(n) - t * np.sin(n), y + d * np.sin(n) + t * np.cos(n)])
+            out.append((spot, heading, off))
     order = rng.permutation(len(out))
     return [out[i] for i in order]
+
+
+def _front_free(p: NDArray[np.float64], size: NDArray[np.float64], off: float,
+                owner: NDArray[np.float64], blocked: NDArray[np.float64],
+                stood: Sequence[NDArray[np.float64]], world: World) -> bool:
+    """A place on the street side of the building line, the box within ``FRONT_DEPTH`` of it
+    and off the road, clear of every solid footprint but its front's, and not on a pedestrian
+    placed before."""
+    line = world.road_half_width + world.sidewalk_width + 1.0    # where the buildings start
+    d = float(sidewalk_distance(p[None, :], world)[0])
+    if not (d <= line and d - off >= max(line - FRONT_DEPTH, world.road_half_width + 0.2)):
+        return False
+    half = float(max(size[0], size[1])) / 2
+    others = blocked[np.any(np.abs(blocked - owner) > 1e-9, axis=1)]
+    if len(others) and _inside(p, others, half + CLEAR).any():
+        return False
+    return all(float(np.linalg.norm(p - q)) > 1.0 for q in stood)
 
 
 def place_at_fronts(actors: Sequence[Actor], scene: StaticScene, world: World, share: float,
                     rng: np.random.Generator, taken: Sequence[int] = ()) -> list[int]:
     """Move ``share`` of the pedestrians (by id; not the actors ``taken``, the bystanders) to
-    stand still close in front of the nearest building or wall near their start that has a
-    free place on the sidewalk, clear of every other solid thing and pedestrian; each gets a
-    standing body drawn from ``rng``. :return: the indices of the actors moved."""
+    stand still close in front of the nearest building or lot wall near their start that has
+    a free place on the sidewalk (:func:`_front_free`); each gets a standing body drawn from
+    ``rng``. :return: the indices of the actors moved."""
     if share <= 0:
         return []
-    fronts = scene.objects[np.isin(scene.types, [CLUTTER_ID[t] for t in FRONT_TYPES])]
-    if not len(fronts):
+    faces, owners = fronts(scene, world)
+    if not len(faces):
         return []
     solid = scene.objects[np.isin(scene.types, [CLUTTER_ID[t] for t in SOLID_TYPES])]
     parked = [np.array([a.poly[0, 0], a.poly[0, 1], a.size[2] / 2, *a.size, a.heading])
               for a in actors if len(a.poly) == 1 and CLASS_NAMES[a.label] in ('car', 'truck')]
     blocked = np.concatenate([solid, np.array(parked, np.float64).reshape(-1, 7)])
     stood = [np.asarray(actors[i].poly[0], np.float64) for i in taken]
-    lo = world.road_half_width + 0.2
-    hi = world.road_half_width + world.sidewalk_width + 0.9    # the buildings start 1 m past
     moved = []
     for i, a in enumerate(actors):
         if (CLASS_NAMES[a.label] != 'pedestrian' or i in taken
                 or not front_chosen(a.instance_id, share)):
             continue
         start = np.array(a.state(0.0)[:2])
-        # the nearest fronts by the distance from the start to their footprint
-        d = start[None, :] - fronts[:, :2]
-        c, s = np.cos(fronts[:, 6]), np.sin(fronts[:, 6])
-        u = np.maximum(np.abs(c * d[:, 0] + s * d[:, 1]) - fronts[:, 3] / 2, 0)
-        v = np.maximum(np.abs(-s * d[:, 0] + c * d[:, 1]) - fronts[:, 4] / 2, 0)
+        # the nearest faces by the distance from the start to their footprint
+        d = start[None, :] - faces[:, :2]
+        c, s = np.cos(faces[:, 6]), np.sin(faces[:, 6])
+        u = np.maximum(np.abs(c * d[:, 0] + s * d[:, 1]) - faces[:, 3] / 2, 0)
+        v = np.maximum(np.abs(-s * d[:, 0] + c * d[:, 1]) - faces[:, 4] / 2, 0)
         dist = np.hypot(u, v)
         for k in np.argsort(dist):
             if dist[k] > REACH:
                 break
-            spot = next(((p, face) for p, face in _front_spots(fronts[k], a.size, rng)
-                         if _free(p, a.size, fronts[k], blocked, stood, lo, hi, world)), None)
+            spot = next(((p, h) for p, h, off in _front_spots(faces[k], a.size, rng)
+                         if _front_free(p, a.size, off, owners[k], blocked, stood, world)),
+                        None)
             if spot is None:
                 continue
             stood.append(spot[0])
-            _stand(a, spot[0], spot[1], rng)
+            _stand(a, spot[0], spot[1], rng, turned=False)
             moved.append(i)
             break
     return moved
