@@ -294,7 +294,13 @@ def main() -> int:
     lines += carry_lines()
     lines += ['', 'Limitations: trained only on the synthetic world (see docs/results.md for the '
               'held-out sensor and clutter figures, and the README for what to expect on real '
-              'sensors); speed is read only partly: on moving cars the predicted along-track '
+              'sensors); no pedestrian standing close in front of a building (its box within '
+              'about 0.5 m of the wall) is published: the training world had none there, only '
+              'the street objects the model learned to ignore; on the validation drives with '
+              'half the pedestrians so placed (preset `val-fronts`) it finds 0 of 613 of them '
+              'at its published thresholds against 0.73 of the rest (docs/experiments/at_fronts, '
+              'measured by hand; the real dev pedestrian at 13 m is one); speed is read only '
+              'partly: on moving cars the predicted along-track '
               'speed follows GT speed with a least-squares slope of '
               f'{fmt(runs["suit"], "moving car speed slope")} (1 would read it fully; '
               '`moving car speed slope` in docs/results.md).']
@@ -323,7 +329,11 @@ def traffic_side_lines() -> list[str]:
             "side's traffic (a one-way street's left kerb) comes out turned round "
             "(docs/experiments/parked_rows). In left-hand traffic set the node's "
             '`traffic_side: left`: the model is given the drive mirrored, the right-hand world '
-            'it was trained on, and its boxes are mirrored back.']
+            'it was trained on, and its boxes are mirrored back. `traffic_side: auto` reads the '
+            'side from the tracked oncoming traffic (measured 2026-12-07, '
+            'docs/experiments/traffic_side): on 16 validation drives of 10 s it changed side on '
+            'none in right-hand traffic and went over to left on 5 of 16 mirrored ones (after '
+            '2.8-8 s; cars flipped 60.9% -> 51.4%), so it is an option, not the default.']
 
 
 if __name__ == '__main__':
