@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_bystanders import box_gap, only_the_chosen_move  # the helpers both worlds share
 
 from suit_ros import CLASS_NAMES
 from suit_ros.compare import VARIANTS, WORLDS
@@ -30,15 +31,6 @@ PED = CLASS_NAMES.index('pedestrian')
 def worlds():
     return (Simulation(preset('val-street-ends', frames=4), 9001),
             Simulation(preset('val-fronts', frames=4), 9001))
-
-
-def box_gap(p, boxes):
-    """Distance from a point to each oriented footprint's edge (0 inside)."""
-    d = p[None, :] - boxes[:, :2]
-    c, s = np.cos(boxes[:, 6]), np.sin(boxes[:, 6])
-    u = np.abs(c * d[:, 0] + s * d[:, 1]) - boxes[:, 3] / 2
-    v = np.abs(-s * d[:, 0] + c * d[:, 1]) - boxes[:, 4] / 2
-    return np.hypot(np.maximum(u, 0), np.maximum(v, 0))
 
 
 def outline(a, n=12):
@@ -68,21 +60,7 @@ def test_worlds_without_fronts_keep_their_keys():
 
 
 def test_only_the_chosen_pedestrians_move(worlds):
-    plain, fronts = worlds
-    assert len(plain.actors) == len(fronts.actors)
-    moved = 0
-    for a, b in zip(plain.actors, fronts.actors):
-        assert a.instance_id == b.instance_id and np.array_equal(a.size, b.size)
-        same = np.array_equal(a.poly, b.poly) and np.array_equal(a.s, b.s)
-        if a.label != PED or not front_chosen(a.instance_id, 0.5):
-            assert same and np.array_equal(a.body.parts, b.body.parts)
-        elif not same:
-            moved += 1
-    peds = [a for a in plain.actors if a.label == PED]
-    wanted = sum(front_chosen(a.instance_id, 0.5) for a in peds)
-    assert 0.3 * len(peds) < wanted < 0.7 * len(peds)
-    assert moved >= 0.8 * wanted                     # nearly all find a front within reach
-    np.testing.assert_array_equal(plain.scene.objects, fronts.scene.objects)
+    only_the_chosen_move(*worlds, lambda i: front_chosen(i, 0.5))
 
 
 def test_they_stand_close_in_front_of_a_building_on_the_sidewalk(worlds):

@@ -12,13 +12,12 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / 'bystanders'))
+from fronts import at_fronts  # noqa: E402  (this folder's)
 from probe import heatmaps  # noqa: E402  (the bystanders page's heatmap hook)
 
 from suit_ros import CLASS_NAMES  # noqa: E402
 from suit_ros.checkpoint import load_checkpoint  # noqa: E402
 from suit_ros.data.sequences import split_drives, synthetic_sequence  # noqa: E402
-from suit_ros.data.sim import preset  # noqa: E402
-from suit_ros.data.sim.scene import Simulation  # noqa: E402
 from suit_ros.evaluate import step_inputs  # noqa: E402
 from suit_ros.model.streaming import StreamingDetector  # noqa: E402
 
@@ -30,10 +29,7 @@ for path in sys.argv[1:]:
     heat = heatmaps(runner.model)
     vals: dict[bool, list[float]] = {True: [], False: []}
     for seed, sensor in split_drives('val', 8, 0):
-        plain = Simulation(preset('val-street-ends', sensor=sensor, frames=40), seed).actors
-        there = Simulation(preset('val-fronts', sensor=sensor, frames=40), seed).actors
-        at = {b.instance_id for a, b in zip(plain, there)
-              if b.label == PED and not np.array_equal(a.poly, b.poly)}
+        at = at_fronts(seed, sensor)
         runner.reset('next drive')
         for f in synthetic_sequence('val-fronts', seed, 40, 'data_cache', sensor):
             runner.step(*step_inputs(f))

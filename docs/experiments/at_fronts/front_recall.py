@@ -10,14 +10,13 @@ Usage: python front_recall.py [CHECKPOINT] [DRIVES]   (default suit_default, 16)
 """
 import sys
 
+from fronts import at_fronts  # this folder's (the script's folder is on the path)
 import numpy as np
 import torch
 
 from suit_ros import CLASS_NAMES
 from suit_ros.checkpoint import load_checkpoint, published_thresholds
 from suit_ros.data.sequences import split_drives, synthetic_sequence
-from suit_ros.data.sim import preset
-from suit_ros.data.sim.scene import Simulation
 from suit_ros.evaluate import step_inputs
 from suit_ros.model.streaming import StreamingDetector
 
@@ -32,10 +31,7 @@ runner.set_thresholds(published_thresholds(meta, cfg.class_names))
 found = {'at a front': [0, 0], 'elsewhere': [0, 0]}
 stray, frames = 0, 0
 for seed, sensor in split_drives('val', drives, 0):
-    plain = Simulation(preset('val-street-ends', sensor=sensor, frames=40), seed).actors
-    there = Simulation(preset('val-fronts', sensor=sensor, frames=40), seed).actors
-    at_front = {b.instance_id for a, b in zip(plain, there)
-                if b.label == PED and not np.array_equal(a.poly, b.poly)}
+    at_front = at_fronts(seed, sensor)
     runner.reset('next drive')
     for f in synthetic_sequence('val-fronts', seed, 40, 'data_cache', sensor):
         det = runner.step(*step_inputs(f)).detections
