@@ -79,9 +79,7 @@ def test_they_stand_close_in_front_of_a_building_on_the_sidewalk(worlds):
                                                                 for t in SOLID_TYPES])], parked])
     spots = []
     for a, b in zip(plain.actors, busy.actors):
-        if b.label != PED:
-            continue
-        if np.array_equal(a.poly, b.poly):
+        if b.label != PED or np.array_equal(a.poly, b.poly):
             continue
         assert len(b.poly) == 1 and b.v.max() == 0 and b.s.max() == 0
         p = b.poly[0]

@@ -75,6 +75,21 @@ def _spots(anchor: NDArray[np.float64], size: NDArray[np.float64],
     return [out[i] for i in order]
 
 
+def building_line(world: World) -> float:
+    """Distance from a road axis at which the buildings start (1 m past the sidewalk)."""
+    return world.road_half_width + world.sidewalk_width + 1.0
+
+
+def _parked_and_blocked(actors: Sequence[Actor], scene: StaticScene
+                        ) -> tuple[list[NDArray[np.float64]], NDArray[np.float64]]:
+    """The parked vehicles' footprints, and every footprint a standing pedestrian must keep
+    clear of: the solid clutter and those vehicles ``(K, 7)``."""
+    solid = scene.objects[np.isin(scene.types, [CLUTTER_ID[t] for t in SOLID_TYPES])]
+    parked = [np.array([a.poly[0, 0], a.poly[0, 1], a.size[2] / 2, *a.size, a.heading])
+              for a in actors if len(a.poly) == 1 and CLASS_NAMES[a.label] in ('car', 'truck')]
+    return parked, np.concatenate([solid, np.array(parked, np.float64).reshape(-1, 7)])
+
+
 def place_bystanders(actors: Sequence[Actor], scene: StaticScene, world: World, share: float,
                      rng: np.random.Generator) -> list[int]:
     """Move ``share`` of the pedestrians (by id) to stand beside a street object or a parked
@@ -82,21 +97,17 @@ def place_bystanders(actors: Sequence[Actor], scene: StaticScene, world: World, 
     standing body drawn from ``rng``. :return: the indices of the actors moved."""
     if share <= 0:
         return []
-    solid_ids = np.array([CLUTTER_ID[t] for t in SOLID_TYPES])
-    solid = scene.objects[np.isin(scene.types, solid_ids)]
     anchor_ids = np.array([CLUTTER_ID[t] for t in ANCHOR_TYPES])
     anchors = list(scene.objects[np.isin(scene.types, anchor_ids)])
-    parked = [np.array([a.poly[0, 0], a.poly[0, 1], a.size[2] / 2, *a.size, a.heading])
-              for a in actors if len(a.poly) == 1 and CLASS_NAMES[a.label] in ('car', 'truck')]
+    parked, blocked = _parked_and_blocked(actors, scene)
     anchors += parked
     if not anchors:
         return []
     boxes = np.array(anchors, np.float64).reshape(-1, 7)
-    blocked = np.concatenate([solid, np.array(parked, np.float64).reshape(-1, 7)])
     used = np.zeros(len(boxes), bool)
     stood: list[NDArray[np.float64]] = []
     lo = world.road_half_width + 0.2                  # off the road
-    hi = world.road_half_width + world.sidewalk_width + 0.9    # the buildings start 1 m past
+    hi = building_line(world) - 0.1                   # 0.1 m short of the buildings
     moved = []
     for i, a in enumerate(actors):
         if CLASS_NAMES[a.label] != 'pedestrian' or not chosen(a.instance_id, share):
@@ -221,7 +232,7 @@ def _front_free(p: NDArray[np.float64], size: NDArray[np.float64], off: float,
     """A place on the street side of the building line, the box within ``FRONT_DEPTH`` of it
     and off the road, clear of every solid footprint but its front's, and not on a pedestrian
     placed before."""
-    line = world.road_half_width + world.sidewalk_width + 1.0    # where the buildings start
+    line = building_line(world)
     d = float(sidewalk_distance(p[None, :], world)[0])
     if not (d <= line and d - off >= max(line - FRONT_DEPTH, world.road_half_width + 0.2)):
         return False
@@ -243,10 +254,7 @@ def place_at_fronts(actors: Sequence[Actor], scene: StaticScene, world: World, s
     faces, owners = fronts(scene, world)
     if not len(faces):
         return []
-    solid = scene.objects[np.isin(scene.types, [CLUTTER_ID[t] for t in SOLID_TYPES])]
-    parked = [np.array([a.poly[0, 0], a.poly[0, 1], a.size[2] / 2, *a.size, a.heading])
-              for a in actors if len(a.poly) == 1 and CLASS_NAMES[a.label] in ('car', 'truck')]
-    blocked = np.concatenate([solid, np.array(parked, np.float64).reshape(-1, 7)])
+    _, blocked = _parked_and_blocked(actors, scene)
     stood = [np.asarray(actors[i].poly[0], np.float64) for i in taken]
     moved = []
     for i, a in enumerate(actors):

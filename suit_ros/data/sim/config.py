@@ -85,7 +85,7 @@ class Realism:
         own returns say which end is its front; 0 (default): none, the world byte for byte
         as before.
     :param at_fronts: share of pedestrians (drawn from their ids; not the bystanders) that
-        stand on the sidewalk close in front of a building or a wall, 0.1-0.6 m off it, as
+        stand on the sidewalk close in front of a building or a lot wall, 0.1-0.5 m off it, as
         real ones wait at a door or look in a shop window
         (:func:`~suit_ros.data.sim.bystanders.place_at_fronts`; the world's walkers keep 1.5 m
         or more off the building line); 0 (default): none, the world byte for byte as before.
