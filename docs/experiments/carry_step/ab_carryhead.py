@@ -6,30 +6,16 @@ Usage: python ab_carryhead.py THREADS FRAMES
 """
 from collections.abc import Iterator
 from contextlib import contextmanager
-import sys
 import time
 
+from demo_runners import demo_runners
 import numpy as np
-import torch
 
-from suit_ros.checkpoint import load_model_as
-from suit_ros.data.sim import preset
-from suit_ros.data.sim.scene import Simulation, to_frame
-from suit_ros.evaluate import step_inputs
-from suit_ros.heap import keep_freed_memory
 import suit_ros.model.detector as detector
-from suit_ros.model.streaming import StreamingDetector
-from suit_ros.tracking import TrackerConfig
 
-keep_freed_memory()
-threads, n = int(sys.argv[1]), int(sys.argv[2])
-torch.set_num_threads(threads)
-checkpoint = 'suit_ros/checkpoints/suit_carry.safetensors'
-sim = Simulation(preset('demo-real', frames=n), 7)
-inputs = [step_inputs(to_frame(sim.render(k), 7)) for k in range(n)]
-runners = {k: StreamingDetector(load_model_as(checkpoint, t), 'cpu', precision='auto',
-                                tracker=TrackerConfig())
-           for k, t in (('none', 'none'), ('carry', None), ('carry_all_threads', None))}
+threads, n, inputs, runners = demo_runners({
+    k: ('suit_carry', t) for k, t in (('none', 'none'), ('carry', None),
+                                      ('carry_all_threads', None))})
 one_thread = detector.one_thread
 every = runners['carry_all_threads'].model
 

@@ -17,25 +17,18 @@ Usage: python bf16_first_layer.py THREADS FRAMES
 from collections import defaultdict
 from collections.abc import Iterator
 from contextlib import contextmanager
-import sys
 import time
 from typing import Any
 
+from demo_runners import demo_runners
 import numba
 import numpy as np
 import torch
 import torch.nn.functional as F
 
-from suit_ros.checkpoint import load_model_as
-from suit_ros.data.sim import preset
-from suit_ros.data.sim.scene import Simulation, to_frame
-from suit_ros.evaluate import step_inputs
-from suit_ros.heap import keep_freed_memory
 import suit_ros.model.detector as detector
 import suit_ros.model.head as head
-from suit_ros.model.streaming import StreamingDetector
 from suit_ros.ops.kernels import _tap_row, add_tap_spread
-from suit_ros.tracking import TrackerConfig
 
 
 @numba.njit(nogil=True)
@@ -50,15 +43,9 @@ def gather_taps_u16(rows: Any, cells: Any, H: int, W: int, out: Any) -> None:
                 out[m, t * C + c] = rows[r, c] if r >= 0 else np.uint16(0)
 
 
-keep_freed_memory()
-threads, n = int(sys.argv[1]), int(sys.argv[2])
-torch.set_num_threads(threads)
-checkpoint = 'suit_ros/checkpoints/suit_carry.safetensors'
-sim = Simulation(preset('demo-real', frames=n), 7)
-inputs = [step_inputs(to_frame(sim.render(k), 7)) for k in range(n)]
-variants = {'single': 'none', 'carry': None, 'carry_bf16': None, 'carry_bf16_all': None}
-runners = {k: StreamingDetector(load_model_as(checkpoint, t), 'cpu', precision='auto',
-                                tracker=TrackerConfig()) for k, t in variants.items()}
+threads, n, inputs, runners = demo_runners({
+    k: ('suit_carry', 'none' if k == 'single' else None)
+    for k in ('single', 'carry', 'carry_bf16', 'carry_bf16_all')})
 current = ['single']
 spent: dict[str, float] = defaultdict(float)
 shipped_at = head.HeadFold.at

@@ -5,29 +5,13 @@ streaming detector's own timings) and of the whole step.
 
 Usage: python stages.py THREADS FRAMES
 """
-import sys
 
+from demo_runners import demo_runners
 import numpy as np
-import torch
 
-from suit_ros.checkpoint import load_model_as
-from suit_ros.data.sim import preset
-from suit_ros.data.sim.scene import Simulation, to_frame
-from suit_ros.evaluate import step_inputs
-from suit_ros.heap import keep_freed_memory
-from suit_ros.model.streaming import StreamingDetector
-from suit_ros.tracking import TrackerConfig
-
-keep_freed_memory()
-threads, n = int(sys.argv[1]), int(sys.argv[2])
-torch.set_num_threads(threads)
-sim = Simulation(preset('demo-real', frames=n), 7)
-inputs = [step_inputs(to_frame(sim.render(k), 7)) for k in range(n)]
-models = {'single': ('suit_carry', 'none'), 'suit_default': ('suit_default', None),
-          'suit_carry': ('suit_carry', None)}
-runners = {k: StreamingDetector(load_model_as(f'suit_ros/checkpoints/{c}.safetensors', t),
-                                'cpu', precision='auto', tracker=TrackerConfig())
-           for k, (c, t) in models.items()}
+threads, n, inputs, runners = demo_runners({
+    'single': ('suit_carry', 'none'), 'suit_default': ('suit_default', None),
+    'suit_carry': ('suit_carry', None)})
 for r in runners.values():
     r.warm_up()
 timings: dict[str, list[dict[str, float]]] = {k: [] for k in runners}
