@@ -85,6 +85,8 @@ class TrainConfig:
     # clips with passing occluders hiding well-seen objects 0.3-0.7 s (ClipSampler; no draw at 0)
     passing_probability: float = 0.0
     occlusion_weight: float = 0.0    # clips drawn by 1 + weight * occluded objects (ClipSampler)
+    # clips cut as a drive starts: no sweep before the clip's first frame (ClipSampler)
+    fresh_start_probability: float = 0.0
     eval_at_end: bool = True
     checkpoint_every: int = 200
 
@@ -111,7 +113,8 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
     if unknown:
         raise ConfigError(f'{path}: freeze names modules {sorted(unknown)}; choose from '
                           f'{", ".join(FREEZABLE)}')
-    for name in ('overhead_probability', 'occluder_probability', 'passing_probability'):
+    for name in ('overhead_probability', 'occluder_probability', 'passing_probability',
+                 'fresh_start_probability'):
         if not 0.0 <= getattr(tc, name) <= 1.0:
             raise ConfigError(f'{path}: {name} must be in [0, 1], not {getattr(tc, name)}')
     if not tc.augment and (tc.overhead_probability > 0 or tc.occluder_probability > 0):
@@ -580,7 +583,8 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         ground = LocalGround(mcfg.pillars.point_range)
     sampler = ClipSampler(data, lengths, tc.seed * 1000 + rank, mcfg.sweeps,
                           tc.outage_probability, tc.outage_width_deg, tc.carry_gt,
-                          tc.occlusion_weight, tc.passing_probability)
+                          tc.occlusion_weight, tc.passing_probability,
+                          tc.fresh_start_probability)
     frozen = freeze(module, tc.freeze)
     distiller = _distiller(tc, module, dev)
     aug_rng = np.random.default_rng(tc.seed * 7919 + rank)

@@ -337,3 +337,42 @@ def test_occlusion_weight_draws_clips_with_occlusions_more_often(tmp_path):
     assert abs(drawn(0.0) - uniform) < 0.5 * uniform + 0.5
     with pytest.raises(ValueError, match='occlusion_weight'):
         ClipSampler(seqs, [L], 0, occlusion_weight=-1.0)
+
+
+def test_clips_cut_as_a_drive_starts(tmp_path):
+    """``fresh_start_probability``: a clip drawn so has no sweep before its first frame (one
+    sweep there, two in its second frame, as a drive's start or the node after a reset);
+    0 draws nothing, so a recipe without it replays the clips it drew before; out of [0, 1]
+    is an error, in the training config a message."""
+    from suit_ros.data.sequences import ClipSampler, synthetic_sequence
+    seq = synthetic_sequence('test', 3, 8, tmp_path)
+    period = seq[1].stamp_ns - seq[0].stamp_ns
+
+    def lags(f):
+        return np.unique(np.round(f.points[:, 4], 3)).tolist()
+
+    starts = set()
+    for clip in ClipSampler([seq], [3], 1, sweeps=3, fresh_start_probability=1.0).batch(6):
+        assert lags(clip[0]) == [0.0]
+        np.testing.assert_allclose(lags(clip[1]), [0.0, period * 1e-9], atol=1e-3)
+        assert len(lags(clip[2])) == 3
+        starts.add(clip[0].stamp_ns)
+    assert len(starts) > 1                     # not only the drive's own first frame
+    ordinary = ClipSampler([seq], [3], 1, sweeps=3).batch(6)
+    assert sum(len(lags(c[0])) == 3 for c in ordinary) >= 4
+    off = ClipSampler([seq], [3], 1, sweeps=3, fresh_start_probability=0.0).batch(6)
+    assert all(np.array_equal(a.points, b.points)
+               for p, q in zip(ordinary, off) for a, b in zip(p, q))
+    with pytest.raises(ValueError, match='fresh_start_probability'):
+        ClipSampler([seq], [3], 1, fresh_start_probability=1.5)
+
+
+def test_the_fresh_start_training_option_is_validated(tmp_path):
+    from suit_ros.errors import ConfigError
+    from suit_ros.train import load_train_config
+    cfg = tmp_path / 'fresh.yaml'
+    cfg.write_text('fresh_start_probability: 0.25\n')
+    assert load_train_config(cfg).fresh_start_probability == 0.25
+    cfg.write_text('fresh_start_probability: -0.1\n')
+    with pytest.raises(ConfigError, match='fresh_start_probability must be in'):
+        load_train_config(cfg)

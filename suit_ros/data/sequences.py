@@ -257,13 +257,20 @@ class ClipSampler:
         with returns earlier in the clip but in none of the last ``sweeps`` frames, see
         :func:`occluded_in_clip`); 0 draws every start alike. Puts natural occlusions beyond
         the sweep window in front of the loss without cutting anything out of the sweeps.
+    :param fresh_start_probability: share of the clips cut as a drive starts (or as the node
+        starts again after a reset: a time jump, a gap, a new sensor): the clip's first frame
+        gets no earlier sweeps, its second one earlier sweep, and so on, so the model learns
+        the one- and two-sweep input it meets there (and on single scans, a KITTI object
+        frame) from more than the drives' own first frames (1 clip start in 40); 0 draws
+        nothing, so a recipe without it replays the same clips.
     """
 
     def __init__(self, sequences: Sequence[Sequence[Frame]], lengths: Sequence[int],
                  seed: int, sweeps: int = 1, outage_probability: float = 0.0,
                  outage_width_deg: tuple[float, float] = (60.0, 180.0),
                  carry_gt: bool = False, occlusion_weight: float = 0.0,
-                 passing_probability: float = 0.0) -> None:
+                 passing_probability: float = 0.0,
+                 fresh_start_probability: float = 0.0) -> None:
         span = max(lengths)
         self.sequences = [s for s in sequences if len(s) >= span]
         if not self.sequences:
@@ -283,6 +290,10 @@ class ClipSampler:
             raise ValueError('clips with passing occluders need at least 5 frames')
         self.outage_probability = outage_probability
         self.passing_probability = passing_probability
+        if not 0.0 <= fresh_start_probability <= 1.0:
+            raise ValueError('fresh_start_probability must be in [0, 1], not '
+                             f'{fresh_start_probability}')
+        self.fresh_start_probability = fresh_start_probability
         self.outage_width_deg = outage_width_deg
         self.carry_gt = carry_gt
         if not (occlusion_weight >= 0.0 and np.isfinite(occlusion_weight)):
@@ -317,6 +328,8 @@ class ClipSampler:
         for _ in range(batch_size):
             seq, start = self._draw_start(L)
             first = max(start - self.sweeps + 1, 0)
+            if self.fresh_start_probability and self.rng.random() < self.fresh_start_probability:
+                first = start           # no sweep before the clip: as a drive starts
             window = list(seq[first:start + L])
             active = [False] * L
             seen: frozenset[int] | None = None
