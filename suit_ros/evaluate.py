@@ -371,6 +371,9 @@ class ModelRun:
     used_memory: list[bool] = field(default_factory=list)   # per frame: a memory was fused
     # per frame the side of the road the model was given traffic on (``traffic_side``)
     sides: list[TrafficSide] = field(default_factory=list)
+    # per frame the sweeps in the model's input: fewer than the model takes on a sequence's
+    # first frames and on single scans (a dataset's accumulated keyframe counts as whole)
+    input_sweeps: list[int] = field(default_factory=list)
 
     def held(self) -> list[NDArray[np.bool_]]:
         """Per frame, which detections are held where the input had no returns (``carried``;
@@ -399,7 +402,8 @@ class ModelRun:
                        num_points=pick(self.num_points), latency_s=pick(self.latency_s),
                        memory_bytes=pick(self.memory_bytes), drive=pick(self.drive),
                        ignore=pick(self.ignore), carried=pick(self.carried),
-                       used_memory=pick(self.used_memory), sides=pick(self.sides))
+                       used_memory=pick(self.used_memory), sides=pick(self.sides),
+                       input_sweeps=pick(self.input_sweeps))
 
     def as_published(self, thresholds: Sequence[float], carry_thresholds: Sequence[float]
                      ) -> ModelRun:
@@ -478,6 +482,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         raise ValueError(f'traffic_side must be auto, right or left, or one per drive '
                          f'({len(sequences)}), got {traffic_side!r}')
     from suit_ros.model.streaming import StreamingDetector
+    from suit_ros.model.sweeps import already_accumulated
     was_training = model.training
     runner = StreamingDetector(model, device, precision=precision,
                                tracker=tracker, ground=ground, overhang=overhang,
@@ -508,6 +513,8 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
                 for past in worlds[side][max(0, t - history + 1):t]:
                     runner.step(*step_inputs(past))
             res = runner.step(*step_inputs(frame))
+            out.input_sweeps.append(runner.cfg.sweeps if already_accumulated(frame.points)
+                                    else len(runner.sweeps.last_lags_s))
             out.latency_s.append(res.timings['total'])
             out.memory_bytes.append(res.memory_bytes)
             if history is None and t + 1 in (2, 10):

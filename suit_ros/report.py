@@ -22,6 +22,7 @@ bicycles and motorcycles on AV2) count as neither true nor false positives
 from __future__ import annotations
 
 import argparse
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import json
@@ -142,6 +143,9 @@ class Report:
     # baseline checkpoint when ``baseline`` names one (the second run of ``intervals``)
     intervals: APIntervals | None = None
     baseline: str = ''
+    # frames by the sweeps in the model's input (fewer than the model takes: a sequence's
+    # first frames, single scans)
+    input_sweeps: dict[int, int] = field(default_factory=dict)
 
     def at_published(self, c: str) -> dict[str, Any]:
         """Class ``c``'s counts as published."""
@@ -155,6 +159,9 @@ class Report:
                                'published_thresholds': dict(zip(self.class_names,
                                                                 self.thresholds)),
                                'notes': self.notes, 'classes': {}}
+        if self.input_sweeps:
+            out['frames_by_input_sweeps'] = {str(k): v for k, v in
+                                             sorted(self.input_sweeps.items())}
         for c in self.class_names:
             cc = self.counts[c]
             by_dist = self.ap_by_distance.get(c, {})
@@ -433,7 +440,8 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
                              match_dist)
     return Report(names, [float(t) for t in thresholds], counts, result.class_ap, len(run.gt),
                   source, published=published, missed=missed, false=false,
-                  ap_by_distance={c: dict(sorted(result.ap[c].items())) for c in result.ap})
+                  ap_by_distance={c: dict(sorted(result.ap[c].items())) for c in result.ap},
+                  input_sweeps=dict(Counter(run.input_sweeps)))
 
 
 def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det: Detections,
@@ -674,6 +682,13 @@ def run(args: argparse.Namespace) -> int:
     if args.box_fit != 'off':
         notes.append(f'box fit {args.box_fit}: car boxes moved onto the returns of the faces '
                      'the sensor sees (suit_ros/box_fit.py)')
+    short = [n for n in result.input_sweeps if n < cfg.sweeps]
+    if short:
+        by = ', '.join(f'{v} with {k}' for k, v in sorted(Counter(short).items()))
+        notes.append(f'{len(short)} of {len(result.input_sweeps)} frames read with fewer than '
+                     f"{cfg.sweeps} sweeps ({by}: a sequence's first frames, a single scan): "
+                     'the model finds fewer objects on them than with its '
+                     f'{cfg.sweeps} (docs/experiments/first_sweeps)')
     if args.kitti:
         from suit_ros.data.kitti import camera_fov_run
         result = camera_fov_run(result, seqs)

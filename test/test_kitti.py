@@ -271,6 +271,10 @@ def test_report_runs_on_a_kitti_folder(object_root, tmp_path):
     gt = sum(c['published']['gt'] for c in report['classes'].values())
     found = sum(c['published']['tp'] for c in report['classes'].values())
     assert gt > 0 and len(report['missed']) == gt - found
+    # object frames are single scans: the report says the model read them with one sweep
+    assert report['frames_by_input_sweeps'] == {'1': 2}
+    assert any(n.startswith('2 of 2 frames read with fewer than 3 sweeps (2 with 1')
+               for n in report['notes'])
 
 
 def write_tracking(root, rng, frames=5):

@@ -241,6 +241,11 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
     missed = json.loads(j)['missed']
     assert missed and all('seen' in m for m in missed)  # read from each frame's points
     assert any(m['seen'] is not None for m in missed)
+    # the log's first frame has one sweep and its second two: the report counts them
+    by = json.loads(j)['frames_by_input_sweeps']
+    assert by['1'] == 1 and by['2'] == 1 and sum(by.values()) == json.loads(j)['frames']
+    assert 'frames read with fewer than 3 sweeps (1 with 1, 1 with 2' in \
+        (out / 'report.md').read_text()
     assert len(list((out / 'bev').glob('*.png'))) == 2
     assert 'Real-data report' in capsys.readouterr().out
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep2'),
