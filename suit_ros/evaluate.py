@@ -482,7 +482,6 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
         raise ValueError(f'traffic_side must be auto, right or left, or one per drive '
                          f'({len(sequences)}), got {traffic_side!r}')
     from suit_ros.model.streaming import StreamingDetector
-    from suit_ros.model.sweeps import already_accumulated
     was_training = model.training
     runner = StreamingDetector(model, device, precision=precision,
                                tracker=tracker, ground=ground, overhang=overhang,
@@ -513,8 +512,7 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
                 for past in worlds[side][max(0, t - history + 1):t]:
                     runner.step(*step_inputs(past))
             res = runner.step(*step_inputs(frame))
-            out.input_sweeps.append(runner.cfg.sweeps if already_accumulated(frame.points)
-                                    else len(runner.sweeps.last_lags_s))
+            out.input_sweeps.append(_input_sweeps(frame, runner))
             out.latency_s.append(res.timings['total'])
             out.memory_bytes.append(res.memory_bytes)
             if history is None and t + 1 in (2, 10):
@@ -536,6 +534,16 @@ def run_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any = None
             out.ignore.append(given[t].ignore_boxes)
     model.train(was_training)
     return out
+
+
+def _input_sweeps(frame: Frame, runner: Any) -> int:
+    """The sweeps in the model's input of ``frame`` (just stepped): the buffer's, or for a
+    frame accumulated already (a dataset's keyframe with its sweeps) its distinct time lags,
+    at most the model's count (lags per return count as whole)."""
+    from suit_ros.model.sweeps import already_accumulated
+    if already_accumulated(frame.points):
+        return int(min(len(np.unique(frame.points[:, 4])), runner.cfg.sweeps))
+    return len(runner.sweeps.last_lags_s)
 
 
 class _DriveWorlds:

@@ -686,8 +686,8 @@ def run(args: argparse.Namespace) -> int:
     if short:
         by = ', '.join(f'{v} with {k}' for k, v in sorted(Counter(short).items()))
         notes.append(f'{len(short)} of {len(result.input_sweeps)} frames read with fewer than '
-                     f"{cfg.sweeps} sweeps ({by}: a sequence's first frames, a single scan): "
-                     'the model finds fewer objects on them than with its '
+                     f"{cfg.sweeps} sweeps ({by}: after a sequence's start, a reset or a gap; "
+                     'single scans): the model finds fewer objects on them than with its '
                      f'{cfg.sweeps} (docs/experiments/first_sweeps)')
     if args.kitti:
         from suit_ros.data.kitti import camera_fov_run

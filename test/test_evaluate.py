@@ -161,12 +161,13 @@ def test_a_run_on_some_of_its_frames_keeps_every_per_frame_list_in_step():
                    [0.1 * k for k in range(4)], [10 * k for k in range(4)], {2: [5]},
                    drive=[0, 0, 1, 1], ignore=[None] * 4,
                    carried=[np.zeros(k, bool) for k in range(4)],
-                   used_memory=[False, True, False, True])
+                   used_memory=[False, True, False, True], input_sweeps=[1, 2, 3, 3])
     sub = run.select_frames([3, 1])
     assert [len(d) for d in sub.det] == [3, 1] and [len(g) for g in sub.gt] == [3, 1]
     assert [n.tolist() for n in sub.num_points] == [[3, 3, 3], [1]]
     assert sub.latency_s == pytest.approx([0.3, 0.1]) and sub.memory_bytes == [30, 10]
     assert sub.drive == [1, 0] and sub.used_memory == [True, True]
+    assert sub.input_sweeps == [3, 2]
     assert [len(c) for c in sub.carried] == [3, 1] and sub.memory_after == {2: [5]}
     assert len(ModelRun(dets, dets, [None] * 4, [0.0] * 4, [0] * 4, {}).select_frames(
         [0]).drive) == 0                                          # lists left empty stay empty

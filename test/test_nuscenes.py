@@ -211,7 +211,11 @@ def test_eval_and_report_read_nuscenes_with_the_checkpoints_sweeps(dataset, tmp_
     assert main(['report', '--nuscenes', str(dataset), '--version', VERSION,
                  '--out', str(tmp_path / 'report')]) == 0
     assert counts == [3, 3] and gaps == [pytest.approx(1.25)] * 2
-    assert (tmp_path / 'report' / 'report.json').is_file()
+    report = json.loads((tmp_path / 'report' / 'report.json').read_text())
+    # keyframes come with their sweeps (counted by their time lags), but a scene's first
+    # keyframe has none before it
+    by = report.get('frames_by_input_sweeps', {})
+    assert sum(by.values()) == report['frames'] and by.get('3', 0) >= 1
     # the scenes were recorded in Singapore: the report runs them as the node set for
     # left-hand traffic would (--traffic-side auto, the default), or as told
     assert 'traffic side left in 2 of 2 sequences' in \
