@@ -12,18 +12,15 @@ Usage: python by_frame.py SPLIT CHECKPOINT (a shipped name or a path)
 import sys
 
 import numpy as np
+from shared import cell, checkpoint  # this folder's (the script's folder is on the path)
 
-from suit_ros.checkpoint import load_checkpoint, published_thresholds
 from suit_ros.data.sequences import synthetic_split
 from suit_ros.evaluate import run_model
 from suit_ros.report import class_counts
 from suit_ros.tracking import TrackerConfig
 
 split, name = sys.argv[1], sys.argv[2]
-model, cfg, meta = load_checkpoint(name if name.endswith('.safetensors')
-                                   else f'suit_ros/checkpoints/{name}.safetensors')
-names = tuple(cfg.class_names)
-thr = published_thresholds(meta, names)
+model, names, thr = checkpoint(name)
 seqs = synthetic_split(split, 16, 40, 'data_cache')
 print(f'{split} split, {name}; published thresholds {dict(zip(names, thr))}')
 for label, tracker in (('tracked (node)', TrackerConfig()), ('model alone', None)):
@@ -39,7 +36,7 @@ for label, tracker in (('tracked (node)', TrackerConfig()), ('model alone', None
         tp = fp = gt = 0
         for k, c in enumerate(names):
             a = counts[c].at(thr[k])
-            cells.append(f"{a['recall']:.3f} / {a['precision']:.3f} ({a['gt']})")
+            cells.append(cell(counts[c], thr[k]))
             if c in ('pedestrian', 'cyclist'):
                 tp, fp, gt = tp + a['tp'], fp + a['fp'], gt + a['gt']
         cells.append(f'{tp / max(gt, 1):.3f} / {tp / max(tp + fp, 1):.3f} ({gt})')

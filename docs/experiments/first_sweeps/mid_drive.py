@@ -11,18 +11,15 @@ Usage: python mid_drive.py SPLIT CHECKPOINT (a shipped name or a path)
 import sys
 
 import numpy as np
+from shared import cell, checkpoint  # this folder's (the script's folder is on the path)
 
-from suit_ros.checkpoint import load_checkpoint, published_thresholds
 from suit_ros.data.sequences import synthetic_split
 from suit_ros.evaluate import run_model
 from suit_ros.report import class_counts
 from suit_ros.tracking import TrackerConfig
 
 split, name = sys.argv[1], sys.argv[2]
-model, cfg, meta = load_checkpoint(name if name.endswith('.safetensors')
-                                   else f'suit_ros/checkpoints/{name}.safetensors')
-names = tuple(cfg.class_names)
-thr = published_thresholds(meta, names)
+model, names, thr = checkpoint(name)
 drives = synthetic_split(split, 16, 40, 'data_cache')
 STARTS = (10, 20, 30)
 print(f'{split} split, 16 drives, fresh starts at frames {STARTS}, {name}; published thresholds '
@@ -44,6 +41,4 @@ for label, tracker in (('tracked', TrackerConfig()), ('model alone', None)):
             sub = (whole if how == 'streamed whole' else fresh).select_frames(idx)
             counts = class_counts(sub.gt, sub.scored_detections(), names, sub.num_points)
             print(f'{k} {how:24s}' + ''.join(
-                f"{counts[c].at(thr[i])['recall']:.3f} / "
-                f"{counts[c].at(thr[i])['precision']:.3f} ({counts[c].npos})".rjust(22)
-                for i, c in enumerate(names)))
+                cell(counts[c], thr[i]).rjust(22) for i, c in enumerate(names)))

@@ -12,8 +12,8 @@ from collections import deque
 import sys
 
 import numpy as np
+from shared import cell, checkpoint  # this folder's (the script's folder is on the path)
 
-from suit_ros.checkpoint import load_checkpoint, published_thresholds
 from suit_ros.data.sequences import synthetic_split
 from suit_ros.evaluate import run_model
 from suit_ros.model import sweeps as sweeps_module
@@ -22,10 +22,7 @@ from suit_ros.report import class_counts
 from suit_ros.tracking import TrackerConfig
 
 name = sys.argv[1]
-model, cfg, meta = load_checkpoint(name if name.endswith('.safetensors')
-                                   else f'suit_ros/checkpoints/{name}.safetensors')
-names = tuple(cfg.class_names)
-thr = published_thresholds(meta, names)
+model, names, thr = checkpoint(name)
 seqs = [s[:3] for s in synthetic_split('tune', 16, 40, 'data_cache')]
 original = SweepBuffer.push
 PERIOD_NS = 100_000_000
@@ -66,6 +63,4 @@ for pad in (False, True):
             sub = run.select_frames(np.flatnonzero(index == k).tolist())
             counts = class_counts(sub.gt, sub.scored_detections(), names, sub.num_points)
             print(f'{k:<8d}' + ''.join(
-                f"{counts[c].at(thr[i])['recall']:.3f} / "
-                f"{counts[c].at(thr[i])['precision']:.3f} ({counts[c].npos})".rjust(22)
-                for i, c in enumerate(names)))
+                cell(counts[c], thr[i]).rjust(22) for i, c in enumerate(names)))
