@@ -36,7 +36,7 @@ for label, tracker in (('tracked (node)', TrackerConfig()), ('model alone', None
         tp = fp = gt = 0
         for k, c in enumerate(names):
             a = counts[c].at(thr[k])
-            cells.append(cell(counts[c], thr[k]))
+            cells.append(cell(a))
             if c in ('pedestrian', 'cyclist'):
                 tp, fp, gt = tp + a['tp'], fp + a['fp'], gt + a['gt']
         cells.append(f'{tp / max(gt, 1):.3f} / {tp / max(tp + fp, 1):.3f} ({gt})')

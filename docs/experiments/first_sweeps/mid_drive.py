@@ -28,17 +28,15 @@ for label, tracker in (('tracked', TrackerConfig()), ('model alone', None)):
     whole = run_model(model, drives, tracker=tracker, deskew=True)
     cut = [d[s:s + 3] for s in STARTS for d in drives]
     fresh = run_model(model, cut, tracker=tracker, deskew=True)
-    at = np.concatenate([np.arange(len(d)) for d in drives])
-    drive_of = np.concatenate([np.full(len(d), i) for i, d in enumerate(drives)])
+    first = np.cumsum([0] + [len(d) for d in drives])     # each drive's frame 0 in ``whole``
     print(f'\n{label}: recall / precision (GT)')
     print(f"{'frames after the start':26s}" + ''.join(f'{c:>22s}' for c in names))
     for k in range(3):
-        rows = {
-            'streamed whole': [int(np.flatnonzero((drive_of == i) & (at == s + k))[0])
-                               for s in STARTS for i in range(len(drives))],
-            'started afresh': [j * 3 + k for j in range(len(cut))]}
-        for how, idx in rows.items():
-            sub = (whole if how == 'streamed whole' else fresh).select_frames(idx)
+        rows = {'streamed whole': (whole, [int(first[i]) + s + k for s in STARTS
+                                           for i in range(len(drives))]),
+                'started afresh': (fresh, [j * 3 + k for j in range(len(cut))])}
+        for how, (run, idx) in rows.items():
+            sub = run.select_frames(idx)
             counts = class_counts(sub.gt, sub.scored_detections(), names, sub.num_points)
             print(f'{k} {how:24s}' + ''.join(
-                cell(counts[c], thr[i]).rjust(22) for i, c in enumerate(names)))
+                cell(counts[c].at(thr[i])).rjust(22) for i, c in enumerate(names)))

@@ -63,4 +63,4 @@ for pad in (False, True):
             sub = run.select_frames(np.flatnonzero(index == k).tolist())
             counts = class_counts(sub.gt, sub.scored_detections(), names, sub.num_points)
             print(f'{k:<8d}' + ''.join(
-                cell(counts[c], thr[i]).rjust(22) for i, c in enumerate(names)))
+                cell(counts[c].at(thr[i])).rjust(22) for i, c in enumerate(names)))

@@ -14,7 +14,6 @@ def checkpoint(name: str) -> tuple[Any, tuple[str, ...], list[float]]:
     return model, names, published_thresholds(meta, names)
 
 
-def cell(counts: Any, threshold: float) -> str:
-    """``recall / precision (GT)`` of a class's counts at ``threshold``."""
-    a = counts.at(threshold)
+def cell(a: dict[str, Any]) -> str:
+    """``recall / precision (GT)`` of a class's counts at a threshold (``ClassCounts.at``)."""
     return f"{a['recall']:.3f} / {a['precision']:.3f} ({a['gt']})"
