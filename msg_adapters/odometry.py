@@ -92,8 +92,10 @@ REWIND_NS = 1_000_000_000   # a stamp this far before the newest: late, or time 
 
 
 class TimeLine:
-    """Whether stamps went back: two in a row more than ``rewind_ns`` before the newest (one
-    alone is a late message; at any message rate)."""
+    """Whether stamps went back: two in a row more than ``rewind_ns`` before the newest, the
+    second not more than ``rewind_ns`` before the first (one alone is a late message; at any
+    message rate). A late message just before the time line went back is not taken for the
+    new line's first stamp: the stamp after it lies far before it too, and takes its place."""
 
     def __init__(self, rewind_ns: int = REWIND_NS) -> None:
         self.rewind_ns = int(rewind_ns)
@@ -104,7 +106,7 @@ class TimeLine:
         if stamp_ns >= newest_ns - self.rewind_ns:
             self.pending = None
             return False
-        if self.pending is not None:
+        if self.pending is not None and stamp_ns >= self.pending - self.rewind_ns:
             self.pending = None
             return True
         self.pending = stamp_ns

@@ -41,6 +41,8 @@ class CloudMailbox(Generic[T]):
         self._replaced: collections.deque[T] = collections.deque(maxlen=max(keep_replaced, 0))
         self._recent: collections.deque[Hashable] = collections.deque(maxlen=dedupe)
         self._last_seq: int | None = None
+        # the last sequence number may be another publisher's: the next gap is a new baseline
+        self._rebase = False
         self.closed = False
         self.frames_in = 0
         self.dropped = 0            # replaced in the slot before the worker took them
@@ -64,7 +66,9 @@ class CloudMailbox(Generic[T]):
             ``received_timestamp`` in ns since the epoch) or None.
         :param count_gaps: whether sequence gaps mean losses now (only while one publisher and
             one subscription exist: sequence numbers count per publisher); a callable is asked
-            only when a gap appears (it may query the ROS graph).
+            only when a gap appears (it may query the ROS graph). A gap just after the numbers
+            went back, or just after a gap not counted, starts a new baseline instead: the
+            numbers before it may be a publisher's that has just left.
         """
         now = time.monotonic()
         with self._cv:
@@ -94,10 +98,19 @@ class CloudMailbox(Generic[T]):
         if seq is None:
             return
         last, self._last_seq = self._last_seq, int(seq)
-        if last is not None and int(seq) > last + 1 and (
-                count_gaps() if callable(count_gaps) else count_gaps):
+        if last is None or int(seq) == last + 1:
+            self._rebase = False
+            return
+        if int(seq) <= last:            # another publisher's numbers, or a restarted one
+            self._rebase = True
+            return
+        # a gap: a loss, unless the numbers before it may be another publisher's (one that
+        # has just left: the publishers are counted now, not when it sent)
+        if not self._rebase and (count_gaps() if callable(count_gaps) else count_gaps):
             self.lost += int(seq) - last - 1
             self.losses.append(now)
+        else:
+            self._rebase = not self._rebase
 
     def take(self, timeout: float = 0.5) -> T | None:
         """The waiting cloud (emptying the slot), or None after ``timeout`` s or on close."""

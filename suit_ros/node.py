@@ -1,10 +1,10 @@
 """The ``detector`` node: PointCloud2 + Odometry in, 3D detections out, SUIT memory kept inside.
 
 A thin shell over rclpy-free parts: parameters come from :class:`~suit_ros.params.DetectorParams`
-(:mod:`suit_ros.ros_params`); the points subscription follows the publishers' reliability
-(:mod:`suit_ros.points_subscription`); the callbacks only queue (:mod:`suit_ros.inbox`: a
-one-slot cloud mailbox, an odometry gate); a worker thread runs the shared
-:class:`~suit_ros.pipeline.DetectionPipeline` on the newest cloud after waiting up to
+(:mod:`suit_ros.ros_params`); the points and odometry subscriptions follow their publishers'
+reliability (:mod:`suit_ros.points_subscription`); the callbacks only queue
+(:mod:`suit_ros.inbox`: a one-slot cloud mailbox, an odometry gate); a worker thread runs the
+shared :class:`~suit_ros.pipeline.DetectionPipeline` on the newest cloud after waiting up to
 ``odom_wait_s`` for odometry that covers its stamp; :mod:`suit_ros.health` turns the counters
 into ``/diagnostics``. Publishes ``~/detections`` (custom-field PointCloud2) and ``~/markers``
 (MarkerArray) with the input header, and serves ``~/reset_memory``.
@@ -26,7 +26,6 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile
 from rclpy.qos_overriding_options import QoSOverridingOptions
 from rclpy.utilities import ok, try_shutdown
 from sensor_msgs.msg import PointCloud2
@@ -36,7 +35,7 @@ from visualization_msgs.msg import MarkerArray
 from suit_ros.errors import ConfigError, SuitRosError
 from suit_ros.health import Reasons, health_report
 from suit_ros.params import DetectorParams, parameter_descriptions
-from suit_ros.points_subscription import PointsSubscription
+from suit_ros.points_subscription import FollowingSubscription
 from suit_ros.ros_params import (
     declare_detector_parameters,
     ignored_overrides,
@@ -46,12 +45,13 @@ from suit_ros.ros_params import (
 from suit_ros.worker import FrameWorker, Received, stamp_ns
 
 REASON_LOG_PERIOD_S = 30.0   # between two log lines of the same input-contract reason
-QOS_CHECK_PERIOD_S = 1.0     # how often the points publishers' QoS is re-checked
+QOS_CHECK_PERIOD_S = 1.0     # how often the publishers' QoS is re-checked
 WARNING_HOLD_S = 5.0         # an input-contract WARN stays this long (diagnostics: 1 Hz)
 # clouds the reader holds until the executor takes them: a burst must not be replaced in the
 # reader (it would read as lost); the mailbox keeps the newest and counts the rest as dropped
 POINTS_READER_DEPTH = 10
-QOS_OVERLAP_S = 3.0          # a replaced points subscription lives on this long
+QOS_OVERLAP_S = 3.0          # a replaced subscription lives on this long
+ODOM_READER_DEPTH = 100      # a buffer of recent poses
 
 
 DIAGNOSTIC_TASK = 'suit_ros detector'   # the status name: '<node's full name>: <this>'
@@ -70,6 +70,9 @@ class DetectorNode(Node):
             self.params = params.validate(len(self.class_names))
         except ConfigError as exc:
             raise SuitRosError(f'invalid parameters: {exc}') from exc
+        # resolved once (remapping, namespace): rclpy's publisher counts do not remap
+        self._points_topic = self._resolve('points_topic', self.params.points_topic)
+        self._odom_topic = self._resolve('odom_topic', self.params.odom_topic)
         self.pipeline = DetectionPipeline(self.detector, self.params,
                                           MessageClasses.from_rclpy())
         self.reasons = Reasons(lambda line: self.get_logger().warn(line), WARNING_HOLD_S,
@@ -77,16 +80,18 @@ class DetectorNode(Node):
         self.worker = FrameWorker(
             self.pipeline, lambda: self.params, lambda: self.get_clock().now().nanoseconds,
             self._publish, lambda: self.pub_markers.get_subscription_count() > 0,
-            lambda: self.count_publishers(self.params.odom_topic) > 0, self.reasons,
+            lambda: self.count_publishers(self._odom_topic) > 0, self.reasons,
             self.get_logger(), keep_skipped=max(self.detector.cfg.sweeps - 1, 0),
             publish_markers=lambda out: self.pub_markers.publish(out.markers_msg))
-        self._points_topic = self.resolve_topic_name(self.params.points_topic)
-        self.points = PointsSubscription(
+        self.points = FollowingSubscription(
             self, self._points_topic, cast(Callable[[Any], None], self._on_cloud),
             lambda: self.params.points_qos, POINTS_READER_DEPTH, QOS_OVERLAP_S)
+        # a reliable reader never hears a best-effort publisher (a PX4 bridge, a simulator):
+        # every cloud would wait odom_wait_s for a pose that cannot come
+        self.odom = FollowingSubscription(
+            self, self._odom_topic, self._on_odom, lambda: 'auto', ODOM_READER_DEPTH,
+            QOS_OVERLAP_S, msg_type=Odometry, label='odometry', setting='following')
         overrides = QoSOverridingOptions.with_default_policies()
-        self.create_subscription(Odometry, self.params.odom_topic, self._on_odom,
-                                 QoSProfile(depth=100), qos_overriding_options=overrides)
         self.pub_det = self.create_publisher(PointCloud2, '~/detections', 10,
                                              qos_overriding_options=overrides)
         self.pub_markers = self.create_publisher(MarkerArray, '~/markers', 10,
@@ -97,13 +102,25 @@ class DetectorNode(Node):
         self._worker = threading.Thread(target=self.worker.run, name='suit_ros_worker',
                                         daemon=True)
         self._worker.start()
-        self.create_timer(QOS_CHECK_PERIOD_S, self.points.update)
+        self.create_timer(QOS_CHECK_PERIOD_S, self._update_subscriptions)
         self.create_timer(self.params.diagnostics_period_s, self._diagnostics)
         self.ignored_parameters = ignored_overrides(self)
         if self.ignored_parameters:
             self.get_logger().warn(
                 f'parameters given to this node that it does not have, ignored (misspelt? '
                 f"the README's parameter table lists them): {self.ignored_parameters}")
+
+    def _resolve(self, name: str, topic: str) -> str:
+        """``topic`` resolved (namespace, remapping); an invalid name a clear error."""
+        try:
+            return self.resolve_topic_name(topic)
+        except Exception as exc:  # noqa: BLE001 - rclpy raises RCLError or its own kinds
+            raise SuitRosError(f'invalid parameters: {name} {topic!r} is not a valid ROS topic '
+                               f'name ({type(exc).__name__}: {exc})') from exc
+
+    def _update_subscriptions(self) -> None:
+        self.points.update()
+        self.odom.update()
 
     def _load_model(self, params: DetectorParams) -> Any:
         from suit_ros.checkpoint import resolve_checkpoint
@@ -167,6 +184,8 @@ class DetectorNode(Node):
         """The node's health now (what ``/diagnostics`` carries): :func:`health_report` of a
         snapshot of the node's counters."""
         snap = self.worker.snapshot({'points_reliability': self.points.reliability.name.lower(),
+                                     'odometry_reliability':
+                                     self.odom.reliability.name.lower(),
                                      'model_device': self.detector.device.type,
                                      'model_precision': self.detector.precision,
                                      # what `checkpoint` resolved to (the model's input)

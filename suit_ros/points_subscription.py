@@ -1,13 +1,15 @@
-"""The detector's points subscription, whose reliability follows the publishers.
+"""The detector's points and odometry subscriptions, whose reliability follows the publishers.
 
 A best-effort reader matches every publisher but loses fragments of large clouds; a reliable
-one gets every cloud but matches only reliable publishers. ``points_qos`` chooses: ``auto``
+one gets every cloud but matches only reliable publishers (a reliable reader never hears a
+best-effort publisher: no message, and no error either). ``points_qos`` chooses: ``auto``
 (reliable when every publisher on the topic is reliable, best effort otherwise;
 :func:`wanted_reliability`), ``reliable`` or ``sensor_data``. A user's
 ``qos_overrides.<topic>.subscription.reliability`` parameter wins over all of them. When the
 wanted reliability changes the subscription is re-created, and the old one lives on for
 ``overlap_s`` so no cloud is lost while the new one matches (the node's mailbox takes a cloud
-that arrives through both once).
+that arrives through both once). The odometry subscription follows its publishers the same
+way, always ``auto`` (a pose that arrives twice replaces itself in the pose buffer).
 """
 from __future__ import annotations
 
@@ -39,29 +41,35 @@ def wanted_reliability(mode: PointsQoS, offered: Sequence[ReliabilityPolicy],
     return ReliabilityPolicy.BEST_EFFORT
 
 
-class PointsSubscription:
+class FollowingSubscription:
     """The node's subscription to ``topic`` (resolved), re-created by :meth:`update`.
 
-    :param depth: clouds the reader holds until the executor takes them.
+    :param depth: messages the reader holds until the executor takes them.
+    :param msg_type: the message class (``PointCloud2``, ``Odometry``).
+    :param label: what the log lines call the input (``points``, ``odometry``).
+    :param setting: what they call ``mode`` (the parameter's name).
     """
 
     def __init__(self, node: Node, topic: str, callback: Callable[[Any], None],
-                 mode: Callable[[], PointsQoS], depth: int, overlap_s: float) -> None:
+                 mode: Callable[[], PointsQoS], depth: int, overlap_s: float,
+                 msg_type: type = PointCloud2, label: str = 'points',
+                 setting: str = 'points_qos') -> None:
         self.node, self.topic, self.callback, self.mode = node, topic, callback, mode
         self.depth, self.overlap_s = depth, overlap_s
+        self.msg_type, self.label, self.setting = msg_type, label, setting
         self.reliability = ReliabilityPolicy.BEST_EFFORT
         self.retiring: list[tuple[float, Subscription]] = []
         # the first subscription declares the qos_overrides parameters with a system_default
         # reliability: any other value there is the user's override, honoured as given
         self.sub: Subscription | None = node.create_subscription(
-            PointCloud2, topic, callback, self._qos(ReliabilityPolicy.SYSTEM_DEFAULT),
+            msg_type, topic, callback, self._qos(ReliabilityPolicy.SYSTEM_DEFAULT),
             qos_overriding_options=QoSOverridingOptions.with_default_policies())
         chosen = str(node.get_parameter(
             f'qos_overrides.{topic}.subscription.reliability').value)
         self.fixed = chosen != 'system_default'
         if self.fixed:
             self.reliability = self.sub.qos_profile.reliability
-            node.get_logger().info(f'points reliability {chosen} (QoS override)')
+            node.get_logger().info(f'{label} reliability {chosen} (QoS override)')
             return
         node.destroy_subscription(self.sub)
         self.sub = None
@@ -96,8 +104,8 @@ class PointsSubscription:
         # reliability is ours to choose; the other QoS overrides still apply
         options = QoSOverridingOptions([QoSPolicyKind.HISTORY, QoSPolicyKind.DEPTH,
                                         QoSPolicyKind.DURABILITY])
-        self.sub = self.node.create_subscription(PointCloud2, self.topic, self.callback,
+        self.sub = self.node.create_subscription(self.msg_type, self.topic, self.callback,
                                                  self._qos(wanted),
                                                  qos_overriding_options=options)
-        self.node.get_logger().info(f'points subscription: {wanted.name.lower()} '
-                                    f'(points_qos {self.mode()})')
+        self.node.get_logger().info(f'{self.label} subscription: {wanted.name.lower()} '
+                                    f'({self.setting} {self.mode()})')

@@ -50,6 +50,34 @@ def test_sequence_gaps_count_as_lost_only_when_asked():
     assert box.lost == 3 and 0.015 < box.reader_delays[-1] < 1.0
 
 
+def test_a_publisher_that_left_is_no_baseline_for_the_next():
+    """Sequence numbers count per publisher: when one leaves right after it sent, the one
+    that stays is not measured against its numbers (the graph, asked at the gap, already
+    holds one publisher). Real losses after that are counted again."""
+    one = lambda: True  # noqa: E731 - the graph holds one publisher when asked
+    box: CloudMailbox[int] = CloudMailbox()
+    box.put(1, 'a', {'publication_sequence_number': 50_000}, count_gaps=one)
+    box.put(2, 'b', {'publication_sequence_number': 7}, count_gaps=one)    # B, then it left
+    box.put(3, 'c', {'publication_sequence_number': 50_001}, count_gaps=one)
+    assert box.lost == 0 and not box.losses
+    box.put(4, 'd', {'publication_sequence_number': 50_002}, count_gaps=one)
+    box.put(5, 'e', {'publication_sequence_number': 50_005}, count_gaps=one)
+    assert box.lost == 2
+    # two publishers taking turns, the graph saying so, then B leaves: nothing counted
+    two = [False]
+    box2: CloudMailbox[int] = CloudMailbox()
+    for k in range(5):
+        box2.put(2 * k, f'a{k}', {'publication_sequence_number': 10 + k},
+                 count_gaps=lambda: not two[0])
+        two[0] = True
+        box2.put(2 * k + 1, f'b{k}', {'publication_sequence_number': 5000 + k},
+                 count_gaps=lambda: not two[0])
+    two[0] = False
+    box2.put(99, 'a5', {'publication_sequence_number': 15}, count_gaps=lambda: not two[0])
+    box2.put(100, 'a6', {'publication_sequence_number': 16}, count_gaps=lambda: not two[0])
+    assert box2.lost == 0
+
+
 def test_a_waiting_worker_is_woken_by_a_cloud_and_by_close():
     box: CloudMailbox[str] = CloudMailbox()
     got: list[object] = []

@@ -30,13 +30,13 @@ def make_node(checkpoint):
     from suit_ros.node import DetectorNode
     made = []
 
-    def make(**params):
+    def make(cli_args=None, **params):
         ctx = Context()
         rclpy.init(context=ctx)
         overrides = [Parameter('checkpoint', value=checkpoint)]
         overrides += [Parameter(k.replace('__', '.'), value=v) for k, v in params.items()]
         try:
-            node = DetectorNode(context=ctx, parameter_overrides=overrides)
+            node = DetectorNode(context=ctx, parameter_overrides=overrides, cli_args=cli_args)
         except BaseException:
             rclpy.try_shutdown(context=ctx)
             raise
@@ -180,6 +180,63 @@ def test_points_qos_auto_follows_the_publishers(make_node):
     other.destroy_publisher(best_effort)
     assert _until(lambda: check(R.RELIABLE))
     other.destroy_publisher(reliable)
+
+
+def test_odometry_from_a_best_effort_publisher_is_heard(make_node):
+    """A reliable reader never hears a best-effort publisher (PX4's bridge, some simulators),
+    and nothing says so: every cloud would wait ``odom_wait_s`` and run single-frame. The
+    odometry subscription follows its publishers as the points one does, and a pose sent
+    best effort over DDS reaches the node's odometry gate."""
+    from nav_msgs.msg import Odometry
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import QoSProfile
+    from rclpy.qos import ReliabilityPolicy as R
+    node = make_node()
+    other = make_node(points_topic='/unused', odom_topic='/unused_odom')
+    pub = other.create_publisher(Odometry, '/odom',
+                                 QoSProfile(depth=10, reliability=R.BEST_EFFORT))
+
+    def check():
+        node.odom.update()
+        return node.odom.reliability == R.BEST_EFFORT and pub.get_subscription_count() > 0
+    assert _until(check)
+    executor = SingleThreadedExecutor(context=node.context)
+    executor.add_node(node)
+    t = node.get_clock().now().nanoseconds
+    sent = 0
+
+    def heard():
+        nonlocal sent
+        pub.publish(odom(t + sent * S // 100))
+        sent += 1
+        executor.spin_once(timeout_sec=0.05)
+        return node.worker.odometry.latest_ns >= t
+    assert _until(heard)
+    executor.remove_node(node)
+    values = diag(node)[2]
+    assert values['odometry_reliability'] == 'best_effort'
+    assert values['points_reliability'] == 'best_effort'     # nobody publishes clouds
+
+
+def test_odometry_publishers_are_counted_on_the_remapped_topic(make_node):
+    """rclpy's publisher count does not remap: with ``/odom`` remapped the node counted
+    nobody on the remapped topic, and its clouds never waited for odometry."""
+    from nav_msgs.msg import Odometry
+    node = make_node(cli_args=['--ros-args', '-r', '/odom:=/vehicle/odom'])
+    assert node._odom_topic == '/vehicle/odom'
+    assert not node.worker.odometry_published()
+    other = make_node(points_topic='/unused', odom_topic='/unused_odom')
+    other.create_publisher(Odometry, '/vehicle/odom', 10)
+    assert _until(node.worker.odometry_published)
+
+
+@pytest.mark.parametrize('name', ['', 'a b', '/x//y'])
+def test_an_invalid_topic_name_stops_the_node_with_what_it_got(make_node, name):
+    from suit_ros.errors import SuitRosError
+    with pytest.raises(SuitRosError, match=r'odom_topic .* is not a valid ROS topic name'):
+        make_node(odom_topic=name)
+    with pytest.raises(SuitRosError, match=r'points_topic .* is not a valid ROS topic name'):
+        make_node(points_topic=name)
 
 
 @pytest.mark.parametrize('params,expected', [

@@ -177,6 +177,23 @@ def test_time_going_back_empties_the_buffer():
     np.testing.assert_allclose(buf.lookup(6 * 10**9)[0, 3], 10.0)
 
 
+def test_a_late_pose_just_before_time_goes_back_is_not_the_new_line():
+    """A pose 1.5 s late, then the bag loops: the late pose belongs to the old time line. The
+    new line starts from its own first two poses (not from the late one, which would push the
+    new line's poses out of the buffer by age), and the rewind counts once."""
+    buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0, rewind_ns=10**9)
+    for k in range(100):                                  # 90.0 .. 99.9 s
+        buf.add(90 * 10**9 + k * 10**8, make_pose([k, 0, 0], 0))
+    buf.add(98_400_000_000, make_pose([-1, 0, 0], 0))     # 1.5 s late
+    buf.add(100_000_000, make_pose([1, 0, 0], 0))         # the bag again from 0.1 s
+    buf.add(200_000_000, make_pose([2, 0, 0], 0))
+    assert buf.rewinds == 1 and buf.span() == (100_000_000, 200_000_000) and len(buf) == 2
+    np.testing.assert_allclose(buf.lookup(150_000_000)[0, 3], 1.5)
+    for k in range(3, 30):
+        buf.add(k * 10**8, make_pose([k, 0, 0], 0))
+    assert buf.rewinds == 1 and buf.span() == (100_000_000, 2_900_000_000)
+
+
 def test_nan_pose_rejected():
     buf = PoseBuffer()
     bad = make_pose([np.nan, 0, 0], 0)
