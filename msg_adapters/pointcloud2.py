@@ -225,6 +225,9 @@ def pointcloud2_to_xyzi(msg: Any, intensity_field: str = '',
     :raises PointCloudError: missing x/y/z, an invalid field table, or truncated data.
     """
     fields = {str(f.name): (int(f.offset), int(f.datatype), int(f.count)) for f in msg.fields}
+    if not fields and int(msg.height) * int(msg.width) == 0 and len(msg.data) == 0:
+        # a default-constructed cloud: what some filters publish when nothing is left
+        return XYZI(np.zeros((0, 4), np.float32), False, 0, 0, None, '')
     missing = [n for n in ('x', 'y', 'z') if n not in fields]
     if missing:
         raise PointCloudError(f'cloud has no {"/".join(missing)} field(s); fields are '

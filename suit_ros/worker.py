@@ -14,6 +14,7 @@ import os
 import re
 import threading
 import time
+import traceback
 from typing import Any, Generic, Protocol, TypeVar
 
 from suit_ros.health import HealthSnapshot, Reasons, frame_stats
@@ -23,8 +24,9 @@ from suit_ros.params import DetectorParams
 # the worker runs this much nicer than the executor, so that on a loaded machine the OS runs
 # the odometry and cloud callbacks before more inference
 WORKER_NICENESS = 5
+MAX_LOG_KINDS = 100          # kinds of rate-limited log lines remembered
 RATE_WINDOW_S = 5.0          # the input rate counts this window (it decays when input stops)
-RESET_LOG_PERIOD_S = 30.0    # a kind of memory reset is logged at most this often
+RESET_LOG_PERIOD_S = 30.0    # a kind of memory reset or failure is logged at most this often
 
 M = TypeVar('M')
 
@@ -104,8 +106,9 @@ class FrameWorker:
         self.started = time.monotonic()
         self.frames_out = self.frames_single = 0
         self.frames_failed = 0      # clouds whose step raised (logged, counted, held)
-        self.reset_counts: collections.Counter[str] = collections.Counter()
-        self.reset_logged: dict[str, float] = {}
+        # log lines by kind (numbers aside): how many so far, when last logged
+        self.log_counts: collections.Counter[str] = collections.Counter()
+        self.logged: dict[str, float] = {}
         self.single_reasons: collections.Counter[str] = collections.Counter()
         self.stats: collections.deque[dict[str, Any]] = collections.deque(maxlen=100)
         self.last: Any = None
@@ -151,7 +154,7 @@ class FrameWorker:
             except Exception as exc:  # keep the node alive; say what happened
                 if self.stopping:
                     return
-                self.log.error(f'frame failed: {type(exc).__name__}: {exc}')
+                self._log_limited(f'frame failed: {type(exc).__name__}: {exc}', 'error', exc)
                 with self.lock:
                     self.frames_failed += 1
                 # held: the diagnostics warn while frames fail, not only the log
@@ -218,7 +221,8 @@ class FrameWorker:
             out = self.pipeline.buffer(received.msg)
         except Exception as exc:  # the cloud the model runs on next is not lost with it
             if not self.stopping:
-                self.log.error(f'skipped cloud not buffered: {type(exc).__name__}: {exc}')
+                self._log_limited(f'skipped cloud not buffered: {type(exc).__name__}: {exc}',
+                                  'error', exc)
             return
         with self.lock:
             self.frames_sweeps_only += int(out.buffered)
@@ -268,14 +272,30 @@ class FrameWorker:
         """Log a memory reset: the first of a kind, then at most every
         :data:`RESET_LOG_PERIOD_S` with the count (a publisher that repeats one stamp resets
         every frame; the counter and diagnostics count them all)."""
-        kind = re.sub(r'[-+]?\d[\d.]*', 'N', reason)         # 'pose jumped N m in N s ...'
+        self._log_limited(f'memory reset: {reason}')
+
+    def _log_limited(self, line: str, level: str = 'info',
+                     exc: BaseException | None = None) -> None:
+        """Log ``line``: the first of its kind (numbers aside: 'pose jumped N m in N s'),
+        with ``exc``'s traceback, then at most every :data:`RESET_LOG_PERIOD_S` with the
+        count (a frame that fails on every cloud must not flood the log at the sensor's
+        rate; the diagnostics count them all)."""
+        kind = re.sub(r'[-+]?\d[\d.]*', 'N', line)
         now = time.monotonic()
-        self.reset_counts[kind] += 1
-        last = self.reset_logged.get(kind)
-        if last is None or now - last >= RESET_LOG_PERIOD_S:
-            self.reset_logged[kind] = now
-            count = self.reset_counts[kind]
-            self.log.info(f'memory reset: {reason}' + (f' [{count} so far]' if count > 1 else ''))
+        if len(self.logged) > MAX_LOG_KINDS and kind not in self.logged:
+            self.log_counts.clear()     # kinds that name ever new things: forget, log again
+            self.logged.clear()
+        self.log_counts[kind] += 1
+        last = self.logged.get(kind)
+        if last is not None and now - last < RESET_LOG_PERIOD_S:
+            return
+        self.logged[kind] = now
+        count = self.log_counts[kind]
+        if count > 1:
+            line += f' [{count} so far]'
+        elif exc is not None:
+            line += '\n' + ''.join(traceback.format_exception(exc)).rstrip()
+        getattr(self.log, level)(line)
 
     def snapshot(self, facts: dict[str, str]) -> HealthSnapshot:
         """The counters now, for :func:`~suit_ros.health.health_report`."""

@@ -765,6 +765,10 @@ def test_input_contract_cases(model, classes):
     assert set(out.warnings) == {'no_intensity'} and not out.has_intensity
     out = pipe.process(cloud(classes, T0 + 2 * S // 10, n=0))
     assert set(out.warnings) == {'empty_cloud'}
+    bare = cloud(classes, T0 + 25 * S // 100, n=0)       # no fields at all: still just empty
+    bare.fields, bare.point_step, bare.height = [], 0, 0
+    out = pipe.process(bare)
+    assert set(out.warnings) == {'empty_cloud'} and out.detections_msg.width == 0
     out = pipe.process(cloud(classes, T0 + 3 * S // 10, n=50))
     assert set(out.warnings) == {'too_few_points'}
     out = pipe.process(cloud(classes, T0 + 4 * S // 10, frame='velodyne'))

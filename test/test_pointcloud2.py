@@ -290,6 +290,13 @@ def test_empty_and_all_nan():
     assert out.points.shape == (0, 4) and out.num_nonfinite == 5 and out.num_input == 5
     empty_rows = raw_cloud(ROSBAGS, XYZ, 12, 0, 4, b'')
     assert pointcloud2_to_array(empty_rows).shape == (4, 0)
+    # a default-constructed cloud (no fields, no points): what some filters publish when
+    # nothing is left is an empty cloud, not an unusable one; with data it stays an error
+    for C in BOTH:
+        out = pointcloud2_to_xyzi(raw_cloud(C, [], 0, 0, 0, b''))
+        assert out.points.shape == (0, 4) and out.num_input == 0 and not out.has_intensity
+        with pytest.raises(PointCloudError, match='no x/y/z field'):
+            pointcloud2_to_xyzi(raw_cloud(C, [], 0, 0, 0, bytes(12)))
 
 
 @pytest.mark.parametrize('fields,step,width,height,data,row_step,match', [

@@ -212,6 +212,24 @@ def test_clouds_skipped_while_busy_feed_the_next_inputs_sweeps(request):
     assert w.last.input_lags_s == (0.0,)
 
 
+def test_a_frame_that_fails_on_every_cloud_is_logged_once_with_its_traceback(worker):
+    """A failure that repeats on every cloud (here the pipeline made to raise each time) is
+    logged once with where it came from, not at the sensor's rate; every one is counted."""
+    w, mc, published, log, clock = worker
+
+    def failing(msg, markers=True):
+        raise ValueError(f'bad cloud of {len(msg.data)} bytes')
+
+    w.pipeline.process = failing
+    for k in range(5):
+        put_cloud(w, mc, T0 + k * S // 10)
+        assert until(lambda n=k: w.frames_failed == n + 1)
+    errors = [line for kind, line in log.lines if kind == 'error']
+    assert len(errors) == 1 and errors[0].startswith('frame failed: ValueError: bad cloud of')
+    assert 'Traceback' in errors[0] and 'in failing' in errors[0]
+    assert health_report(w.snapshot({}))[2]['frames_failed'] == '5'
+
+
 def test_resets_of_one_kind_are_logged_once_in_a_while(worker):
     """A publisher that stamps every cloud the same: each is a new cloud (a memory reset
     each, counted), and the log says so once, not ten times a second."""
