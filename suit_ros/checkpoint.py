@@ -144,13 +144,32 @@ def published_thresholds(meta: dict[str, Any], class_names: tuple[str, ...] | li
 
     :param carried: those of the boxes a carry branch decodes where the input has no returns
         (``carry_publish_thresholds``; where the checkpoint has none, the others)."""
-    stored = meta.get('publish_thresholds') or {}
+    stored = _thresholds(meta, 'publish_thresholds')
     if carried:
-        stored = {**stored, **(meta.get('carry_publish_thresholds') or {})}
+        stored = {**stored, **_thresholds(meta, 'carry_publish_thresholds')}
     config = meta.get('config') if isinstance(meta.get('config'), dict) else {}
     head = config.get('head', {}) if isinstance(config, dict) else {}
     decode = float(head.get('score_threshold', 0.1)) if isinstance(head, dict) else 0.1
-    return [float(stored.get(c, decode)) for c in class_names]
+    return [stored.get(c, decode) for c in class_names]
+
+
+def _thresholds(meta: dict[str, Any], key: str) -> dict[str, float]:
+    """``meta[key]``: class name -> a score in 0..1 (absent: none).
+
+    :raises CheckpointError: anything else (a hand-edited file)."""
+    raw = meta.get(key) or {}
+    try:
+        if not isinstance(raw, dict):
+            raise TypeError(f'a {type(raw).__name__}')
+        out = {str(k): float(v) for k, v in raw.items()}
+        bad = {k: v for k, v in out.items() if not 0.0 <= v <= 1.0}
+        if bad:
+            raise ValueError(f'outside 0..1: {bad}')
+    except (TypeError, ValueError) as exc:
+        raise CheckpointError(f"the checkpoint's {key} must map class names to scores in "
+                              f'0..1, not {raw!r} ({exc}); rewrite them with suit-ros '
+                              'choose-thresholds --write') from exc
+    return out
 
 
 def update_metadata(path: str | os.PathLike[str], **changes: Any) -> Path:
@@ -199,7 +218,11 @@ def load_checkpoint(path: str | os.PathLike[str], device: torch.device | str | N
         state = load_file(str(path), device='cpu')
     except Exception as exc:
         raise CheckpointError(f'{path}: cannot read tensors ({exc}); the file is corrupt') from exc
-    model = SUITDetector(cfg)
+    try:
+        model = SUITDetector(cfg)
+    except Exception as exc:  # noqa: BLE001 - a config that passed its checks but builds nothing
+        raise CheckpointError(f'{path}: cannot build the model from its embedded config '
+                              f'({type(exc).__name__}: {exc})') from exc
     missing, unexpected = _check_keys(model, state)
     if missing or unexpected:
         raise CheckpointError(

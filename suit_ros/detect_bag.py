@@ -151,14 +151,24 @@ def run(args: argparse.Namespace) -> int:
     if params.points_topic == params.odom_topic:
         raise ConfigError(f'points_topic and odom_topic are both {params.points_topic}: name '
                           'the cloud topic with --points-topic, the odometry with --odom-topic')
+    if args.gt_topic in (params.points_topic, params.odom_topic):
+        raise ConfigError(f'--gt-topic {args.gt_topic} is also the cloud or odometry topic: '
+                          'name the ground-truth boxes topic with --gt-topic')
     t0 = time.monotonic()
     with open_reader(args.input) as reader:
         if out_path.exists():
             raise BagError(f'{out_path} already exists; choose a new output path')
         output_dir(out_path.parent, 'folder of the output bag')
         check_topic(reader, params.points_topic, POINTCLOUD2, hint='use --points-topic')
-        check_topic(reader, params.odom_topic, ODOMETRY, required=False,
-                    hint='use --odom-topic')
+        # an odometry topic named on the command line must be there (a mistyped one would
+        # run every frame single-frame); the default one may be missing
+        has_odom = check_topic(reader, params.odom_topic, ODOMETRY,
+                               required=args.odom_topic is not None, hint='use --odom-topic')
+        if not has_odom:
+            print(f'detect-bag: the bag has no {params.odom_topic}: every frame runs '
+                  'single-frame (no memory, no sweeps, no tracker motion); name the odometry '
+                  'with --odom-topic', file=sys.stderr)
+        copied = _copied_topics(reader, args) if args.copy_inputs else set()
         check_topic(reader, args.gt_topic, POINTCLOUD2, required=False, hint='use --gt-topic')
         clouds = sum(c.msgcount for c in reader.connections if c.topic == params.points_topic)
         if clouds == 0:
@@ -173,7 +183,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             with open_writer(out_path, args.storage) as bag:
                 pipe = build_pipeline(params, MessageClasses.from_rosbags(bag.store))
-                summary = _process_bag(args, params, reader, bag, pipe)
+                summary = _process_bag(args, params, reader, bag, pipe, copied)
         except BaseException:     # no partial bag left behind to block the next try
             if out_path.is_dir():
                 shutil.rmtree(out_path, ignore_errors=True)
@@ -197,6 +207,7 @@ class Summary:
         self.gts: dict[int, Any] = {}
         self.dets: dict[int, Any] = {}
         self.traffic_side = ''              # the last frame's (auto: and the votes)
+        self.single: collections.Counter[str] = collections.Counter()   # frames by reason
 
     def add(self, stamp: int, out: Any) -> None:
         """Count one frame's output."""
@@ -210,6 +221,8 @@ class Summary:
         if out.reset_reason:
             self.resets[out.reset_reason.split(' (')[0]] += 1
         self.traffic_side = out.traffic_side or self.traffic_side
+        if out.single_frame is not None:
+            self.single[str(out.single_frame)] += 1
 
     def print(self, seconds: float, names: tuple[str, ...]) -> None:
         """The summary on stdout (and the evaluation when the bag has GT)."""
@@ -223,6 +236,10 @@ class Summary:
             print(f'  warning {key}: {count} frames, e.g. {self.examples[key]}')
         for reason, count in self.resets.most_common():
             print(f'  memory reset: {reason}: {count}')
+        if self.single:
+            print(f'  single-frame (no pose for the memory and the sweeps): '
+                  f'{sum(self.single.values())} of {self.frames} frames ('
+                  + ', '.join(f'{k} {n}' for k, n in self.single.most_common()) + ')')
         if self.traffic_side:
             print(f'traffic side at the end: {self.traffic_side}')
         print('detections per class: ' + ', '.join(
@@ -236,15 +253,40 @@ class Summary:
             print(result.table())
 
 
+def _copied_topics(reader: Any, args: argparse.Namespace) -> set[str]:
+    """The input topics ``--copy-inputs`` copies: every one but this run's outputs (an input
+    that is itself a detect-bag output holds the old model's detections: they are not mixed
+    with the new ones). A type the bag does not define cannot be written: refused before
+    any work is done."""
+    ours = {DET_TOPIC, MARKER_TOPIC}
+    skipped = sorted({c.topic for c in reader.connections} & ours)
+    if skipped:
+        print(f'detect-bag: not copied: {", ".join(skipped)} (this run writes them anew)',
+              file=sys.stderr)
+    unknown = set()
+    for c in reader.connections:
+        if c.topic in ours:
+            continue
+        try:
+            reader.typestore.generate_msgdef(c.msgtype, ros_version=2)
+        except Exception:  # noqa: BLE001 - rosbags raises its own kinds for unknown types
+            unknown.add(f'{c.topic} ({c.msgtype})')
+    if unknown:
+        raise BagError(f'--copy-inputs cannot copy {", ".join(sorted(unknown))}: the bag '
+                       'carries no definition of the type; run without --copy-inputs (the '
+                       'detections are written either way)')
+    return {c.topic for c in reader.connections} - ours
+
+
 def _process_bag(args: argparse.Namespace, params: DetectorParams, reader: Any, bag: Any,
-                 pipe: Any) -> Summary:
+                 pipe: Any, copied: set[str]) -> Summary:
     from suit_ros.data.bag import messages
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
     from suit_ros.msg_adapters.odometry import stamp_to_ns
     summary = Summary()
     for conn, log_ns, raw in messages(reader):
-        if args.copy_inputs:
-            bag.write(conn.topic, conn.msgtype, log_ns, bytes(raw))
+        if conn.topic in copied:
+            bag.copy(conn, log_ns, raw, reader.typestore)
         if conn.topic == params.odom_topic:
             pipe.add_odometry(reader.deserialize(raw, conn.msgtype))
         elif conn.topic == args.gt_topic:

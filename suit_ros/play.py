@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import math
 import os
 import time
 from typing import Any
@@ -81,14 +82,21 @@ def run(args: argparse.Namespace) -> int:
 
     from suit_ros.data.bag import messages, open_reader
     from suit_ros.dds import use_large_data_profile
-    if args.rate <= 0:
-        raise BagError('--rate must be > 0')
-    if args.start_delay < 0 or args.wait_subscribers < 0:
+    if not args.rate > 0 or not math.isfinite(args.rate):          # nan fails both
+        raise BagError(f'--rate must be a number > 0, not {args.rate}')
+    if not (0 <= args.start_delay < math.inf and 0 <= args.wait_subscribers < math.inf):
         raise BagError('--start-delay and --wait-subscribers are seconds >= 0')
+    if args.max_messages < 0:
+        raise BagError(f'--max-messages is a count >= 0 (0: all), not {args.max_messages}')
     with open_reader(args.bag) as reader:
+        topics = sorted({c.topic for c in reader.connections})
+        if not topics:
+            raise BagError(f'{args.bag} holds no topic: nothing to play')
+        missing = sorted(set(args.topics or ()) - set(topics))
+        if missing:                       # a mistyped name among several is not dropped
+            raise BagError(f'{args.bag} has no {", ".join(missing)} (topics: {topics}); '
+                           'name them with --topics as the bag does')
         conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
-        if not conns:
-            raise BagError(f'none of {args.topics} is in {args.bag}')
         recorded = [(c.topic, c.msgtype, t, bytes(raw))
                     for c, t, raw in messages(reader, conns)]
     if not recorded:

@@ -27,6 +27,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 import json
 from pathlib import Path
+import sys
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -708,8 +709,17 @@ def run(args: argparse.Namespace) -> int:
                                  result.num_points)
         report.intervals = ap_intervals(places, names, args.max_range, args.resamples)
         report.baseline = args.baseline
+    replaced = (out / 'report.json').exists()
     (out / 'report.json').write_text(json.dumps(report.to_json(), indent=2), encoding='utf-8')
     (out / 'report.md').write_text(report.markdown(), encoding='utf-8')
+    # an earlier report's pictures would stay beside this one's (other frames, other counts)
+    old = sorted((out / 'bev').glob('*_[0-9][0-9][0-9][0-9].png')) if (out / 'bev').is_dir() \
+        else []
+    for f in old:
+        f.unlink()
+    if replaced or old:
+        print(f'replaced the earlier report in {out} ({len(old)} old picture(s) removed from '
+              f'{out / "bev"})', file=sys.stderr)
     scored, drawn_at = result.scored_detections(), list(thresholds)
     if report.published is not None:       # the pictures show what is published
         scored = result.as_published(thresholds, carry or thresholds).scored_detections()

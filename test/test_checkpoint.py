@@ -79,6 +79,28 @@ def test_header_length_that_looks_like_a_pickle_still_loads(tmp_path, low):
     assert cfg == ModelConfig() and len(meta['extra']['pad']) == pad
 
 
+def test_hand_edited_metadata_is_a_checkpoint_error(tmp_path, ckpt):
+    """Thresholds that are not class -> score in 0..1, a config that passes its checks but
+    builds no model: a CheckpointError that says what is wrong, not a traceback."""
+    import shutil
+
+    from suit_ros.checkpoint import published_thresholds, update_metadata
+    names = ('car', 'truck', 'pedestrian', 'cyclist')
+    meta = read_metadata(ckpt)
+    assert published_thresholds({**meta, 'publish_thresholds': {'car': 0.45}}, names)[0] == 0.45
+    for bad in ([0.4, 0.3], {'car': 'high'}, {'car': 1.5}):
+        with pytest.raises(CheckpointError, match='publish_thresholds must map class names'):
+            published_thresholds({**meta, 'publish_thresholds': bad}, names)
+    with pytest.raises(CheckpointError, match='carry_publish_thresholds must map'):
+        published_thresholds({**meta, 'carry_publish_thresholds': {'car': -1}}, names, True)
+    edited = tmp_path / 'edited.safetensors'
+    shutil.copy(ckpt, edited)
+    config = meta['config']
+    update_metadata(edited, config={**config, 'pillars': {**config['pillars'], 'channels': -4}})
+    with pytest.raises(CheckpointError, match='cannot build the model from its embedded config'):
+        load_checkpoint(edited)
+
+
 def test_shipped_checkpoints_by_name(tmp_path, monkeypatch):
     from suit_ros.checkpoint import (
         default_checkpoint_path,

@@ -46,6 +46,11 @@ def test_counts_that_make_no_sense_are_refused(tmp_path, capsys):
              'has no carry branch'),
             (['play', str(tmp_path / 'bag'), '--start-delay', '-1'],
              '--start-delay and --wait-subscribers are seconds >= 0'),
+            (['play', str(tmp_path / 'bag'), '--start-delay', 'nan'],
+             '--start-delay and --wait-subscribers are seconds >= 0'),
+            (['play', str(tmp_path / 'bag'), '--rate', 'nan'], '--rate must be a number > 0'),
+            (['play', str(tmp_path / 'bag'), '--max-messages', '-1'],
+             '--max-messages is a count >= 0'),
             (['train', '--config', 'params/train_suit.yaml', '--out', str(tmp_path / 't'),
               '--steps', '0'], 'steps must be at least 1')):
         code, err = run_cli(capsys, *argv)
@@ -71,3 +76,6 @@ def test_a_bag_topic_of_another_type_is_named(tmp_path, capsys):
         in err
     code, err = run_cli(capsys, 'eval', '--bag', str(bag), '--det-topic', '/nothing')
     assert code == 1 and 'the bag has no /nothing topic' in err and 'detect-bag' in err
+    # play: a mistyped name among several topics is named, not dropped
+    code, err = run_cli(capsys, 'play', str(bag), '--topics', '/points', '/odmo')
+    assert code == 1 and 'has no /odmo (topics: [' in err and "'/odom'" in err

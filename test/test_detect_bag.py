@@ -92,6 +92,8 @@ def test_what_a_user_gets_wrong_is_named_and_leaves_no_partial_bag(bag, tmp_path
         (['--points-topic', '/tf_static'], 'carries tf2_msgs/msg/TFMessage, not '
          'sensor_msgs/msg/PointCloud2'),
         (['--points-topic', '/points', '--odom-topic', '/points'], 'are both /points'),
+        (['--points-topic', '/gt/objects'], '--gt-topic /gt/objects is also the cloud'),
+        (['--odom-topic', '/odometry/filtered'], 'no /odometry/filtered topic'),
         (['--score-threshold', '0.3', '0.3'], 'score_thresholds needs 1 or 4 values'),
         (['--checkpoint', str(tmp_path / 'missing.safetensors')], 'does not exist'),
     ]
@@ -107,6 +109,83 @@ def test_what_a_user_gets_wrong_is_named_and_leaves_no_partial_bag(bag, tmp_path
     assert main(['detect-bag', str(bag), str(tmp_path / 'file' / 'out'), '--checkpoint',
                  ckpt]) == 1
     assert 'folder of the output bag' in capsys.readouterr().err
+
+
+def _with_extra_topics(src, dst, extra):
+    """``src`` copied to ``dst`` (mcap) with ``extra``: (topic, msgtype, msg definition or
+    None for a Jazzy type, message) written at the last stamp."""
+    from rosbags.rosbag2 import StoragePlugin, Writer
+    from rosbags.typesys import get_types_from_msg
+
+    from suit_ros.data.bag import messages, open_reader, typestore
+    store = typestore()
+    for _, msgtype, definition, _ in extra:
+        if definition:
+            store.register(get_types_from_msg(definition, msgtype))
+    w = Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP)
+    w.open()
+    conns = {}
+    with open_reader(src) as r:
+        for c, t, raw in messages(r):
+            if c.topic not in conns:
+                conns[c.topic] = w.add_connection(c.topic, c.msgtype, typestore=store)
+            w.write(conns[c.topic], t, bytes(raw))
+    for topic, msgtype, _, msg in extra:
+        conn = w.add_connection(topic, msgtype, typestore=store)
+        w.write(conn, t, msg if isinstance(msg, bytes) else store.serialize_cdr(msg, msgtype))
+    w.close()
+    return dst
+
+
+def test_copy_inputs_keeps_a_vendor_type_and_not_an_old_runs_detections(bag, tmp_path,
+                                                                         capsys):
+    """A vendor message type in the input (its definition in the bag) is copied unchanged;
+    an input that is itself a detect-bag output does not get the old model's detections
+    mixed with the new ones."""
+    from rosbags.typesys import get_types_from_msg
+
+    from suit_ros.cli import main
+    from suit_ros.data.bag import messages, open_reader, typestore
+    ckpt = node_checkpoint(tmp_path)
+    store = typestore()
+    store.register(get_types_from_msg('int32 a\nstring b\n', 'vendor_msgs/msg/Custom'))
+    custom = store.types['vendor_msgs/msg/Custom'](a=7, b='hi')
+    vendor = _with_extra_topics(bag, tmp_path / 'vendor', [
+        ('/vendor/status', 'vendor_msgs/msg/Custom', 'int32 a\nstring b\n', custom)])
+    out = tmp_path / 'out'
+    assert main(['detect-bag', str(vendor), str(out), '--checkpoint', ckpt,
+                 '--copy-inputs']) == 0
+    with open_reader(out) as r:
+        counts = {c.topic: c.msgcount for c in r.connections}
+        got = [r.deserialize(raw, c.msgtype) for c, _, raw in messages(r)
+               if c.topic == '/vendor/status']
+    assert counts['/vendor/status'] == 1 and (got[0].a, got[0].b) == (7, 'hi')
+    assert counts['/detector/detections'] == counts['/points'] == 4
+    capsys.readouterr()
+    again = tmp_path / 'again'
+    assert main(['detect-bag', str(out), str(again), '--checkpoint', ckpt,
+                 '--copy-inputs']) == 0
+    assert 'not copied: /detector/detections, /detector/markers' in capsys.readouterr().err
+    with open_reader(again) as r:
+        counts = {c.topic: c.msgcount for c in r.connections}
+    assert counts['/detector/detections'] == counts['/detector/markers'] == 4
+    assert counts['/vendor/status'] == 1
+
+
+def test_a_bag_without_odometry_is_said_to_run_single_frame(tmp_path, capsys):
+    from suit_ros.cli import main
+    from suit_ros.data.bag import messages, open_reader, open_writer
+    src = synthetic_bag(tmp_path, 3, 5, 'mcap')
+    bare = tmp_path / 'bare'
+    with open_reader(src) as r, open_writer(bare) as w:
+        for c, t, raw in messages(r):
+            if c.topic != '/odom':
+                w.copy(c, t, raw, r.typestore)
+    ckpt = node_checkpoint(tmp_path)
+    assert main(['detect-bag', str(bare), str(tmp_path / 'out'), '--checkpoint', ckpt]) == 0
+    captured = capsys.readouterr()
+    assert 'the bag has no /odom: every frame runs single-frame' in captured.err
+    assert 'single-frame (no pose for the memory and the sweeps): 3 of 3 frames' in captured.out
 
 
 def test_bag_frames_take_the_lidar_extrinsic_and_every_pose_of_a_long_bag(bag, tmp_path):

@@ -210,6 +210,10 @@ def test_corrupt_bags_and_checkpoints_are_rejected(bag, tmp_path, capsys):
     assert 'error' in capsys.readouterr().err
     (broken / 'metadata.yaml').write_text('not: [valid')
     assert main(['play', str(broken)]) == 1
+    (broken / 'metadata.yaml').unlink()              # a folder with no metadata: what to do
+    assert main(['play', str(broken)]) == 1
+    err = capsys.readouterr().err
+    assert 'is a folder without metadata.yaml' in err and 'ros2 bag reindex' in err
     write_bag(tmp_path / 'm', preset('test', frames=2), 1, 'mcap')    # truncated mcap
     mcap = next((tmp_path / 'm').glob('*.mcap'))
     mcap.write_bytes(mcap.read_bytes()[:3000])

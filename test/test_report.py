@@ -248,6 +248,16 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
         (out / 'report.md').read_text()
     assert len(list((out / 'bev').glob('*.png'))) == 2
     assert 'Real-data report' in capsys.readouterr().out
+    # again into the same folder with one picture: the earlier report's are not left beside
+    # it, a file of the user's is, and the command says what it replaced
+    (out / 'bev' / 'notes.png').write_bytes(b'mine')
+    assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(out),
+                 '--score-thresholds', '0.3', '--pictures', '1']) == 0
+    pictures = sorted(p.name for p in (out / 'bev').glob('*.png'))
+    assert len(pictures) == 2 and 'notes.png' in pictures, pictures
+    assert [p for p in pictures if p != 'notes.png'][0].endswith('_0000.png'), pictures
+    assert (out / 'bev' / 'notes.png').read_bytes() == b'mine'
+    assert 'replaced the earlier report in' in capsys.readouterr().err
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep2'),
                  '--pictures', '0', '--overhang', 'drop', '--ground', 'local',
                  '--box-fit', 'faces', '--traffic-side', 'left']) == 0

@@ -38,6 +38,16 @@ class BagWriter:
                                                                    typestore=self.store)
         return self._connections[topic]
 
+    def copy(self, conn: Any, stamp_ns: int, raw: bytes | memoryview, store: Any) -> None:
+        """Write a message read from another bag unchanged: ``conn`` its connection (its
+        type defined in ``store``, the reader's typestore, which holds the bag's own types;
+        its offered QoS kept, so a latched /tf_static stays latched)."""
+        if conn.topic not in self._connections:
+            qos = getattr(getattr(conn, 'ext', None), 'offered_qos_profiles', None) or ()
+            self._connections[conn.topic] = self._writer.add_connection(
+                conn.topic, conn.msgtype, typestore=store, offered_qos_profiles=qos)
+        self._writer.write(self._connections[conn.topic], int(stamp_ns), bytes(raw))
+
     def write(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
         """Serialise (unless ``msg`` is already CDR bytes) and write."""
         conn = self.connection(topic, msgtype)
@@ -71,6 +81,11 @@ def open_reader(path: str | os.PathLike[str]) -> Iterator[Any]:
     path = Path(path)
     if not path.exists():
         raise BagError(f'bag {path} does not exist')
+    if path.is_dir() and not (path / 'metadata.yaml').exists():
+        inside = sorted(p.name for p in path.iterdir() if p.suffix in ('.mcap', '.db3'))
+        raise BagError(f'{path} is a folder without metadata.yaml, so not a rosbag2 bag'
+                       + (f'; it holds {", ".join(inside)}: pass the .mcap file itself, or '
+                          'write the metadata again with `ros2 bag reindex`' if inside else ''))
     try:
         reader = AnyReader([path], default_typestore=typestore())
         reader.open()
