@@ -184,6 +184,10 @@ def run(args: argparse.Namespace) -> int:
             with open_writer(out_path, args.storage) as bag:
                 pipe = build_pipeline(params, MessageClasses.from_rosbags(bag.store))
                 summary = _process_bag(args, params, reader, bag, pipe, copied)
+                if summary.frames and summary.warnings['unusable_cloud'] == summary.frames:
+                    raise BagError(f'none of the {summary.frames} clouds could be read: '
+                                   f'{summary.examples["unusable_cloud"]}; check the cloud '
+                                   'fields (--intensity-field) and --points-topic')
         except BaseException:     # no partial bag left behind to block the next try
             if out_path.is_dir():
                 shutil.rmtree(out_path, ignore_errors=True)

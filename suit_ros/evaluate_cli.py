@@ -64,6 +64,14 @@ def _from_bag(args: argparse.Namespace) -> Any:
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
     from suit_ros.msg_adapters.odometry import stamp_to_ns
     from suit_ros.structures import Detections
+    given = [flag for flag, on in (('--checkpoint', bool(args.checkpoint)),
+                                   ('--tracker', args.tracker),
+                                   ('--history', args.history is not None),
+                                   ('--run-every', args.run_every != 1)) if on]
+    if given:      # they would change nothing: the bag holds detections already made
+        raise ConfigError(f'eval --bag scores the detections recorded in the bag; '
+                          f'{", ".join(given)} do not apply there: give them to `suit-ros '
+                          'detect-bag IN OUT --copy-inputs`, then evaluate OUT')
     found: dict[str, dict[int, Any]] = {args.det_topic: {}, args.gt_topic: {}}
     with open_reader(args.bag) as reader:
         for t in found:

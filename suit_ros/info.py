@@ -22,6 +22,26 @@ def _dist_version(name: str) -> str:
         return 'not installed'
 
 
+def _rmw() -> str:
+    """The RMW implementation rclpy loads, asked in a child process: with an
+    ``RMW_IMPLEMENTATION`` that is not installed, importing rclpy ends the process (exit 102),
+    which would take everything else this command reports with it."""
+    import subprocess
+    code = ('from rclpy.utilities import get_rmw_implementation_identifier as g; '
+            'print(g())')
+    try:
+        done = subprocess.run([sys.executable, '-c', code], capture_output=True, text=True,
+                              timeout=60, check=False)
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f'unknown ({exc})'
+    if done.returncode == 0 and done.stdout.strip():
+        return done.stdout.strip().splitlines()[-1]
+    said = (done.stderr.strip().splitlines() or ['no message'])[-1][:300]
+    wanted = os.environ.get('RMW_IMPLEMENTATION', 'the default')
+    return (f'cannot load {wanted} (exit {done.returncode}: {said}); install it or unset '
+            'RMW_IMPLEMENTATION')
+
+
 def collect() -> dict[str, str]:
     """Return a flat mapping of what this installation runs with."""
     import numpy
@@ -39,13 +59,8 @@ def collect() -> dict[str, str]:
         info['torch device'] = (f'cuda ({torch.cuda.get_device_name(0)})' if cuda else 'cpu')
     except ImportError:
         info['torch'] = 'not installed'
-    try:
-        import rclpy  # noqa: F401
-        from rclpy.utilities import get_rmw_implementation_identifier
-        info['rclpy'] = _dist_version('ros-rclpy')
-        info['rmw'] = get_rmw_implementation_identifier()
-    except ImportError as exc:
-        info['rclpy'] = f'not importable ({exc})'
+    info['rclpy'] = _dist_version('ros-rclpy')
+    info['rmw'] = _rmw()
     info['rosbags'] = _dist_version('rosbags')
     info['ROS_DOMAIN_ID'] = os.environ.get('ROS_DOMAIN_ID', '(unset: 0)')
     info['ROS_AUTOMATIC_DISCOVERY_RANGE'] = os.environ.get(

@@ -76,6 +76,10 @@ def test_a_bag_topic_of_another_type_is_named(tmp_path, capsys):
         in err
     code, err = run_cli(capsys, 'eval', '--bag', str(bag), '--det-topic', '/nothing')
     assert code == 1 and 'the bag has no /nothing topic' in err and 'detect-bag' in err
+    # flags that change nothing for detections already recorded are refused, not ignored
+    code, err = run_cli(capsys, 'eval', '--bag', str(bag), '--checkpoint', 'suit_carry',
+                        '--tracker')
+    assert code == 1 and '--checkpoint, --tracker do not apply there' in err
     # play: a mistyped name among several topics is named, not dropped
     code, err = run_cli(capsys, 'play', str(bag), '--topics', '/points', '/odmo')
     assert code == 1 and 'has no /odmo (topics: [' in err and "'/odom'" in err

@@ -94,6 +94,7 @@ def test_what_a_user_gets_wrong_is_named_and_leaves_no_partial_bag(bag, tmp_path
         (['--points-topic', '/points', '--odom-topic', '/points'], 'are both /points'),
         (['--points-topic', '/gt/objects'], '--gt-topic /gt/objects is also the cloud'),
         (['--odom-topic', '/odometry/filtered'], 'no /odometry/filtered topic'),
+        (['--intensity-field', 'reflect'], 'none of the 4 clouds could be read: unusable'),
         (['--score-threshold', '0.3', '0.3'], 'score_thresholds needs 1 or 4 values'),
         (['--checkpoint', str(tmp_path / 'missing.safetensors')], 'does not exist'),
     ]

@@ -105,6 +105,18 @@ def test_cli_version_info_and_errors(capsys):
     text = capsys.readouterr().out
     for key in ('python', 'numpy', 'torch', 'rclpy', 'rmw', 'torch threads', 'torch device'):
         assert key in text
+    assert 'rmw_fastrtps_cpp' in text
+    # an RMW that is not installed: said in its line, and the rest still reported
+    import json
+    import os
+    import subprocess
+    import sys
+    env = {**os.environ, 'RMW_IMPLEMENTATION': 'rmw_not_installed_cpp'}
+    done = subprocess.run([sys.executable, '-m', 'suit_ros.cli', 'info', '--json'],
+                          capture_output=True, text=True, env=env, timeout=120, check=False)
+    assert done.returncode == 0, done.stderr
+    info = json.loads(done.stdout)
+    assert info['rmw'].startswith('cannot load rmw_not_installed_cpp') and info['numpy']
     assert main([]) == 2
     assert main(['train', '--config', '/nonexistent.yaml', '--out', '/tmp/x']) == 1
     assert 'does not exist' in capsys.readouterr().err
