@@ -75,13 +75,7 @@ def flush(pubs: dict[str, Any], timeout_s: float) -> list[str]:
 
 def run(args: argparse.Namespace) -> int:
     """Play the bag."""
-    import rclpy
-    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-    from rclpy.utilities import try_shutdown
-    from rosgraph_msgs.msg import Clock
-
-    from suit_ros.data.bag import messages, open_reader
-    from suit_ros.dds import use_large_data_profile
+    from suit_ros.data.bag import open_reader
     if not args.rate > 0 or not math.isfinite(args.rate):          # nan fails both
         raise BagError(f'--rate must be a number > 0, not {args.rate}')
     if not (0 <= args.start_delay < math.inf and 0 <= args.wait_subscribers < math.inf):
@@ -97,17 +91,26 @@ def run(args: argparse.Namespace) -> int:
             raise BagError(f'{args.bag} has no {", ".join(missing)} (topics: {topics}); '
                            'name them with --topics as the bag does')
         conns = [c for c in reader.connections if not args.topics or c.topic in args.topics]
-        recorded = [(c.topic, c.msgtype, t, bytes(raw))
-                    for c, t, raw in messages(reader, conns)]
-    if not recorded:
-        raise BagError(f'{args.bag} has no messages on the selected topics')
+        # streamed from the bag as they are due, not read into memory first: a real
+        # recording of 1 MB clouds holds many GB
+        return _play(args, reader, conns)
+
+
+def _play(args: argparse.Namespace, reader: Any, conns: list[Any]) -> int:
+    import rclpy
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from rclpy.utilities import try_shutdown
+    from rosgraph_msgs.msg import Clock
+
+    from suit_ros.data.bag import messages
+    from suit_ros.dds import use_large_data_profile
     profile = use_large_data_profile(os.environ)   # before rclpy creates the participant
     if profile:
         print(f'play: Fast DDS profile {profile} (large messages over shared memory)')
     rclpy.init()
     node = rclpy.create_node('suit_ros_player')
     pubs = {}
-    for topic, msgtype in sorted({(m[0], m[1]) for m in recorded}):
+    for topic, msgtype in sorted({(c.topic, c.msgtype) for c in conns}):
         try:
             cls = message_class(msgtype)
         except BagError as exc:
@@ -120,8 +123,8 @@ def run(args: argparse.Namespace) -> int:
                          reliability=(ReliabilityPolicy.BEST_EFFORT if best_effort
                                       else ReliabilityPolicy.RELIABLE))
         pubs[topic] = node.create_publisher(cls, topic, qos)
-    recorded = [m for m in recorded if m[0] in pubs]
-    if not recorded:
+    conns = [c for c in conns if c.topic in pubs]
+    if not conns:
         node.destroy_node()
         try_shutdown()
         raise BagError(f'no message type of {args.bag} is known here: nothing to play')
@@ -135,9 +138,11 @@ def run(args: argparse.Namespace) -> int:
             time.sleep(0.05)
         time.sleep(args.start_delay)
         while True:
-            t_bag0 = recorded[0][2]
+            t_bag0: int | None = None
             t_wall0 = time.monotonic()
-            for topic, _, t, data in recorded:
+            for conn, t, raw in messages(reader, conns):
+                if t_bag0 is None:
+                    t_bag0, t_wall0 = t, time.monotonic()
                 due = t_wall0 + (t - t_bag0) * 1e-9 / args.rate
                 delay = due - time.monotonic()
                 if delay > 0:
@@ -148,10 +153,12 @@ def run(args: argparse.Namespace) -> int:
                     clock = Clock()
                     clock.clock.sec, clock.clock.nanosec = divmod(t, 10**9)
                     clock_pub.publish(clock)
-                pubs[topic].publish(data)
+                pubs[conn.topic].publish(bytes(raw))
                 sent += 1
                 if args.max_messages and sent >= args.max_messages:
                     return 0
+            if not sent:
+                raise BagError(f'{args.bag} has no messages on the selected topics')
             if not args.loop:
                 break
     except KeyboardInterrupt:
