@@ -9,6 +9,7 @@ import datetime
 import json
 import os
 from pathlib import Path
+import stat
 import subprocess
 from typing import Any
 
@@ -75,9 +76,22 @@ def save_checkpoint(path: str | os.PathLike[str], model: torch.nn.Module, config
     }
     tmp = path.with_suffix(path.suffix + '.tmp')
     save_file(state, str(tmp), metadata={'suit_ros': json.dumps(meta)})
+    _file_mode(tmp, path)
     from suit_ros.outputs import durable_replace
     durable_replace(tmp, path)
     return path
+
+
+def _file_mode(tmp: Path, path: Path) -> None:
+    """Give ``tmp`` (safetensors writes 0600) the mode of the ``path`` it replaces, or a new
+    file's (0666 less the umask): readable by whom it was, or would be, otherwise."""
+    if path.is_file():
+        mode = stat.S_IMODE(path.stat().st_mode)
+    else:
+        umask = os.umask(0)
+        os.umask(umask)
+        mode = 0o666 & ~umask
+    os.chmod(tmp, mode)
 
 
 def _sniff(path: Path) -> None:
@@ -181,6 +195,7 @@ def update_metadata(path: str | os.PathLike[str], **changes: Any) -> Path:
     state = load_file(str(path), device='cpu')
     tmp = path.with_suffix(path.suffix + '.tmp')
     save_file(state, str(tmp), metadata={'suit_ros': json.dumps(meta)})
+    _file_mode(tmp, path)
     from suit_ros.outputs import durable_replace
     durable_replace(tmp, path)
     return path

@@ -70,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     if args.drives < 1:
         raise ConfigError(f'--drives must be at least 1 (thresholds need GT), got {args.drives}')
     path = args.checkpoint or default_checkpoint_path()
+    if args.write:
+        check_writable(args.checkpoint)      # before the tune split is run, not after
     model, cfg, meta = load_checkpoint(path)
     names = tuple(cfg.class_names)
     if args.keep_published and getattr(model, 'carry', None) is None:
@@ -107,6 +109,24 @@ def run(args: argparse.Namespace) -> int:
     if args.write:
         print(f'stored in {path}')
     return 0
+
+
+def check_writable(given: str) -> None:
+    """What ``--write`` would rewrite (a shipped checkpoint by its name too, as the recipe
+    does) can be written: checked before the tune split is run, not after it.
+
+    :raises ConfigError: a read-only file, or a folder that cannot be written.
+    """
+    import stat
+
+    from suit_ros.checkpoint import resolve_checkpoint
+    from suit_ros.errors import ConfigError
+    from suit_ros.outputs import output_file
+    target = resolve_checkpoint(given)
+    if target.is_file() and not stat.S_IMODE(target.stat().st_mode) & stat.S_IWUSR:
+        raise ConfigError(f'{target} is read-only: --write would replace it; make it writable '
+                          'or give a copy')
+    output_file(target, 'checkpoint to --write')
 
 
 def carry_thresholds(model: Any, seqs: Sequence[Sequence[Any]], published: list[float],

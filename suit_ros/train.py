@@ -106,6 +106,12 @@ def load_train_config(path: str | os.PathLike[str]) -> TrainConfig:
         raise ConfigError(f'training config {path} is not valid YAML: {exc}') from exc
     tc = typing.cast(TrainConfig, dataclass_from_dict(TrainConfig, data, os.fspath(path)))
     check_budget(tc, os.fspath(path))
+    for name in ('batch_size', 'checkpoint_every'):
+        if getattr(tc, name) < 1:
+            raise ConfigError(f'{path}: {name} must be at least 1, not {getattr(tc, name)}')
+    if not tc.clip_lengths or min(tc.clip_lengths) < 1:
+        raise ConfigError(f'{path}: clip_lengths must list one or more clip lengths of 1 frame '
+                          f'or more, not {list(tc.clip_lengths)}')
     if tc.train_sequences < 1 or tc.train_first_sequence < 0:
         raise ConfigError(f'{path}: train_sequences must be >= 1 and train_first_sequence >= 0, '
                           f'not {tc.train_sequences} and {tc.train_first_sequence}')
@@ -445,6 +451,12 @@ def _resume(last: Path, module: Any, opt: Any, tc: TrainConfig, mcfg: Any
                           'may be truncated (a run killed while saving it before this '
                           'release): train into a new --out, init_from its '
                           'snapshot.safetensors') from exc
+    needed = ('model', 'optimizer', 'step', 'torch_rng')
+    if not isinstance(state, dict) or any(k not in state for k in needed):
+        raise ConfigError(f'cannot resume from {last}: it holds '
+                          + (f'a {type(state).__name__}' if not isinstance(state, dict) else
+                             f'no {", ".join(k for k in needed if k not in state)}')
+                          + ", not a suit-ros training run's state; train into a new --out")
     before = state.get('model_config')
     diff = [] if before is None else _differences(before, mcfg.to_dict())
     if diff:
@@ -557,6 +569,12 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
         raise ConfigError(f'{out} holds a training run (last.pt): --resume to go on with it, or '
                           'give a new --out (a new run there would overwrite its snapshot and '
                           'its log)')
+    if not (out / 'last.pt').is_file():     # a finished run (its last.pt removed) or a copy
+        made = [n for n in ('model.safetensors', 'snapshot.safetensors') if (out / n).is_file()]
+        if made:
+            raise ConfigError(f'{out} holds a trained model ({", ".join(made)}) and no last.pt '
+                              'to resume from: give a new --out (a run there would overwrite '
+                              'it)')
     dev = _device(device, threads, rank, world)
     torch.manual_seed(tc.seed + rank)
     mcfg = load_model_config(tc.model_config)

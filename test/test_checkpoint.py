@@ -32,6 +32,10 @@ def test_round_trip(ckpt):
     for (k, a), (_, b) in zip(model.state_dict().items(), ref.state_dict().items()):
         assert torch.equal(a, b), k
     assert not model.training
+    umask = os.umask(0)
+    os.umask(umask)
+    # safetensors writes 0600: a checkpoint is as readable as any new file here
+    assert ckpt.stat().st_mode & 0o777 == 0o666 & ~umask
 
 
 def test_config_and_class_mismatch(ckpt):
@@ -162,8 +166,16 @@ def test_shipped_names_reach_the_writers_and_initialisation(tmp_path, monkeypatc
     monkeypatch.setattr(ck, 'default_checkpoint_path',
                         lambda: shipped / 'suit_default.safetensors')
     monkeypatch.chdir(tmp_path)
+    (shipped / 'centerpoint_single.safetensors').chmod(0o644)
     assert update_metadata('centerpoint_single', note='x') == (
         shipped / 'centerpoint_single.safetensors')
+    assert read_metadata('centerpoint_single')['note'] == 'x'
+    # rewritten, it keeps its mode: readable by whom it was before (was 0600 after a write)
+    assert (shipped / 'centerpoint_single.safetensors').stat().st_mode & 0o777 == 0o644
+    # choose-thresholds --write on a read-only file: refused before the tune split is run
+    from suit_ros.cli import main
+    (shipped / 'centerpoint_single.safetensors').chmod(0o444)
+    assert main(['choose-thresholds', '--checkpoint', 'centerpoint_single', '--write']) == 1
     assert read_metadata('centerpoint_single')['note'] == 'x'
 
 

@@ -142,6 +142,13 @@ def test_train_config_strict(tmp_path):
     (tmp_path / 'mixbag.yaml').write_text('dataset: bags\nmore_presets: [train-real]\n')
     with pytest.raises(ConfigError, match='more_presets are synthetic'):
         load_train_config(tmp_path / 'mixbag.yaml')
+    # values that crashed a run after its first step (a modulo by zero, an empty batch)
+    for text, match in (('checkpoint_every: 0\n', 'checkpoint_every must be at least 1'),
+                        ('batch_size: 0\n', 'batch_size must be at least 1'),
+                        ('clip_lengths: []\n', 'clip_lengths must list one or more')):
+        (tmp_path / 'zero.yaml').write_text(text)
+        with pytest.raises(ConfigError, match=match):
+            load_train_config(tmp_path / 'zero.yaml')
 
 
 def test_more_presets_add_the_same_drives_in_another_world(tmp_path):
@@ -252,6 +259,19 @@ def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monk
     (tmp_path / 'run' / 'last.pt').write_bytes(data[:len(data) // 3])
     with pytest.raises(ConfigError, match='cannot resume from'):
         train(tiny(tmp_path, temporal='suit', steps=8), tmp_path / 'run', resume=True)
+    # a last.pt torch reads without pickle but that is no run's state: named, nothing loaded
+    for foreign, match in (([1, 2, 3], 'it holds a list'),
+                           ({'model': {}, 'step': 1}, 'it holds no optimizer, torch_rng')):
+        torch.save(foreign, tmp_path / 'run' / 'last.pt')
+        with pytest.raises(ConfigError, match=match):
+            train(tiny(tmp_path, temporal='suit', steps=8), tmp_path / 'run', resume=True)
+    # a trained model without last.pt (a copied or cleaned run): a new run there, resumed or
+    # not, would overwrite it
+    (tmp_path / 'run' / 'last.pt').unlink()
+    for resume in (False, True):
+        with pytest.raises(ConfigError, match=r'holds a trained model \(model.safetensors'):
+            train(tiny(tmp_path, temporal='suit'), tmp_path / 'run', resume=resume)
+    assert (tmp_path / 'run' / 'model.safetensors').stat().st_mtime_ns == written
 
 
 @pytest.mark.slow
