@@ -578,6 +578,11 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     dev = _device(device, threads, rank, world)
     torch.manual_seed(tc.seed + rank)
     mcfg = load_model_config(tc.model_config)
+    from suit_ros import CLASS_NAMES
+    if tc.dataset == 'synthetic' and tuple(mcfg.class_names) != CLASS_NAMES:
+        # its labels are indices into these: another set trains until an index overruns
+        raise ConfigError(f'{tc.model_config} detects {list(mcfg.class_names)}, but the '
+                          f'synthetic world labels {list(CLASS_NAMES)}: use those class_names')
     if tc.temporal:
         mcfg = replace(mcfg, temporal=tc.temporal)
     if tc.ground:

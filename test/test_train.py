@@ -272,6 +272,18 @@ def test_tiny_training_run_writes_loadable_checkpoint_and_resumes(tmp_path, monk
         with pytest.raises(ConfigError, match=r'holds a trained model \(model.safetensors'):
             train(tiny(tmp_path, temporal='suit'), tmp_path / 'run', resume=resume)
     assert (tmp_path / 'run' / 'model.safetensors').stat().st_mtime_ns == written
+    # a model of another class set on the synthetic world (its labels index these four)
+    two = tmp_path / 'two.yaml'
+    import yaml
+
+    from suit_ros.config import load_model_config
+    cfg = load_model_config(REPO / 'params/model_cpu.yaml').to_dict()
+    cfg['class_names'] = ['car', 'pedestrian']
+    cfg['head']['circle_nms_radius'] = cfg['head']['circle_nms_radius'][:2]
+    cfg['head']['carry_nms_radius'] = cfg['head']['carry_nms_radius'][:2]
+    two.write_text(yaml.safe_dump({'model': cfg}))
+    with pytest.raises(ConfigError, match=r"but the synthetic world labels \['car', 'truck'"):
+        train(tiny(tmp_path, temporal='suit', model_config=str(two)), tmp_path / 'run2')
 
 
 @pytest.mark.slow
