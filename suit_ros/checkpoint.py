@@ -61,7 +61,6 @@ def save_checkpoint(path: str | os.PathLike[str], model: torch.nn.Module, config
                     metrics: dict[str, Any] | None = None,
                     extra: dict[str, Any] | None = None) -> Path:
     """Write the model's weights and metadata to a ``.safetensors`` file (atomically)."""
-    from safetensors.torch import save_file
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     state = {k: v.detach().cpu().contiguous() for k, v in model.state_dict().items()}
@@ -74,24 +73,23 @@ def save_checkpoint(path: str | os.PathLike[str], model: torch.nn.Module, config
         'created': datetime.datetime.now(datetime.timezone.utc).isoformat(timespec='seconds'),
         'extra': extra or {},
     }
-    tmp = path.with_suffix(path.suffix + '.tmp')
-    save_file(state, str(tmp), metadata={'suit_ros': json.dumps(meta)})
-    _file_mode(tmp, path)
-    from suit_ros.outputs import durable_replace
-    durable_replace(tmp, path)
+    _write(path, state, meta)
     return path
 
 
-def _file_mode(tmp: Path, path: Path) -> None:
-    """Give ``tmp`` (safetensors writes 0600) the mode of the ``path`` it replaces, or a new
-    file's (0666 less the umask): readable by whom it was, or would be, otherwise."""
+def _write(path: Path, state: dict[str, torch.Tensor], meta: dict[str, Any]) -> None:
+    """The tensors and metadata into ``path``, whole or not at all (:func:`durable_replace`).
+    Written by Python's own open, so a new file gets the umask's mode (safetensors' file
+    writer makes 0600); a replaced file's mode is kept: readable by whom it was before."""
+    from safetensors.torch import save
+
+    from suit_ros.outputs import durable_replace
+    tmp = path.with_suffix(path.suffix + '.tmp')
+    tmp.unlink(missing_ok=True)             # one left by a crash keeps its own mode
+    tmp.write_bytes(save(state, metadata={'suit_ros': json.dumps(meta)}))
     if path.is_file():
-        mode = stat.S_IMODE(path.stat().st_mode)
-    else:
-        umask = os.umask(0)
-        os.umask(umask)
-        mode = 0o666 & ~umask
-    os.chmod(tmp, mode)
+        os.chmod(tmp, stat.S_IMODE(path.stat().st_mode))
+    durable_replace(tmp, path)
 
 
 def _sniff(path: Path) -> None:
@@ -188,16 +186,12 @@ def _thresholds(meta: dict[str, Any], key: str) -> dict[str, float]:
 
 def update_metadata(path: str | os.PathLike[str], **changes: Any) -> Path:
     """Rewrite a checkpoint with the same tensors and its metadata updated (atomically)."""
-    from safetensors.torch import load_file, save_file
+    from safetensors.torch import load_file
     path = resolve_checkpoint(path)         # a shipped one by name, as read_metadata takes it
     meta = read_metadata(path)
     meta.update(changes)
     state = load_file(str(path), device='cpu')
-    tmp = path.with_suffix(path.suffix + '.tmp')
-    save_file(state, str(tmp), metadata={'suit_ros': json.dumps(meta)})
-    _file_mode(tmp, path)
-    from suit_ros.outputs import durable_replace
-    durable_replace(tmp, path)
+    _write(path, state, meta)
     return path
 
 

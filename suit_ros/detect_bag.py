@@ -263,7 +263,8 @@ def _copied_topics(reader: Any, args: argparse.Namespace) -> set[str]:
     with the new ones). A type the bag does not define cannot be written: refused before
     any work is done."""
     ours = {DET_TOPIC, MARKER_TOPIC}
-    skipped = sorted({c.topic for c in reader.connections} & ours)
+    topics = {c.topic for c in reader.connections}
+    skipped = sorted(topics & ours)
     if skipped:
         print(f'detect-bag: not copied: {", ".join(skipped)} (this run writes them anew)',
               file=sys.stderr)
@@ -279,7 +280,7 @@ def _copied_topics(reader: Any, args: argparse.Namespace) -> set[str]:
         raise BagError(f'--copy-inputs cannot copy {", ".join(sorted(unknown))}: the bag '
                        'carries no definition of the type; run without --copy-inputs (the '
                        'detections are written either way)')
-    return {c.topic for c in reader.connections} - ours
+    return topics - ours
 
 
 def _process_bag(args: argparse.Namespace, params: DetectorParams, reader: Any, bag: Any,

@@ -106,11 +106,13 @@ class CloudMailbox(Generic[T]):
             return
         # a gap: a loss, unless the numbers before it may be another publisher's (one that
         # has just left: the publishers are counted now, not when it sent)
-        if not self._rebase and (count_gaps() if callable(count_gaps) else count_gaps):
+        if self._rebase:
+            self._rebase = False        # this number is the new baseline
+        elif count_gaps() if callable(count_gaps) else count_gaps:
             self.lost += int(seq) - last - 1
             self.losses.append(now)
         else:
-            self._rebase = not self._rebase
+            self._rebase = True         # several publishers now: the next gap may be theirs
 
     def take(self, timeout: float = 0.5) -> T | None:
         """The waiting cloud (emptying the slot), or None after ``timeout`` s or on close."""

@@ -31,22 +31,22 @@ class BagWriter:
         self.store = store
         self._connections: dict[str, Any] = {}
 
-    def connection(self, topic: str, msgtype: str) -> Any:
-        """The connection for ``topic`` (created on first use)."""
+    def connection(self, topic: str, msgtype: str, store: Any = None,
+                   qos: Sequence[Any] = ()) -> Any:
+        """The connection for ``topic`` (created on first use; its type defined in ``store``,
+        by default this writer's, and offered with ``qos``)."""
         if topic not in self._connections:
-            self._connections[topic] = self._writer.add_connection(topic, msgtype,
-                                                                   typestore=self.store)
+            self._connections[topic] = self._writer.add_connection(
+                topic, msgtype, typestore=store or self.store, offered_qos_profiles=qos)
         return self._connections[topic]
 
     def copy(self, conn: Any, stamp_ns: int, raw: bytes | memoryview, store: Any) -> None:
         """Write a message read from another bag unchanged: ``conn`` its connection (its
         type defined in ``store``, the reader's typestore, which holds the bag's own types;
         its offered QoS kept, so a latched /tf_static stays latched)."""
-        if conn.topic not in self._connections:
-            qos = getattr(getattr(conn, 'ext', None), 'offered_qos_profiles', None) or ()
-            self._connections[conn.topic] = self._writer.add_connection(
-                conn.topic, conn.msgtype, typestore=store, offered_qos_profiles=qos)
-        self._writer.write(self._connections[conn.topic], int(stamp_ns), bytes(raw))
+        qos = getattr(getattr(conn, 'ext', None), 'offered_qos_profiles', None) or ()
+        self._writer.write(self.connection(conn.topic, conn.msgtype, store, qos),
+                           int(stamp_ns), bytes(raw))
 
     def write(self, topic: str, msgtype: str, stamp_ns: int, msg: Any) -> None:
         """Serialise (unless ``msg`` is already CDR bytes) and write."""
