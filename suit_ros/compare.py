@@ -209,21 +209,26 @@ def compare(checkpoints: list[tuple[str, str]], variants: list[str], drives: int
     from suit_ros.data.sequences import split_drives, synthetic_split
     from suit_ros.evaluate import run_model
     t0 = time.monotonic()
-    val = synthetic_split('val', drives, frames, cache_dir)
     runs: dict[str, Any] = {}
-    names: tuple[str, ...] | None = None
-    for name, path in checkpoints:
-        model = load_as(path)
-        if names is not None and tuple(model.cfg.class_names) != names:
-            raise ValueError(f'{path} has classes {model.cfg.class_names}, not {names}')
-        names = tuple(model.cfg.class_names)
+    # every checkpoint loaded and checked before the first run (which may take an hour): a
+    # corrupt one or another class set is said now, not after the runs before it
+    if not checkpoints:
+        raise ValueError('no checkpoints to compare')
+    models = [load_as(path) for _, path in checkpoints]
+    names = tuple(models[0].cfg.class_names)
+    for (_, path), model in zip(checkpoints, models):
+        if tuple(model.cfg.class_names) != names:
+            raise ValueError(f'{path} has classes {list(model.cfg.class_names)}, not '
+                             f'{list(names)} as {checkpoints[0][1]}: compare checkpoints of '
+                             'one class set')
+    val = synthetic_split('val', drives, frames, cache_dir)
+    for (name, path), model in zip(checkpoints, models):
         runs[name] = run_model(model, val, precision=precision)
         for v in variants:
             r = variant_run(path, model, v, val, precision, cache_dir)
             if r is not None:
                 runs[f'{name}, {v}'] = r
         log(f'[compare] {name}: {(time.monotonic() - t0) / 60:.1f} min')
-    assert names is not None
     stats, diffs = bootstrap(runs, names, pairs_of([n for n, _ in checkpoints], runs,
                                                    variants), resamples)
     meta = {'machine': f'{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, '

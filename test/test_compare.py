@@ -154,3 +154,27 @@ def test_the_mirrored_variant_scores_the_mirrored_drives():
             assert len(g.boxes) > 5
             assert np.allclose(g.boxes[:, 1], -f.gt.boxes[:, 1])
             assert np.allclose(np.cos(g.boxes[:, 6] + f.gt.boxes[:, 6]), 1.0)
+
+
+def test_another_class_set_is_refused_before_any_drive_is_run(tmp_path):
+    """A checkpoint of another class set (or a broken one) in second place is said before the
+    first checkpoint's runs (an hour in --ablation), not after them."""
+    from dataclasses import replace
+
+    from suit_ros.checkpoint import save_checkpoint
+    from suit_ros.cli import main
+    from suit_ros.config import HeadConfig, ModelConfig
+    from suit_ros.model.detector import SUITDetector
+    cfg = replace(ModelConfig(), class_names=('car', 'pedestrian'),
+                  head=replace(HeadConfig(), circle_nms_radius=(2.0, 0.5),
+                               carry_nms_radius=(2.5, 1.0)))
+    two = save_checkpoint(tmp_path / 'two.safetensors', SUITDetector(cfg), cfg)
+    cache = tmp_path / 'cache'
+    argv = ['compare', '--run', 'a', 'suit_default', '--run', 'b', str(two), '--drives', '2',
+            '--frames', '2', '--cache-dir', str(cache), '--out', str(tmp_path / 'o')]
+    assert main(argv) == 1
+    assert not cache.exists()                    # no drive was made or run
+    junk = tmp_path / 'junk.safetensors'
+    junk.write_bytes(b'not a checkpoint' * 10)
+    assert main(argv[:5] + [str(junk)] + argv[6:]) == 1
+    assert not cache.exists()
