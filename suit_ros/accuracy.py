@@ -2,17 +2,20 @@
 and the car heading / velocity figures of the motion issue.
 
 Buckets follow nuScenes' attribute rule: a bucket's AP is computed against the GT in the bucket;
-a detection whose nearest same-class GT (within :data:`IGNORE_DIST` m) is outside the bucket is
-ignored (neither TP nor FP), and an unmatched detection counts as a false positive in every
-bucket, since it could belong to any.
+a detection matched (at each distance threshold, against every GT box) to a GT box outside the
+bucket is ignored (neither TP nor FP), and an unmatched detection counts as a false positive in
+every bucket, since it could belong to any (:func:`bucket_matches`).
 
 Intervals resample *drives* with replacement (frames of a drive are not independent) and
 recompute each metric on the resampled set; differences between two runs use the same resamples
-(paired), so an interval of a difference above 0 means the gain holds across drives.
+(paired), so an interval of a difference above 0 means the gain holds across drives. A class
+without GT in a resample has no AP there, and a resample without a class that the whole set
+holds leaves the means (mAP, NDS, the mTP errors) out of their interval: a mean over fewer
+classes is another quantity.
 """
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -29,7 +32,6 @@ from suit_ros.evaluate import (
 )
 from suit_ros.structures import Detections, Frame
 
-IGNORE_DIST = 2.0
 MOVING_SPEED = 1.0                 # m/s: GT faster than this is "moving"
 VISIBILITY = {'1-5': (1, 5), '6-20': (6, 20), '>20': (21, 1 << 31)}
 Bucket = Literal['all', 'moving', 'vis 1-5', 'vis 6-20', 'vis >20']
@@ -49,25 +51,20 @@ def bucket_mask(gt: Detections, num_points: NDArray[np.uint32] | None,
     return (pts >= lo) & (pts <= hi)
 
 
-def bucket_view(gt: Detections, det: Detections, num_points: NDArray[np.uint32] | None,
-                bucket: Bucket) -> tuple[Detections, Detections, NDArray[np.uint32] | None]:
-    """GT of the bucket, and the detections minus those that belong to GT outside it."""
-    keep = bucket_mask(gt, num_points, bucket)
-    if keep.all() or len(det) == 0:
-        return gt.select(keep), det, None if num_points is None else num_points[keep]
-    ignore = np.zeros(len(det), bool)
-    for label in np.unique(det.labels):
-        dm = np.nonzero(det.labels == label)[0]
-        gm = np.nonzero(gt.labels == label)[0]
-        if len(gm) == 0:
-            continue
-        d = np.hypot(det.boxes[dm, None, 0] - gt.boxes[None, gm, 0],
-                     det.boxes[dm, None, 1] - gt.boxes[None, gm, 1])
-        nearest = np.argmin(d, axis=1)
-        close = d[np.arange(len(dm)), nearest] < IGNORE_DIST
-        ignore[dm] = close & ~keep[gm[nearest]]
-    return (gt.select(keep), det.select(~ignore),
-            None if num_points is None else num_points[keep])
+def bucket_matches(gt: Detections, det: Detections, keep: NDArray[np.bool_], label: int,
+                   dist_th: float) -> FrameMatches:
+    """One frame's class-``label`` matches at ``dist_th`` for a bucket (``keep``: which GT
+    boxes are in it): the detections are matched against every GT box (nuScenes' greedy
+    rule), those matched to a box outside the bucket are left out (neither TP nor FP), the
+    unmatched ones stay as false positives, and only the bucket's boxes count as positives."""
+    m = match_frame(gt, det, label, dist_th)
+    if keep.all():
+        return m
+    assert m.gt_index is not None             # match_frame always records it
+    inside = keep[gt.labels == label]
+    own = ~m.tp
+    own[m.tp] = inside[m.gt_index[m.tp]]
+    return FrameMatches(m.scores[own], m.tp[own], m.errors[own], int(inside.sum()))
 
 
 class RunMetrics:
@@ -88,33 +85,47 @@ class RunMetrics:
         labels = range(len(class_names))
         self.flat: dict[tuple[Bucket, int, float], _Flat] = {}
         for bucket in BUCKETS:
-            views = [bucket_view(g, d, n, bucket)[:2] for g, d, n in zip(gts, dets, npts)]
+            keeps = [bucket_mask(g, n, bucket) for g, n in zip(gts, npts)]
             for label in labels:
                 for th in DIST_THRESHOLDS:
                     self.flat[bucket, label, th] = _Flat(
-                        [match_frame(g, d, label, th) for g, d in views])
+                        [bucket_matches(g, d, k, label, th)
+                         for g, d, k in zip(gts, dets, keeps)])
         car = self.class_names.index('car') if 'car' in self.class_names else 0
         # the scored frames (range, returns, ignore boxes), as the report's headings
         self.motion = [car_motion_frame(g, d, car) for g, d in zip(gts, dets)]
 
-    def __call__(self, frames: Sequence[int] | None = None) -> dict[str, float]:
+    def present(self, frames: Sequence[int] | None = None) -> dict[Bucket, tuple[str, ...]]:
+        """Per bucket, the classes with GT in ``frames`` (all when None)."""
+        idx = np.arange(self.num_frames) if frames is None else np.asarray(frames, np.int64)
+        th = DIST_THRESHOLDS[0]
+        return {b: tuple(c for label, c in enumerate(self.class_names)
+                         if self.flat[b, label, th].npos[idx].sum() > 0) for b in BUCKETS}
+
+    def __call__(self, frames: Sequence[int] | None = None,
+                 required: Mapping[Bucket, Sequence[str]] | None = None) -> dict[str, float]:
         """mAP, NDS, the mTP errors, AP per class, mAP per bucket and the car motion figures
-        over ``frames`` (all when None)."""
+        over ``frames`` (all when None); a class without GT there has AP nan and is left out
+        of the means. ``required`` (a bootstrap resample): per bucket the classes the whole
+        set holds; a selection that lacks one has that bucket's means nan (undefined: over
+        another class set they are another quantity), not a mean over fewer classes."""
         idx = np.arange(self.num_frames) if frames is None else np.asarray(frames, np.int64)
         out: dict[str, float] = {}
+        nan = float('nan')
         for bucket in BUCKETS:
             res = result_from_matches(
                 self.class_names,
                 {label: {th: [self.flat[bucket, label, th].select(idx)]
                          for th in DIST_THRESHOLDS}
                  for label in range(len(self.class_names))}, len(idx))
+            lacking = required is not None and not set(required[bucket]) <= set(res.evaluated)
             if bucket == 'all':
-                out.update({'mAP': res.mean_ap, 'NDS': res.nds, **res.mean_tp})
+                out.update({'mAP': nan if lacking else res.mean_ap,
+                            'NDS': nan if lacking else res.nds,
+                            **{k: nan if lacking else v for k, v in res.mean_tp.items()}})
                 out.update({f'AP {c}': v for c, v in res.class_ap.items()})
             else:
-                present = [c for c in self.class_names if res.num_gt[c] > 0]
-                out[f'mAP {bucket}'] = (float(np.mean([res.class_ap[c] for c in present]))
-                                        if present else float('nan'))
+                out[f'mAP {bucket}'] = nan if lacking else res.mean_ap
         out.update(car_motion_summary([self.motion[i] for i in idx]))
         return out
 
@@ -300,13 +311,14 @@ def bootstrap(runs: dict[str, ModelRun], class_names: Sequence[str],
     drives = drive_frames(runs[names[0]])
     metrics = {n: RunMetrics(runs[n], class_names) for n in names}
     point = {n: metrics[n]() for n in names}
+    required = {n: metrics[n].present() for n in names}   # (a variant may hold other GT)
     rng = np.random.default_rng(seed)
     samples: dict[str, list[dict[str, float]]] = {n: [] for n in names}
     for _ in range(resamples):
         pick = rng.integers(0, len(drives), len(drives))
         frames = [i for k in pick for i in drives[k]]
         for n in names:
-            samples[n].append(metrics[n](frames))
+            samples[n].append(metrics[n](frames, required[n]))
 
     def interval(values: list[float], value: float) -> Interval:
         v = np.asarray(values, np.float64)

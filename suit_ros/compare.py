@@ -62,7 +62,6 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-import json
 import os
 from pathlib import Path
 import platform
@@ -339,8 +338,9 @@ def _extra_sections(r: Comparison) -> list[str]:
 def write(result: Comparison, out: Path, title: str, command: str) -> str:
     """``OUT/results.json`` and ``OUT/results.md``; :return: the page."""
     from suit_ros.accuracy import plain_intervals
+    from suit_ros.outputs import json_text
     out.mkdir(parents=True, exist_ok=True)
-    (out / 'results.json').write_text(json.dumps(
+    (out / 'results.json').write_text(json_text(
         {'meta': result.meta, 'runs': plain_intervals(result.stats),
          'differences': plain_intervals(result.diffs),
          'heldout_sensor': plain_intervals(result.heldout),

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
-import json
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -30,6 +29,7 @@ if TYPE_CHECKING:
 
 DIST_THRESHOLDS = (0.5, 1.0, 2.0, 4.0)
 TP_DIST = 2.0
+IGNORE_MARGIN = 0.5        # m: an ignored box's footprint grown by this
 MIN_RECALL = 0.1
 MIN_PRECISION = 0.1
 CLASS_RANGES = {'car': 50.0, 'truck': 50.0, 'pedestrian': 40.0, 'cyclist': 40.0}
@@ -48,6 +48,18 @@ class ClassCurve:
     errors: dict[str, NDArray[np.float64]]
 
 
+def _nanmean(values: Sequence[float]) -> float:
+    """The mean of the finite values; nan when there are none (and no warning)."""
+    v = np.asarray(values, np.float64)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if len(v) else float('nan')
+
+
+def _round(value: float, digits: int = 4) -> float | None:
+    """``value`` rounded for JSON; None when undefined (nan is not JSON)."""
+    return round(value, digits) if np.isfinite(value) else None
+
+
 @dataclass
 class EvalResult:
     """Per-class AP per threshold, TP errors, mAP and NDS."""
@@ -62,25 +74,27 @@ class EvalResult:
 
     @property
     def evaluated(self) -> tuple[str, ...]:
-        """Classes with GT in the evaluated frames; the others are shown as n/a and left out
-        of mAP, the mTP errors and NDS (the devkit would count them as AP 0)."""
-        present = tuple(c for c in self.class_names if self.num_gt[c] > 0)
-        return present or self.class_names
+        """Classes with GT in the evaluated frames; the others are shown as n/a, their AP is
+        undefined (nan) and they are left out of mAP, the mTP errors and NDS (the devkit would
+        count them as AP 0)."""
+        return tuple(c for c in self.class_names if self.num_gt[c] > 0)
 
     @property
     def class_ap(self) -> dict[str, float]:
-        """Mean AP over the distance thresholds, per class."""
-        return {c: float(np.mean(list(self.ap[c].values()))) for c in self.class_names}
+        """Mean AP over the distance thresholds, per class; nan for a class without GT."""
+        return {c: float(np.mean(list(self.ap[c].values()))) if self.num_gt[c] > 0
+                else float('nan') for c in self.class_names}
 
     @property
     def mean_ap(self) -> float:
-        """mAP over the evaluated classes."""
-        return float(np.mean([self.class_ap[c] for c in self.evaluated]))
+        """mAP over the evaluated classes (nan when no class has GT)."""
+        aps = [self.class_ap[c] for c in self.evaluated]
+        return float(np.mean(aps)) if aps else float('nan')
 
     @property
     def mean_tp(self) -> dict[str, float]:
         """mATE, mASE, mAOE, mAVE (means over the evaluated classes)."""
-        return {TP_NAMES[k]: float(np.nanmean([self.tp[c][k] for c in self.evaluated]))
+        return {TP_NAMES[k]: _nanmean([self.tp[c][k] for c in self.evaluated])
                 for k in TP_METRICS}
 
     @property
@@ -91,9 +105,9 @@ class EvalResult:
 
     def summary(self) -> dict[str, Any]:
         """Flat numbers for logs and checkpoints."""
-        out: dict[str, Any] = {'mAP': round(self.mean_ap, 4), 'NDS': round(self.nds, 4)}
-        out.update({k: round(v, 4) for k, v in self.mean_tp.items()})
-        out.update({f'AP_{c}': round(v, 4) for c, v in self.class_ap.items()})
+        out: dict[str, Any] = {'mAP': _round(self.mean_ap), 'NDS': _round(self.nds)}
+        out.update({k: _round(v) for k, v in self.mean_tp.items()})
+        out.update({f'AP_{c}': _round(v) for c, v in self.class_ap.items()})   # None: no GT
         out['frames'] = self.num_frames
         out.update(self.extra)
         return out
@@ -101,7 +115,8 @@ class EvalResult:
     def to_json(self) -> dict[str, Any]:
         """Everything, JSON-serialisable."""
         return {'summary': self.summary(), 'nds_note': NDS_NOTE,
-                'ap': {c: {str(k): v for k, v in d.items()} for c, d in self.ap.items()},
+                'ap': {c: {str(k): v for k, v in d.items()} if self.num_gt[c] else None
+                       for c, d in self.ap.items()},
                 'tp': self.tp, 'num_gt': self.num_gt}
 
     def table(self) -> str:
@@ -117,6 +132,11 @@ class EvalResult:
                          + ''.join(f'{self.tp[c][k]:>7.3f}' for k in TP_METRICS)
                          + f'{self.num_gt[c]:>7d}')
         tp = self.mean_tp
+        if not self.evaluated:
+            lines.append(f'mAP n/a  NDS n/a: no GT of any class in these {self.num_frames} '
+                         'frames')
+            lines.append(f'note: {NDS_NOTE}')
+            return '\n'.join(lines)
         lines.append(f'mAP {self.mean_ap:.4f}  NDS {self.nds:.4f}  '
                      + '  '.join(f'{k} {v:.3f}' for k, v in tp.items())
                      + f'  ({self.num_frames} frames)')
@@ -336,16 +356,23 @@ def evaluate(gt: Sequence[Detections], det: Sequence[Detections],
 def drop_ignored(det: Detections, gt: Detections, ignore: NDArray[np.floating[Any]],
                  radius: float = TP_DIST, num_points: NDArray[np.uint32] | None = None
                  ) -> Detections:
-    """``det`` without the detections on ignored things (real datasets: parked bicycles):
-    a detection whose BEV centre lies within ``radius`` of an ignored box's centre counts as
-    neither a true nor a false positive, unless it lies within ``radius`` of a GT box of its
-    own class that is scored (with returns, when ``num_points`` is given): a box of another
-    class, or one evaluation leaves out, vouches for nothing."""
+    """``det`` without the detections on ignored things (real datasets: parked bicycles, an
+    RV, a tram): a detection whose BEV centre lies within ``radius`` of an ignored box's
+    centre, or on its footprint grown by :data:`IGNORE_MARGIN` m (a box on the end of a 12 m
+    vehicle is 6 m from its centre), counts as neither a true nor a false positive, unless it
+    lies within ``radius`` of a GT box of its own class that is scored (with returns, when
+    ``num_points`` is given): a box of another class, or one evaluation leaves out, vouches
+    for nothing."""
     ig = np.asarray(ignore, np.float64).reshape(-1, 7)
     if len(ig) == 0 or len(det) == 0:
         return det
     xy = det.boxes[:, None, :2].astype(np.float64)
-    near_ignored = (np.hypot(*(xy - ig[None, :, :2]).transpose(2, 0, 1)) < radius).any(1)
+    rel = xy - ig[None, :, :2]                                   # (D, I, 2)
+    cos, sin = np.cos(ig[:, 6]), np.sin(ig[:, 6])
+    along = np.abs(rel[..., 0] * cos + rel[..., 1] * sin)
+    across = np.abs(-rel[..., 0] * sin + rel[..., 1] * cos)
+    on = (along <= ig[:, 3] / 2 + IGNORE_MARGIN) & (across <= ig[:, 4] / 2 + IGNORE_MARGIN)
+    near_ignored = ((np.hypot(rel[..., 0], rel[..., 1]) < radius) | on).any(1)
     scored = np.ones(len(gt), bool) if num_points is None else np.asarray(num_points) > 0
     if scored.any():
         g = gt.boxes[None, scored, :2].astype(np.float64)
@@ -618,6 +645,7 @@ def evaluate_model(model: Any, sequences: Sequence[Sequence[Any]], device: Any =
 
 
 def dump_json(result: EvalResult, path: str) -> None:
-    """Write ``result.to_json()``."""
+    """Write ``result.to_json()`` (an undefined figure as null)."""
+    from suit_ros.outputs import json_text
     with open(path, 'w', encoding='utf-8') as f:
-        json.dump(result.to_json(), f, indent=2)
+        f.write(json_text(result.to_json()))

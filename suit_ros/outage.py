@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, replace
-import json
 from pathlib import Path
 from typing import Any
 
@@ -143,7 +142,6 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
         detections (sensor frame) at the decoding threshold; ``thresholds`` the published ones
         (zeros for detections already cut at them).
     """
-    from suit_ros.evaluate import match_frame
     n = len(gt_seqs)
     objects, found = np.zeros((n, length), np.int64), np.zeros((n, length), np.int64)
     boxes, true = np.zeros((n, length), np.int64), np.zeros((n, length), np.int64)
@@ -160,15 +158,30 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
                 in_sector &= np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
                 if f.num_points is not None:    # lost: no returns left (one across the
                     in_sector &= f.num_points == 0   # sector's edge is still seen)
-                gt = f.gt.select(in_sector)
                 pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
-                pub_in = pub.select(o.contains(pub.boxes[:, :2])) if len(pub) else pub
-                objects[d, j] += len(gt)
-                boxes[d, j] += len(pub_in)
-                for k in range(len(thresholds)):
-                    found[d, j] += int(match_frame(gt, pub, k, MATCH_DIST).tp.sum())
-                    true[d, j] += int(match_frame(f.gt, pub_in, k, MATCH_DIST).tp.sum())
+                pub_in = o.contains(pub.boxes[:, :2]) if len(pub) else np.zeros(0, bool)
+                objects[d, j] += int(in_sector.sum())
+                boxes[d, j] += int(pub_in.sum())
+                gt_hit, box_hit = matched(f.gt, pub, len(thresholds))
+                found[d, j] += int((gt_hit & in_sector).sum())
+                true[d, j] += int((box_hit & pub_in).sum())
     return OutageCounts(objects, found, boxes, true)
+
+
+def matched(gt: Detections, boxes: Detections, classes: int
+            ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Which GT objects a box matches and which boxes match one, per class (greedy by score,
+    BEV centre within :data:`MATCH_DIST`), matched against every object of the frame: a box
+    goes to the object it is on, so a visible neighbour's box does not find a lost object."""
+    from suit_ros.evaluate import match_frame
+    gt_hit = np.zeros(len(gt), bool)
+    box_hit = np.zeros(len(boxes), bool)
+    for k in range(classes):
+        m = match_frame(gt, boxes, k, MATCH_DIST)
+        assert m.gt_index is not None              # match_frame always records it
+        gt_hit[np.flatnonzero(gt.labels == k)[m.gt_index[m.tp]]] = True
+        box_hit[np.flatnonzero(boxes.labels == k)[m.tp]] = True
+    return gt_hit, box_hit
 
 
 def frames_since_seen(frames: Sequence[Frame]
@@ -250,7 +263,6 @@ def _count_by_column(gt_seqs: Sequence[Sequence[Frame]],
     """Objects and found per drive and column: ``columns(frames)`` gives, per frame, each GT
     object's column (1..``width``; 0: not counted); an object counts within 50 m, found when
     a published box of its class lies within 2 m."""
-    from suit_ros.evaluate import match_frame
     n = len(gt_seqs)
     objects = np.zeros((n, width), np.int64)
     found = np.zeros((n, width), np.int64)
@@ -261,11 +273,10 @@ def _count_by_column(gt_seqs: Sequence[Sequence[Frame]],
                 continue
             near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
             pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
+            gt_hit, _ = matched(f.gt, pub, len(thresholds))
             for c in np.unique(col[near & (col > 0) & (col <= width)]):
-                gt = f.gt.select(near & (col == c))
-                objects[d, c - 1] += len(gt)
-                for k in range(len(thresholds)):
-                    found[d, c - 1] += int(match_frame(gt, pub, k, MATCH_DIST).tp.sum())
+                objects[d, c - 1] += int((near & (col == c)).sum())
+                found[d, c - 1] += int((near & (col == c) & gt_hit).sum())
     zeros = np.zeros_like(objects)
     return OutageCounts(objects, found, zeros, zeros.copy())
 
@@ -436,7 +447,7 @@ def run(args: argparse.Namespace) -> int:
     """Run every model with and without the tracker; print and write the table."""
     from suit_ros.checkpoint import default_checkpoint_path, load_checkpoint, published_thresholds
     from suit_ros.data.sequences import synthetic_split
-    from suit_ros.outputs import output_file
+    from suit_ros.outputs import json_text, output_file
     for option, path in (('--json-out', args.json_out), ('--markdown', args.markdown)):
         if path:                    # checked before the runs, not after them
             output_file(path, f'{option} file')
@@ -512,7 +523,7 @@ def run(args: argparse.Namespace) -> int:
     result['counts'] = {what: {key: c.to_json() for key, c in counts_by.items()}
                         for what, counts_by in counted.items()}
     if args.json_out:
-        Path(args.json_out).write_text(json.dumps(result, indent=2), encoding='utf-8')
+        Path(args.json_out).write_text(json_text(result), encoding='utf-8')
     if args.markdown:
         Path(args.markdown).write_text(tables(result), encoding='utf-8')
     return 0

@@ -7,9 +7,12 @@ meant).
 """
 from __future__ import annotations
 
+import json
+import math
 import os
 from pathlib import Path
 import tempfile
+from typing import Any
 
 from suit_ros.errors import SuitRosError
 
@@ -62,3 +65,18 @@ def durable_replace(tmp: str | os.PathLike[str], path: str | os.PathLike[str]) -
         pass
     finally:
         os.close(fd)
+
+
+def json_text(obj: Any, indent: int = 2) -> str:
+    """``obj`` as standard JSON (indented): an undefined figure (nan, inf: a ratio with
+    nothing to divide, an interval with no resample) is written as null, since NaN is not
+    JSON and jq, JavaScript and strict parsers refuse a file that holds it."""
+    def clean(x: Any) -> Any:
+        if isinstance(x, float):
+            return x if math.isfinite(x) else None
+        if isinstance(x, dict):
+            return {k: clean(v) for k, v in x.items()}
+        if isinstance(x, (list, tuple)):
+            return [clean(v) for v in x]
+        return x
+    return json.dumps(clean(obj), indent=indent, allow_nan=False)

@@ -59,9 +59,19 @@ class Places:
 
 def cut_into_places(gt: Sequence[Detections], dets: Sequence[Sequence[Detections]],
                     num_points: Sequence[NDArray[np.uint32] | None],
-                    cell: float = CELL) -> Places:
+                    cell: float = CELL, class_names: Sequence[str] | None = None,
+                    max_range: float | None = None) -> Places:
     """Cut the frames' labels ``gt`` and each run's detections (``dets[r][frame]``, the
-    scored ones: ignored objects' boxes already dropped) into places."""
+    scored ones: ignored objects' boxes already dropped) into places. With ``class_names``
+    and ``max_range`` only what is scored is cut (:func:`~suit_ros.evaluate.filter_frames`:
+    in range, labels with returns), so a place that holds nothing scored is not a place."""
+    if max_range is not None:
+        from suit_ros.evaluate import filter_frames
+        ranges = dict.fromkeys(class_names or (), float(max_range))
+        cut = [filter_frames(gt, d, class_names or (), ranges, num_points) for d in dets]
+        if cut:
+            gt, num_points = cut[0][0], cut[0][2]
+            dets = [c[1] for c in cut]
     keyed: list[tuple[int, int, int]] = []          # (place x, place y, frame)
     owners: list[list[tuple[NDArray[np.int64], NDArray[np.int64]]]] = []
     for i, g in enumerate(gt):

@@ -17,7 +17,8 @@ boxes published at the checkpoint's published thresholds) over any supported dat
 Matching: same class, greedy by descending score, BEV centre distance below ``--match-dist``
 (2 m), GT with at least one return within ``--max-range``; detections on ignored things (parked
 bicycles and motorcycles on AV2) count as neither true nor false positives
-(:func:`suit_ros.evaluate.drop_ignored`).
+(:func:`suit_ros.evaluate.drop_ignored`), and in the counts (not in AP, as nuScenes) neither do
+boxes on labelled objects without returns in the sweep (:func:`on_seen`).
 """
 from __future__ import annotations
 
@@ -25,7 +26,6 @@ import argparse
 from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-import json
 from pathlib import Path
 import sys
 from typing import TYPE_CHECKING, Any, Literal
@@ -421,6 +421,32 @@ def class_counts(gt: Sequence[Detections], det: Sequence[Detections],
     return {c: count_matches(gts, dets, k, match_dist) for k, c in enumerate(names)}
 
 
+def on_seen(run: Any, dets: Sequence[Detections], match_dist: float = 2.0
+            ) -> list[Detections]:
+    """``dets`` less the boxes on labelled objects without returns in the sweep (occluded
+    now, held by the tracker or the memory): matched (per class, greedy by score, within
+    ``match_dist``) against every labelled object, a box that takes one without returns is
+    neither a true nor a false positive in the counts, as nothing of the object is there to
+    find; AP counts it as a false positive, as nuScenes does."""
+    from suit_ros.evaluate import match_frame
+    if not run.num_points:
+        return list(dets)
+    out = []
+    for d, g, n in zip(dets, run.gt, run.num_points):
+        if n is None or len(d) == 0 or (np.asarray(n) > 0).all():
+            out.append(d)
+            continue
+        seen, keep = np.asarray(n) > 0, np.ones(len(d), bool)
+        for k in np.unique(d.labels):
+            m = match_frame(g, d, int(k), match_dist)      # in the order of d's class-k boxes
+            assert m.gt_index is not None                  # match_frame always records it
+            on_dark = np.zeros(len(m.tp), bool)
+            on_dark[m.tp] = ~seen[np.flatnonzero(g.labels == k)[m.gt_index[m.tp]]]
+            keep[np.flatnonzero(d.labels == k)[on_dark]] = False
+        out.append(d.select(keep))
+    return out
+
+
 def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[float],
                  source: str, max_range: float = 50.0, match_dist: float = 2.0,
                  carry_thresholds: Sequence[float] | None = None) -> Report:
@@ -430,10 +456,12 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
     from suit_ros.evaluate import evaluate
     names = tuple(class_names)
     scored = run.scored_detections()
-    counts = class_counts(run.gt, scored, names, run.num_points, max_range, match_dist)
     result = evaluate(run.gt, scored, names, dict.fromkeys(names, max_range), run.num_points)
+    scored = on_seen(run, scored, match_dist)
+    counts = class_counts(run.gt, scored, names, run.num_points, max_range, match_dist)
     published = None
-    boxes_out = run.as_published(thresholds, carry_thresholds or thresholds).scored_detections()
+    boxes_out = on_seen(run, run.as_published(thresholds, carry_thresholds or thresholds)
+                        .scored_detections(), match_dist)
     if carry_thresholds is not None and any(c.any() for c in run.carried):
         published = class_counts(run.gt, boxes_out, names, run.num_points, max_range,
                                  match_dist)
@@ -631,7 +659,7 @@ def run(args: argparse.Namespace) -> int:
                           'drop it for a dataset folder or the demo drive')
     if args.resamples < 0 or (args.baseline and args.resamples == 0):
         raise ConfigError('--resamples must be >= 0, and > 0 with --baseline')
-    from suit_ros.outputs import output_dir
+    from suit_ros.outputs import json_text, output_dir
     out = output_dir(args.out, '--out folder')       # before the run, not after it
     model, cfg, meta = load_checkpoint(args.checkpoint or default_checkpoint_path())
     names = tuple(cfg.class_names)
@@ -706,11 +734,12 @@ def run(args: argparse.Namespace) -> int:
         from suit_ros.place_bootstrap import ap_intervals, cut_into_places
         runs = [result] + ([] if base_run is None else [base_run])
         places = cut_into_places(result.gt, [r.scored_detections() for r in runs],
-                                 result.num_points)
+                                 result.num_points, class_names=names,
+                                 max_range=args.max_range)
         report.intervals = ap_intervals(places, names, args.max_range, args.resamples)
         report.baseline = args.baseline
     replaced = (out / 'report.json').exists()
-    (out / 'report.json').write_text(json.dumps(report.to_json(), indent=2), encoding='utf-8')
+    (out / 'report.json').write_text(json_text(report.to_json()), encoding='utf-8')
     (out / 'report.md').write_text(report.markdown(), encoding='utf-8')
     # an earlier report's pictures would stay beside this one's (other frames, other counts)
     old = sorted((out / 'bev').glob('*_[0-9][0-9][0-9][0-9].png')) if (out / 'bev').is_dir() \

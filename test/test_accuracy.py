@@ -4,7 +4,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from suit_ros.accuracy import bootstrap, bucket_mask, bucket_view, car_motion, drive_frames
+from suit_ros.accuracy import (
+    RunMetrics,
+    bootstrap,
+    bucket_mask,
+    bucket_matches,
+    car_motion,
+    drive_frames,
+)
 from suit_ros.evaluate import ModelRun
 from suit_ros.structures import Detections
 
@@ -32,17 +39,50 @@ def test_buckets_by_gt_speed_and_points():
     assert bucket_mask(GT, NUM, 'all').all()
 
 
-def test_bucket_view_ignores_detections_of_other_buckets_and_keeps_false_positives():
+def test_bucket_matches_ignore_detections_matched_outside_and_keep_false_positives():
     det = dets([[10.3, 0, 0, 4, 2, 1.5, 0], [20.2, 5, 0, 4, 2, 1.5, 0],
                 [-30, 0, 0, 4, 2, 1.5, 0]], scores=np.array([0.9, 0.8, 0.7]))
-    g, d, n = bucket_view(GT, det, NUM, 'moving')
-    assert len(g) == 1 and g.boxes[0, 0] == 10
+    moving = bucket_mask(GT, NUM, 'moving')
+    m = bucket_matches(GT, det, moving, 0, 2.0)
+    assert m.npos == 1
     # the static car's detection is ignored, the unmatched one stays as a false positive
-    assert sorted(d.boxes[:, 0].tolist()) == [-30.0, pytest.approx(10.3)]
-    assert n is not None and n.tolist() == [3]
+    assert m.scores.tolist() == pytest.approx([0.9, 0.7]) and m.tp.tolist() == [True, False]
     # a detection of another class near an out-of-bucket GT is not ignored
     ped = dets([[20.2, 5, 0, 0.7, 0.7, 1.7, 0]], labels=np.array([2]))
-    assert len(bucket_view(GT, ped, NUM, 'moving')[1]) == 1
+    assert len(bucket_matches(GT, ped, moving, 2, 2.0).scores) == 1
+    # 3 m from the static car: a false positive at 2 m, ignored at 4 m where it matches it
+    # (the bucket follows each threshold's matching, not a fixed radius)
+    off = dets([[23.0, 5, 0, 4, 2, 1.5, 0]])
+    assert bucket_matches(GT, off, moving, 0, 2.0).tp.tolist() == [False]
+    assert len(bucket_matches(GT, off, moving, 0, 4.0).scores) == 0
+    assert bucket_matches(GT, off, np.ones(2, bool), 0, 4.0).tp.tolist() == [True]
+
+
+def test_a_class_absent_from_a_resample_leaves_its_means_out():
+    """A class with GT in one drive only: resamples without that drive have no AP for it and
+    no mAP (a mean over fewer classes is another quantity), instead of AP 0 and an mAP over
+    the classes they happen to hold."""
+    run = ModelRun([], [], [], [], [], {})
+    for d in range(4):
+        labels = np.array([0, 1]) if d == 0 else np.array([0])
+        g = dets([[10, 0, 0, 4, 2, 1.5, 0], [20, 5, 0, 8, 2.5, 3, 0]][:len(labels)],
+                 labels=labels)
+        run.gt.append(g)
+        det = dets(g.boxes + [0.1, 0, 0, 0, 0, 0, 0], scores=np.full(len(g), 0.9),
+                   labels=labels)
+        if d == 0:                       # the truck found half as surely as it is missed
+            det = dets(np.r_[det.boxes, [[20, 25, 0, 8, 2.5, 3, 0]]],
+                       scores=np.array([0.9, 0.5, 0.9]), labels=np.array([0, 1, 1]))
+        run.det.append(det)
+        run.num_points.append(np.full(len(g), 30, np.uint32))
+        run.drive.append(d)
+    stats, _ = bootstrap({'a': run}, NAMES, resamples=200)
+    truck = stats['a']['AP truck']
+    assert 0 < truck.value < 1
+    assert truck.low > 0.1                          # no resample scores it 0
+    mAP = stats['a']['mAP']                         # every resample's over car and truck
+    assert mAP.value == pytest.approx((1.0 + truck.value) / 2) and mAP.high < 1.0
+    assert np.isnan(RunMetrics(run, NAMES)([1, 2, 3])['AP truck'])
 
 
 def make_run(good: bool, drives: int = 4, frames: int = 3, seed: int = 0) -> ModelRun:

@@ -108,8 +108,12 @@ def test_perfect_and_empty():
     r = evaluate(only_cars, only_cars, NAMES)
     assert r.evaluated == ('car',) and r.mean_ap == pytest.approx(1.0)
     assert 'n/a' in r.table()
+    assert np.isnan(r.class_ap['truck'])                # no GT: no AP (not 0)
+    assert r.summary()['AP_truck'] is None and r.summary()['AP_car'] == pytest.approx(1.0)
     empty = evaluate(gts, [Detections.empty() for _ in gts], NAMES)
     assert empty.mean_ap == 0.0 and empty.nds == 0.0
+    nothing = evaluate([Detections.empty()] * 2, [Detections.empty()] * 2, NAMES)
+    assert np.isnan(nothing.mean_ap) and 'mAP n/a' in nothing.table()
     assert 'NDS without the attribute term' in empty.table()
     with pytest.raises(ValueError):
         evaluate(gts, gts[:-1], NAMES)
@@ -216,3 +220,35 @@ def test_eval_of_a_bag_refuses_a_traffic_side(tmp_path, capsys):
     from suit_ros.cli import main
     assert main(['eval', '--bag', str(tmp_path / 'bag'), '--traffic-side', 'left']) != 0
     assert 'detect-bag --traffic-side' in capsys.readouterr().err
+
+
+def test_ignored_things_cover_their_footprint():
+    """A box on the end of a 12 m ignored vehicle (an RV, a tram) is 6 m from its centre: it
+    is on the ignored thing, not a false positive; a box 3 m clear of it still is one."""
+    from suit_ros.evaluate import drop_ignored
+    rv = np.array([[20.0, 0, 0, 12.0, 2.6, 3.5, 0]], np.float32)
+    det = Detections(np.array([[25.0, 0, 0, 8, 2.5, 3, 0], [20.0, 0.5, 0, 8, 2.5, 3, 0],
+                               [20.0, 4.6, 0, 4.5, 1.9, 1.6, 0]]), np.zeros((3, 2)),
+                     np.full(3, 0.8), np.array([1, 1, 0]))
+    kept = drop_ignored(det, Detections.empty(), rv)
+    assert kept.boxes[:, 1].tolist() == [pytest.approx(4.6)]
+    turned = rv.copy()
+    turned[0, 6] = np.pi / 2             # turned across: it covers y -6..6, not x 25
+    assert drop_ignored(det, Detections.empty(), turned).boxes[:, 0].tolist() == [25.0]
+
+
+def test_eval_scores_real_data_within_50_m_for_every_class(capsys):
+    """`eval --av2` and `--kitti` score pedestrians and cyclists to 50 m, as `report` does;
+    nuScenes' class ranges stay for the synthetic and nuScenes data; --max-range sets one."""
+    import argparse
+
+    from suit_ros.cli import main
+    from suit_ros.evaluate_cli import _ranges
+    ns = argparse.Namespace(max_range=None, av2='x', kitti=None)
+    assert _ranges(ns, NAMES) == dict.fromkeys(NAMES, 50.0)
+    ns.av2 = None
+    assert _ranges(ns, NAMES) is None
+    ns.max_range = 30.0
+    assert _ranges(ns, NAMES) == dict.fromkeys(NAMES, 30.0)
+    assert main(['eval', '--synthetic', 'val', '--max-range', 'nan']) == 1
+    assert '--max-range must be a positive number' in capsys.readouterr().err

@@ -167,6 +167,24 @@ def test_event_recall_and_its_paired_difference_between_two_models():
     assert back[0].found.dtype == np.int64 and back[0].found.tolist() == holds.found.tolist()
 
 
+def test_a_neighbours_box_does_not_find_a_hidden_object():
+    """Boxes are matched against every object of the frame: the box on a visible car 1.2 m
+    from a hidden one is that car's, and does not count the hidden one as found."""
+    frames = []
+    for f in hidden(drive(), [4, 5, 6]):
+        gt = Detections(np.r_[f.gt.boxes, [box(10, 1.2)]], np.zeros((3, 2)), np.ones(3),
+                        np.array([0, 0, 0]))
+        frames.append(replace(f, gt=gt, num_points=np.r_[f.num_points, 50].astype(np.uint32),
+                              instance_ids=np.array([1, 2, 3], np.uint32)))
+    beside = Detections(np.array([box(10, 1.2)]), np.zeros((1, 2)), np.array([0.9]), [0])
+    c = count_events([frames], [[beside] * 12], [0.5] * 4, 5)
+    assert c.objects.tolist() == [[1, 1, 1, 0, 0]] and c.found.tolist() == [[0, 0, 0, 0, 0]]
+    on_it = Detections(np.array([box(10, 1.2), box(10.3, 0)]), np.zeros((2, 2)),
+                       np.array([0.9, 0.8]), [0, 0])
+    assert count_events([frames], [[on_it] * 12], [0.5] * 4, 5).found.tolist() == \
+        [[1, 1, 1, 0, 0]]
+
+
 def test_an_object_across_the_sectors_edge_is_not_lost():
     """An outage counts the objects it hides: a car whose centre is in the sector but whose
     returns outside it are still seen is not counted (it was, as lost, before)."""

@@ -81,3 +81,22 @@ def test_an_empty_set_has_no_place():
     assert len(places) == 0
     iv = ap_intervals(places, NAMES, 50.0, resamples=10)
     assert np.isnan(iv.interval['car'][0][0])
+
+
+def test_only_what_is_scored_makes_a_place():
+    """Objects beyond the range or without returns, and boxes beyond the range, are not
+    scored: the places they alone would fill are not places (they widened the interval)."""
+    gts, dets, npts = scene(3)
+    base = cut_into_places(gts, [dets], npts, class_names=NAMES, max_range=50.0)
+    far = [Detections(np.r_[g.boxes, [[300.0 + 25 * k, 0, 0, 4.5, 1.9, 1.6, 0]
+                                      for k in range(10)]],
+                      np.zeros((len(g) + 10, 2)), np.ones(len(g) + 10),
+                      np.r_[g.labels, np.zeros(10, np.int64)]) for g in gts]
+    dark = [np.r_[n, np.zeros(10, np.uint32)] for n in npts]
+    assert len(cut_into_places(far, [dets], dark, class_names=NAMES, max_range=50.0)) == \
+        len(base)
+    assert len(cut_into_places(far, [dets], dark)) > len(base)        # unfiltered: the old way
+    a = ap_intervals(base, NAMES, 50.0, resamples=50)
+    b = ap_intervals(cut_into_places(far, [dets], dark, class_names=NAMES, max_range=50.0),
+                     NAMES, 50.0, resamples=50)
+    assert a.interval == b.interval and a.ap == b.ap

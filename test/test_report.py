@@ -363,3 +363,35 @@ def test_carry_thresholds_count_the_held_boxes_of_ordinary_drives():
     assert rows[0.3]['precision'] == (2 + 1) / (4 + 13)     # frames 3-4: 2 boxes each
     assert rows[0.4]['precision'] == 1.0 and rows[0.5]['precision'] == 1.0
     assert best_carry_factor(list(rows.values())) == 0.5
+
+
+def test_a_box_on_an_object_without_returns_is_neither_found_nor_false():
+    """A labelled car with no return in the sweep (hidden now, held by the tracker): the box
+    on it is not a false positive in the counts (nothing of it is there to find); AP counts
+    it as one, as nuScenes does."""
+    gt = [dets([10.0, 20.0], [1, 1])]
+    det = [dets([10.1, 20.1], [0.9, 0.8])]
+    run = ModelRun(gt, det, [np.array([30, 0], np.uint32)], [0.0], [0], {}, [0])
+    rep = build_report(run, ('car',), [0.5], 'test')
+    p = rep.to_json()['classes']['car']['published']
+    assert (p['gt'], p['tp'], p['fp']) == (1, 1, 0) and rep.false == []
+    assert rep.to_json()['classes']['car']['ap'] < 1.0
+    # a box of its class on a car seen now still counts, beside a hidden one
+    run.det = [dets([10.1, 20.1, 21.0], [0.9, 0.8, 0.7])]
+    run.gt = [dets([10.0, 20.0, 21.5], [1, 1, 1])]
+    run.num_points = [np.array([30, 0, 30], np.uint32)]
+    p = build_report(run, ('car',), [0.5], 'test').to_json()['classes']['car']['published']
+    assert (p['gt'], p['tp'], p['fp']) == (2, 2, 0)
+
+
+def test_report_json_is_standard_json(tmp_path):
+    """An undefined ratio (no GT of a class, nothing published) is null, not NaN."""
+    from suit_ros.outputs import json_text
+    run = ModelRun([dets([10.0], [1])], [dets([], [])], [np.array([30], np.uint32)], [0.0],
+                   [0], {}, [0])
+    text = json_text(build_report(run, ('car', 'truck'), [0.5, 0.5], 'test').to_json())
+    assert 'NaN' not in text and 'Infinity' not in text
+    data = json.loads(text, parse_constant=lambda c: pytest.fail(f'{c} in the JSON'))
+    assert data['classes']['car']['published']['precision'] is None
+    assert json.loads(json_text({'a': [float('nan'), 1.5, float('inf')]})) == {'a': [None, 1.5,
+                                                                                  None]}
