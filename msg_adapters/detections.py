@@ -2,9 +2,12 @@
 
 The PointCloud2 has one point per box with fields (FLOAT32) ``x y z length width height yaw vx
 vy score`` and ``label`` (UINT8, index into the class names); GT adds ``num_points`` and
-``instance_id`` (UINT32); the node's detections add ``num_points`` (UINT32: the current
-cloud's returns inside the box; 0 for a box the memory carries through missing returns) and,
-from the tracker, ``track_id`` (UINT32, the same object keeps its id across frames; 0:
+``instance_id`` (UINT32); the node's detections add ``held`` (UINT8, in the byte after
+``label``: 0 a box decoded from what the current cloud shows, 1 one a carry branch holds where
+the cloud has no returns, 2 one the tracker coasts with no detection this frame),
+``num_points`` (UINT32: the current cloud's returns inside the box; 0 for a held box, and
+also for a box seen now whose returns lie on its faces just outside it) and, from the
+tracker, ``track_id`` (UINT32, the same object keeps its id across frames; 0:
 not tracked) and ``vel_std`` (FLOAT32, m/s: the standard deviation of ``vx`` and of ``vy``,
 the tracker's for a tracked box, the measurement's for one no track took; NaN where the
 velocity is NaN).
@@ -25,6 +28,9 @@ FLOAT_FIELDS = ('x', 'y', 'z', 'length', 'width', 'height', 'yaw', 'vx', 'vy', '
 GT_FIELDS = ('num_points', 'instance_id')
 TRACK_FIELD = 'track_id'
 VEL_STD_FIELD = 'vel_std'
+HELD_FIELD = 'held'
+HELD_SEEN, HELD_CARRIED, HELD_COASTED = 0, 1, 2     # the held field's values
+HELD_WORDS = {HELD_CARRIED: ' carried', HELD_COASTED: ' coasted'}   # in a box's marker text
 # class colours (RGBA) by label index; cycles for more classes
 PALETTE = ((0.12, 0.47, 0.71), (1.0, 0.5, 0.05), (0.17, 0.63, 0.17), (0.84, 0.15, 0.16),
            (0.58, 0.4, 0.74), (0.55, 0.34, 0.29), (0.89, 0.47, 0.76), (0.5, 0.5, 0.5))
@@ -36,12 +42,17 @@ ADD, DELETEALL = 0, 3
 MARKER_LIFETIME_S = 1.0     # a marker's life when no later array deletes it (s)
 
 def detection_dtype(with_gt: bool, with_track: bool = False, with_points: bool = False,
-                    with_vel_std: bool = False) -> np.dtype[Any]:
-    """Structured dtype of the detections cloud (4-byte aligned): GT fields (or
-    ``num_points`` alone), then ``track_id``, then ``vel_std``, after the common ones."""
+                    with_vel_std: bool = False, with_held: bool = False) -> np.dtype[Any]:
+    """Structured dtype of the detections cloud (4-byte aligned): after the common ones
+    (``held`` in the byte after ``label``, where padding was), GT fields (or ``num_points``
+    alone), then ``track_id``, then ``vel_std``."""
     names = list(FLOAT_FIELDS) + ['label']
     formats: list[str] = ['<f4'] * len(FLOAT_FIELDS) + ['u1']
     offsets = [4 * i for i in range(len(FLOAT_FIELDS))] + [40]
+    if with_held:
+        names.append(HELD_FIELD)
+        formats.append('u1')
+        offsets.append(41)
     size = 44
     if with_gt:
         names += list(GT_FIELDS)
@@ -85,12 +96,22 @@ def detections_to_array(boxes: NDArray[Any], velocities: NDArray[Any], scores: N
                         labels: NDArray[Any], extra_fields: dict[str, NDArray[Any]] | None = None,
                         track_ids: NDArray[Any] | None = None,
                         num_points: NDArray[Any] | None = None,
-                        vel_std: NDArray[Any] | None = None) -> NDArray[Any]:
+                        vel_std: NDArray[Any] | None = None,
+                        held: NDArray[Any] | None = None) -> NDArray[Any]:
     """The structured array behind the detections cloud (see :func:`detection_dtype`)."""
     b, v, s, lab = _box_inputs(boxes, velocities, scores, labels)
     n = len(b)
     arr = np.zeros(n, detection_dtype(bool(extra_fields), track_ids is not None,
-                                      num_points is not None, vel_std is not None))
+                                      num_points is not None, vel_std is not None,
+                                      held is not None))
+    if held is not None:
+        how = np.asarray(held).reshape(-1)
+        if len(how) != n:
+            raise MessageError(f'{len(how)} held flags for {n} boxes')
+        if n and (how.min() < HELD_SEEN or how.max() > HELD_COASTED):
+            raise PointCloudError(f'held must be {HELD_SEEN} (seen), {HELD_CARRIED} (carried) '
+                                  f'or {HELD_COASTED} (coasted)')
+        arr[HELD_FIELD] = how.astype(np.uint8)
     if vel_std is not None:
         std = np.asarray(vel_std, np.float64).reshape(-1)
         if len(std) != n:
@@ -133,13 +154,14 @@ def detections_to_pointcloud2(boxes: NDArray[Any], velocities: NDArray[Any],
                               extra_fields: dict[str, NDArray[Any]] | None = None,
                               track_ids: NDArray[Any] | None = None,
                               num_points: NDArray[Any] | None = None,
-                              vel_std: NDArray[Any] | None = None) -> Any:
+                              vel_std: NDArray[Any] | None = None,
+                              held: NDArray[Any] | None = None) -> Any:
     """Build the detections (or GT, with ``extra_fields``) PointCloud2; ``track_ids`` adds the
     ``track_id`` field, ``num_points`` the ``num_points`` field, ``vel_std`` the ``vel_std``
-    field."""
+    field, ``held`` the ``held`` field."""
     arr = detections_to_array(boxes, velocities, scores, labels, extra_fields, track_ids,
-                              num_points, vel_std)
-    return array_to_pointcloud2(arr, header, classes, is_dense=True)
+                              num_points, vel_std, held)
+    return array_to_pointcloud2(arr, header, classes)   # is_dense: every x y z finite
 
 
 def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
@@ -161,6 +183,8 @@ def pointcloud2_to_detections(msg: Any) -> dict[str, NDArray[Any]]:
             out[n] = arr[n].astype(np.uint32)
     if VEL_STD_FIELD in names:
         out[VEL_STD_FIELD] = arr[VEL_STD_FIELD].astype(np.float32)
+    if HELD_FIELD in names:
+        out[HELD_FIELD] = arr[HELD_FIELD].astype(np.uint8)
     return out
 
 
@@ -192,7 +216,8 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
                               factory: MessageFactory | None = None,
                               line_width: float = 0.08,
                               track_ids: NDArray[Any] | None = None,
-                              lifetime_s: float = MARKER_LIFETIME_S) -> Any:
+                              lifetime_s: float = MARKER_LIFETIME_S,
+                              held: NDArray[Any] | None = None) -> Any:
     """A MarkerArray: DELETEALL, one LINE_LIST per class, one TEXT label per box.
 
     The LINE_LIST of a class (namespace ``<class>/boxes``, id 0, coloured by class from
@@ -201,7 +226,9 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
     one velocity segment per box moving at ``min_arrow_speed`` m/s or more: from the centre of
     the box's top face to where it will be in one second. The text (namespace
     ``<class>/labels``, id the box index) reads ``'<class> <score:.2f>'`` above the box, and
-    ``' #<track id>'`` after it for a tracked box (``track_ids`` given, id > 0).
+    ``' #<track id>'`` after it for a tracked box (``track_ids`` given, id > 0), then
+    ``' carried'`` or ``' coasted'`` for a box held where the cloud shows nothing (``held``
+    given: the detections cloud's field).
     The next array's DELETEALL clears them, and each lives ``lifetime_s`` (1 s: ten frames at
     10 Hz), so that boxes do not stay in a viewer when no array follows (the input stopped, a
     frame failed, the node ended); every marker carries ``header``.
@@ -253,9 +280,15 @@ def detections_to_markerarray(boxes: NDArray[Any], velocities: NDArray[Any],
            else np.asarray(track_ids, np.int64).reshape(-1))
     if len(ids) != len(b):
         raise MessageError(f'{len(ids)} track ids for {len(b)} boxes')
-    for i, (x, y, z, k, score, tid) in enumerate(zip(b[:, 0].tolist(), b[:, 1].tolist(), z_text,
-                                                      lab.tolist(), s.tolist(), ids.tolist())):
-        text = f'{names[k]} {score:.2f}' + (f' #{tid}' if tid > 0 else '')
+    how = (np.zeros(len(b), np.int64) if held is None
+           else np.asarray(held, np.int64).reshape(-1))
+    if len(how) != len(b):
+        raise MessageError(f'{len(how)} held flags for {len(b)} boxes')
+    for i, (x, y, z, k, score, tid, h) in enumerate(zip(
+            b[:, 0].tolist(), b[:, 1].tolist(), z_text, lab.tolist(), s.tolist(), ids.tolist(),
+            how.tolist())):
+        text = (f'{names[k]} {score:.2f}' + (f' #{tid}' if tid > 0 else '')
+                + HELD_WORDS.get(h, ''))
         markers.append(f.marker(header, f'{names[k]}/labels', i, TEXT_VIEW_FACING, ADD,
                                 f.pose(f.point(x, y, z), ident.orientation), text_scale, white,
                                 lifetime, text))

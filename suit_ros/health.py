@@ -2,7 +2,8 @@
 its counters. No rclpy here: the node fills a :class:`HealthSnapshot` and turns the report
 into a ``diagnostic_msgs/DiagnosticStatus``.
 
-Levels: ERROR when no cloud arrived for ``input_timeout_s``; WARN when no cloud arrived yet,
+Levels: ERROR when no cloud arrived for ``input_timeout_s`` (none at all: for
+``input_timeout_s`` + :data:`STARTUP_GRACE_S` from the start); WARN when no cloud arrived yet,
 when none arrived for ``stale_periods`` times the measured input period, when clouds were
 lost before the callback in the last window, when processing (p50) takes longer than the
 input period, on an input-contract warning of the last few seconds, and when the last frame
@@ -18,6 +19,7 @@ from typing import Any
 import numpy as np
 
 OK, WARN, ERROR = 0, 1, 2
+STARTUP_GRACE_S = 10.0     # s past input_timeout_s before no first cloud is an ERROR
 
 
 @dataclass
@@ -83,11 +85,19 @@ def _input(s: HealthSnapshot, levels: list[tuple[int, str]], values: dict[str, s
     values['input_period_ms'] = f'{period * 1e3:.1f}' if period else 'nan'
     since = s.now - (s.arrivals[-1] if s.arrivals else s.started)
     values['seconds_since_last_cloud'] = f'{since:.2f}' if s.arrivals else 'nan'
-    if since > s.input_timeout_s:
+    if not s.arrivals:
+        # a node often starts before its LiDAR driver: a WARN while that is plausible, an
+        # ERROR once no cloud came in STARTUP_GRACE_S past the timeout
+        if since > s.input_timeout_s + STARTUP_GRACE_S:
+            levels.append((ERROR, f'no point cloud received in {since:.1f} s since the start '
+                                  f'(input_timeout_s {s.input_timeout_s:g} + '
+                                  f'{STARTUP_GRACE_S:g} s to start up)'))
+        else:
+            levels.append((WARN, f'no point cloud received yet ({since:.1f} s since the '
+                                 'start)'))
+    elif since > s.input_timeout_s:
         levels.append((ERROR, f'no point cloud for {since:.1f} s (input_timeout_s '
                               f'{s.input_timeout_s:g})'))
-    elif not s.arrivals:
-        levels.append((WARN, 'no point cloud received yet'))
     elif period and since > s.stale_periods * period:
         levels.append((WARN, f'no point cloud for {since:.2f} s (expected every '
                              f'{period:.2f} s)'))
@@ -126,8 +136,9 @@ def _last_frame(s: HealthSnapshot, levels: list[tuple[int, str]],
         'points_in': str(last.points_in), 'points_used': str(last.points_used),
         'points_nonfinite': str(last.points_nonfinite),
         'has_intensity': str(last.has_intensity), 'detections': str(len(last.detections)),
-        # published with no return of this cloud in them: held by the tracker or a carry
-        'held_boxes': str(int((last.num_points == 0).sum())),
+        # published where this cloud shows nothing of them: carried by a carry branch or
+        # coasted by the tracker (the detections' held field)
+        'held_boxes': str(int((last.held > 0).sum())),
         'memory_samples': str(last.memory_samples), 'memory_bytes': str(last.memory_bytes),
         'used_memory': str(last.used_memory),
         'tracks': 'off' if last.tracks is None else str(last.tracks),

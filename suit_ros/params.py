@@ -180,7 +180,8 @@ class DetectorParams:
         'diagnostics WARN when no cloud arrived for this many expected input periods',
         lo=1.0, hi=1000.0))
     input_timeout_s: float = field(default=1.0, metadata=_spec(
-        'diagnostics ERROR when no cloud arrived for this long (s)', lo=0.05, hi=3600.0))
+        'diagnostics ERROR when no cloud arrived for this long (s); before the first cloud '
+        'WARN for this and 10 s more', lo=0.05, hi=3600.0))
     diagnostics_period_s: float = field(default=1.0, metadata=_spec(
         'diagnostics publishing period (s)', read_only=True, lo=0.05, hi=60.0))
 

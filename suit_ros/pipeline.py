@@ -97,6 +97,8 @@ class PipelineOutput:
     track_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     num_points: NDArray[np.uint32] = field(                # current returns in each box
         default_factory=lambda: np.zeros(0, np.uint32))
+    # each box: 0 seen in this cloud, 1 carried by the memory, 2 coasted by the tracker
+    held: NDArray[np.uint8] = field(default_factory=lambda: np.zeros(0, np.uint8))
     tracks: int | None = None            # the tracker's live tracks (None: the tracker is off)
     # each velocity's standard deviation (m/s): the filter's, or with the tracker off the
     # head's measurement noise, widened by a fraction of the speed (TrackerConfig)
@@ -274,6 +276,7 @@ class DetectionPipeline:
             out.memory_samples = result.memory_samples
             out.memory_bytes = result.memory_bytes
             out.num_points = result.num_points
+            out.held = result.held
             model_timings = result.timings
         else:   # nothing to detect in: publish an empty result, keep the memory as it is
             out.memory_bytes = self.detector.memory_bytes
@@ -298,7 +301,7 @@ class DetectionPipeline:
             out.detections_msg = detections_to_pointcloud2(
                 d.boxes, d.velocities, d.scores, d.labels, out.header, self.classes,
                 track_ids=out.track_ids, num_points=out.num_points,
-                vel_std=out.velocity_std)
+                vel_std=out.velocity_std, held=out.held)
             if markers:
                 out.markers_msg = self.markers(out)
         t3 = time.perf_counter()
@@ -315,7 +318,7 @@ class DetectionPipeline:
         d = out.detections
         return detections_to_markerarray(d.boxes, d.velocities, d.scores, d.labels, out.header,
                                          self.class_names, self.classes,
-                                         track_ids=out.track_ids)
+                                         track_ids=out.track_ids, held=out.held)
 
     def buffer(self, cloud: Any) -> PipelineOutput:
         """Take a cloud the model will not run on (the node skipped it while the model was

@@ -58,6 +58,10 @@ def test_cloud_layout_and_round_trip_with_gt_fields(C):
     assert back['labels'].dtype == np.int64 and back['boxes'].shape == (40, 7)
     np.testing.assert_array_equal(back['num_points'], extra['num_points'])
     np.testing.assert_array_equal(back['instance_id'], extra['instance_id'])
+    assert msg.is_dense
+    boxes[3, 0] = np.nan                      # a box with no centre: the cloud is not dense
+    assert not detections_to_pointcloud2(boxes, vel, scores, labels, C.header(77, 'lidar'), C,
+                                         extra).is_dense
 
 
 @pytest.mark.parametrize('C', BOTH, **KIND)
@@ -109,6 +113,39 @@ def test_num_points_field_between_label_and_track_id(C):
     with pytest.raises(PointCloudError, match='UINT32'):
         detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
                                   num_points=-counts - 1)
+
+
+@pytest.mark.parametrize('C', BOTH, **KIND)
+def test_held_field_sits_after_label_and_says_why_a_box_is_there(C):
+    """``held`` (UINT8: 0 seen, 1 carried, 2 coasted) takes the padding byte after
+    ``label``: the other fields keep their offsets and the point its size; the markers say
+    it; a wrong length or value is refused."""
+    boxes, vel, scores, labels = random_boxes(4)
+    ids, counts = np.array([3, 0, 7, 1]), np.array([120, 0, 0, 9])
+    std = np.ones(4, np.float32)
+    held = np.array([0, 1, 2, 0])
+    msg = detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                    track_ids=ids, num_points=counts, vel_std=std, held=held)
+    layout = [(f.name, f.offset, f.datatype) for f in msg.fields]
+    assert layout[-5:] == [('label', 40, UINT8), ('held', 41, UINT8),
+                           ('num_points', 44, UINT32), ('track_id', 48, UINT32),
+                           ('vel_std', 52, FLOAT32)]
+    assert msg.point_step == 56
+    back = pointcloud2_to_detections(msg)
+    np.testing.assert_array_equal(back['held'], held)
+    np.testing.assert_array_equal(back['labels'], labels)
+    np.testing.assert_array_equal(back['num_points'], counts)
+    texts = [m.text for m in detections_to_markerarray(
+        boxes, vel, scores, labels, C.header(5, 'lidar'), NAMES, C, track_ids=ids,
+        held=held).markers if m.type == TEXT_VIEW_FACING]
+    assert [t.endswith(' carried') for t in texts] == [False, True, False, False]
+    assert [t.endswith(' coasted') for t in texts] == [False, False, True, False]
+    with pytest.raises(MessageError, match='held flags'):
+        detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                  held=held[:2])
+    with pytest.raises(PointCloudError, match='held must be'):
+        detections_to_pointcloud2(boxes, vel, scores, labels, C.header(5, 'lidar'), C,
+                                  held=held + 1)
 
 
 @pytest.mark.parametrize('C', BOTH, **KIND)

@@ -38,17 +38,26 @@ def test_running_when_clouds_flow():
     assert values['input_rate_hz'] == '10.00' and values['input_period_ms'] == '100.0'
     assert values['latency_reference'] == 'header stamp' and values['model_device'] == 'cpu'
     assert values['held_boxes'] == '0'
-    # two boxes published, one with no return of this cloud in it (held through a gap)
-    two = Detections(np.zeros((2, 7)), np.zeros((2, 2)), np.ones(2), np.zeros(2, np.int64))
-    last = replace(healthy().last, detections=two, num_points=np.array([12, 0], np.uint32))
+    # three boxes published: one coasted by the tracker, and one seen now whose returns lie
+    # just outside it (no return in it is not held: the held field says)
+    three = Detections(np.zeros((3, 7)), np.zeros((3, 2)), np.ones(3), np.zeros(3, np.int64))
+    last = replace(healthy().last, detections=three, num_points=np.array([12, 0, 0], np.uint32),
+                   held=np.array([0, 0, 2], np.uint8))
     values = health_report(replace(healthy(), last=last))[2]
-    assert values['held_boxes'] == '1' and values['detections'] == '2'
+    assert values['held_boxes'] == '1' and values['detections'] == '3'
 
 
 def test_no_input_yet_then_timeout():
-    assert health_report(snap(now=90.5))[:2] == (WARN, 'no point cloud received yet')
-    level, message, _ = health_report(snap())                 # 10 s after the start
-    assert level == ERROR and 'no point cloud for 10.0 s' in message
+    # a node that starts before its LiDAR driver warns, as the docs say, for the timeout
+    # and 10 s to start up; the first diagnostics (1 s in) were an ERROR before
+    level, message, _ = health_report(snap(now=91.1))
+    assert (level, message) == (WARN, 'no point cloud received yet (1.1 s since the start)')
+    assert health_report(snap(now=100.9))[0] == WARN
+    level, message, _ = health_report(snap(now=101.5))
+    assert level == ERROR and 'no point cloud received in 11.5 s since the start' in message
+    # once clouds flowed, input_timeout_s alone decides
+    level, message, _ = health_report(healthy(now=101.5))
+    assert level == ERROR and 'no point cloud for 1.6 s' in message
     stale = healthy(now=100.35)                               # 0.45 s since the last: > 3 x 0.1
     assert 'expected every 0.10 s' in health_report(stale)[1]
 

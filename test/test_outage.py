@@ -293,6 +293,7 @@ def test_coasting_holds_the_shipped_models_cars_through_a_lost_sector():
             coasted = r.carried & lost.contains(r.detections.boxes[:, :2])
             held[coast].append(int(coasted.sum()))
             assert (r.num_points[coasted] == 0).all() and (r.track_ids[coasted] > 0).all()
+            assert (r.held[coasted] == 2).all() and (r.held[~r.carried] == 0).all()  # coasted
             for b in r.detections.boxes[coasted]:
                 assert np.hypot(*(f.gt.boxes[:, :2] - b[:2]).T).min() < 2.0
     assert sum(held[0.0]) == 0 and min(held[0.5]) >= 1, held

@@ -151,6 +151,9 @@ def test_each_detection_carries_the_returns_inside_its_box(model, classes, scene
     assert (out.num_points > 0).mean() > 0.8
     np.testing.assert_array_equal(pointcloud2_to_detections(out.detections_msg)['num_points'],
                                   out.num_points)
+    # nothing held on a first frame: every box says seen
+    assert (pointcloud2_to_detections(out.detections_msg)['held'] == 0).all()
+    assert len(out.held) == len(d)
 
 
 def test_a_lost_sector_is_an_input_warning(model, classes):

@@ -132,8 +132,10 @@ def test_carried_boxes_are_published_at_the_carry_thresholds():
     only_seen = run([0.0] * K, [1.01] * K)
     assert not any(r.carried.any() for r in only_seen)
     assert sum(len(r.detections) for r in only_seen) > 0
+    assert not any(r.held.any() for r in only_seen)
     only_carried = run([1.01] * K, [0.0] * K)
     assert all(r.carried.all() for r in only_carried)
+    assert all((r.held == 1).all() for r in only_carried)          # carried, not coasted
     assert sum(len(r.detections) for r in only_carried[2:]) > 0
     assert not any(len(r.detections) for r in only_carried[:1])     # no memory yet
     assert np.all([r.used_memory for r in only_carried[1:]])

@@ -29,6 +29,7 @@ from suit_ros.model.inference import (
 )
 from suit_ros.model.memory import SparseMemory
 from suit_ros.model.sweeps import SweepBuffer, already_accumulated, boxes_to_lidar
+from suit_ros.msg_adapters.detections import HELD_CARRIED, HELD_COASTED, HELD_SEEN
 from suit_ros.ops.geometry import count_points_in_boxes
 from suit_ros.overhang import OverhangMode
 from suit_ros.structures import Detections
@@ -48,8 +49,11 @@ class StepResult:
     :param track_ids: per detection, its velocity-filter track (0: no filter, or no pose).
     :param num_points: per detection, the current sweep's returns inside its box (0: a box
         held by the memory or the tracker where the sweep shows nothing).
-    :param carried: per detection, decoded by a carry branch where the input has no returns
-        (published at the carry thresholds).
+    :param carried: per detection, held where the input has no returns: decoded by a carry
+        branch or coasted by the tracker (published at the carry thresholds): ``held > 0``.
+    :param held: per detection, why it is there (the detections cloud's ``held`` field): 0
+        decoded from what the input shows, 1 decoded by a carry branch where it has no returns,
+        2 coasted by the tracker (no detection this frame).
     :param velocity_std: per detection, the standard deviation of each velocity component
         (m/s; :attr:`suit_ros.tracking.Tracker.velocity_std`); empty without a tracker.
     """
@@ -64,6 +68,7 @@ class StepResult:
     num_points: NDArray[np.uint32] = field(default_factory=lambda: np.zeros(0, np.uint32))
     carried: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     velocity_std: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
+    held: NDArray[np.uint8] = field(default_factory=lambda: np.zeros(0, np.uint8))
 
 
 Result = TypeVar('Result')
@@ -366,16 +371,17 @@ class StreamingDetector:
     def _published(self, out: dict[str, torch.Tensor], pts: NDArray[np.float32],
                    model_points: NDArray[np.float32], stamp_ns: int,
                    poses: NDArray[np.float64], posed: bool, T_bl: NDArray[np.float64]
-                   ) -> tuple[Detections, NDArray[np.int64], NDArray[np.bool_],
+                   ) -> tuple[Detections, NDArray[np.int64], NDArray[np.uint8],
                               NDArray[np.float32], NDArray[np.uint32]]:
         """A step's decoded boxes as published: fitted to their faces, tracked (with a pose:
         ``posed``), back on the road, cut at the published thresholds, in the LiDAR frame,
-        with this cloud's returns in each; and their track ids, carried flags, velocity
-        standard deviations and returns."""
+        with this cloud's returns in each; and their track ids, held flags (``held`` of
+        :class:`StepResult`), velocity standard deviations and returns."""
         det = Detections(out['boxes'].float().cpu().numpy(),
                          out['velocities'].float().cpu().numpy(),
                          out['scores'].float().cpu().numpy(), out['labels'].cpu().numpy())
         carried = out['carried'].cpu().numpy()
+        held = np.where(carried, HELD_CARRIED, HELD_SEEN).astype(np.uint8)
         ids = np.zeros(len(det), np.int64)
         vel_std = np.zeros(0, np.float32)
         # this cloud's own returns, the same rows of the input as it came and of the model
@@ -390,8 +396,9 @@ class StreamingDetector:
             det, ids = track_step(self.tracks, det, stamp_ns, poses[0], model_points,
                                   carried=carried, current=model_points[now],
                                   sensor=T_bl[:3, 3])
-            # the tracks held where the sweep shows nothing count as carried
-            carried = np.concatenate([carried, np.ones(self.tracks.coasted, bool)])
+            # the tracks held where the sweep shows nothing: coasted (and carried, for the cut)
+            held = np.concatenate([held, np.full(self.tracks.coasted, HELD_COASTED, np.uint8)])
+            carried = held > HELD_SEEN
             vel_std = self.tracks.velocity_std
         elif self.tracks is not None:   # no pose: nothing tracked, each as the head measured it
             fc = self.tracks.config
@@ -401,14 +408,14 @@ class StreamingDetector:
         published = det.scores >= np.where(carried, self.carry_thresholds[det.labels],
                                            self.score_thresholds[det.labels])
         if not published.all():
-            det, ids, carried = det.select(published), ids[published], carried[published]
+            det, ids, held = det.select(published), ids[published], held[published]
             if self.tracks is not None:
                 vel_std = vel_std[published]
         det = boxes_to_lidar(det, T_bl)
         # the returns of this cloud in each box, counted on the input as it came (LiDAR
         # frame), not on the accumulated sweeps
         num_points = count_points_in_boxes(pts[now, :3], det.boxes)
-        return det, ids, carried, vel_std, num_points
+        return det, ids, held, vel_std, num_points
 
     @torch.inference_mode()
     def step(self, points: NDArray[np.float32], stamp_ns: int,
@@ -475,7 +482,7 @@ class StreamingDetector:
                 if memory is not None:
                     self._memory = memory
             t5 = self._sync()
-            det, ids, carried, vel_std, num_points = self._published(
+            det, ids, held, vel_std, num_points = self._published(
                 out, pts, model_points, stamp_ns, poses, T_odom_base is not None, T_bl)
         t6 = self._sync()
         timings = {'sweeps': t1 - t0, 'encode': t2 - t1, 'fusion': t3 - t2,
@@ -483,4 +490,4 @@ class StreamingDetector:
                    'total': t6 - t0}
         samples = self._memory.num_samples if self._memory is not None else 0
         return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings,
-                          ids, num_points, carried, vel_std)
+                          ids, num_points, held > HELD_SEEN, vel_std, held)
