@@ -3,7 +3,8 @@ its counters. No rclpy here: the node fills a :class:`HealthSnapshot` and turns 
 into a ``diagnostic_msgs/DiagnosticStatus``.
 
 Levels: ERROR when no cloud arrived for ``input_timeout_s`` (none at all: for
-``input_timeout_s`` + :data:`STARTUP_GRACE_S` from the start); WARN when no cloud arrived yet,
+``input_timeout_s`` + :data:`STARTUP_GRACE_S` from the start), and when every frame failed
+for ``input_timeout_s``; WARN when no cloud arrived yet,
 when none arrived for ``stale_periods`` times the measured input period, when clouds were
 lost before the callback in the last window, when processing (p50) takes longer than the
 input period, on an input-contract warning of the last few seconds, and when the last frame
@@ -51,6 +52,7 @@ class HealthSnapshot:
     input_timeout_s: float
     stale_periods: float
     rate_window_s: float = 5.0
+    failing_since: float | None = None     # frames have failed since then, none got out
 
 
 def frame_stats(timings: dict[str, float], publish_s: float, received_ns: int, stamp_ns: int,
@@ -176,6 +178,11 @@ def health_report(s: HealthSnapshot) -> tuple[int, str, dict[str, str]]:
     _timing(s, period, levels, values)
     # the held reasons seen lately, also before any frame got through (a failed frame)
     levels.extend((WARN, text) for text in s.held_warnings)
+    failing = None if s.failing_since is None else s.now - s.failing_since
+    if failing is not None and failing > s.input_timeout_s:
+        # clouds come but nothing goes out: as bad as no input (the reason is held above)
+        levels.append((ERROR, f'every frame failed for {failing:.1f} s: no detections '
+                              'published'))
     _last_frame(s, levels, values)
     for key, count in s.single_reasons:
         values[f'single_frame.{key}'] = str(count)

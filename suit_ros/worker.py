@@ -104,6 +104,7 @@ class FrameWorker:
         self.pending: DetectorParams | None = None
         self.stopping = False
         self.started = time.monotonic()
+        self.failing_since: float | None = None     # the first failure since the last frame out
         self.frames_out = self.frames_single = 0
         self.frames_failed = 0      # clouds whose step raised (logged, counted, held)
         # log lines by kind (numbers aside): how many so far, when last logged
@@ -157,6 +158,8 @@ class FrameWorker:
                 self._log_limited(f'frame failed: {type(exc).__name__}: {exc}', 'error', exc)
                 with self.lock:
                     self.frames_failed += 1
+                    if self.failing_since is None:
+                        self.failing_since = time.monotonic()
                 # held: the diagnostics warn while frames fail, not only the log
                 self.reasons.report({'frame_failed': f'frame failed: {type(exc).__name__}: '
                                      f'{exc}'}, time.monotonic())
@@ -246,6 +249,7 @@ class FrameWorker:
                             self.params().max_stamp_skew_s)
         with self.lock:
             self.frames_out += 1
+            self.failing_since = None
             if out.single_frame is not None:
                 self.frames_single += 1
                 self.single_reasons[out.single_frame] += 1
@@ -319,4 +323,4 @@ class FrameWorker:
                 facts=facts, last_reset_reason=pipeline.last_reset_reason,
                 memory_resets=pipeline.resets, odometry_rejected=pipeline.odom_rejected,
                 input_timeout_s=params.input_timeout_s, stale_periods=params.stale_periods,
-                rate_window_s=RATE_WINDOW_S)
+                rate_window_s=RATE_WINDOW_S, failing_since=self.failing_since)

@@ -41,6 +41,15 @@ def test_tracker_in_the_stream_follows_the_reset_rules():
     assert len(tracks) > 0
     runner.set_tracker(filt)              # unchanged settings keep the tracks
     assert runner.tracks is tracks
+    # a change of how clouds are read keeps the tracks, memory and sweeps go; a frame with
+    # no pose after it still ends them (no odometry frame to carry them in)
+    runner.step(f.points, int(1.15e9), f.pose)
+    runner.reset('input settings', tracks=False)
+    assert len(tracks) > 0
+    runner.step(f.points, int(1.17e9), None)
+    assert len(tracks) == 0 and runner.last_reset_reason == 'no pose'
+    runner.step(f.points, int(1.18e9), f.pose)
+    assert len(tracks) > 0
     runner.reset('test')
     assert len(tracks) == 0
     r3 = runner.step(f.points, int(1.2e9), None)  # no pose: no odometry frame to track in

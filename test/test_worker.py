@@ -2,6 +2,7 @@
 clouds and odometry put in its mailbox and gate as the callbacks do, the thread it runs in."""
 from __future__ import annotations
 
+from dataclasses import replace
 import threading
 import time
 
@@ -216,6 +217,7 @@ def test_a_frame_that_fails_on_every_cloud_is_logged_once_with_its_traceback(wor
     """A failure that repeats on every cloud (here the pipeline made to raise each time) is
     logged once with where it came from, not at the sensor's rate; every one is counted."""
     w, mc, published, log, clock = worker
+    real = w.pipeline.process
 
     def failing(msg, markers=True):
         raise ValueError(f'bad cloud of {len(msg.data)} bytes')
@@ -227,7 +229,18 @@ def test_a_frame_that_fails_on_every_cloud_is_logged_once_with_its_traceback(wor
     errors = [line for kind, line in log.lines if kind == 'error']
     assert len(errors) == 1 and errors[0].startswith('frame failed: ValueError: bad cloud of')
     assert 'Traceback' in errors[0] and 'in failing' in errors[0]
-    assert health_report(w.snapshot({}))[2]['frames_failed'] == '5'
+    level, message, values = health_report(w.snapshot({}))
+    assert values['frames_failed'] == '5'
+    # clouds come, nothing goes out: an ERROR once it lasts input_timeout_s
+    snap = w.snapshot({})
+    assert snap.failing_since is not None
+    level, message, _ = health_report(replace(snap, now=snap.failing_since + 1.5))
+    assert level == 2 and 'every frame failed for 1.5 s' in message
+    assert health_report(replace(snap, now=snap.failing_since + 0.5))[0] == 1
+    w.pipeline.process = real
+    put_cloud(w, mc, T0 + 6 * S // 10)
+    assert until(lambda: w.frames_out == 1)
+    assert w.snapshot({}).failing_since is None            # a frame got out: no longer
 
 
 def test_resets_of_one_kind_are_logged_once_in_a_while(worker):

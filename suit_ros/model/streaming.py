@@ -434,8 +434,9 @@ class StreamingDetector:
         t0 = self._sync()
         pts = _as_points(points)
         T_bl = np.eye(4) if T_base_lidar is None else np.asarray(T_base_lidar, np.float64)
-        if T_odom_base is None and (self.memory is not None or len(self.sweeps)):
-            self.reset('no pose')
+        if T_odom_base is None and (self.memory is not None or len(self.sweeps)
+                                    or (self.tracks is not None and len(self.tracks))):
+            self.reset('no pose')       # (tracks kept by a reset of the input's reading too)
         T_ol = None if T_odom_base is None else np.asarray(T_odom_base, np.float64) @ T_bl
         poses = np.asarray(T_odom_base if T_odom_base is not None else np.eye(4),
                            np.float64)[None]
