@@ -309,6 +309,10 @@ def bootstrap(runs: dict[str, ModelRun], class_names: Sequence[str],
     """
     names = list(runs)
     drives = drive_frames(runs[names[0]])
+    for n in names[1:]:
+        if runs[n].drive != runs[names[0]].drive:
+            raise ValueError(f'bootstrap: run {n!r} covers other drives or frames than '
+                             f'{names[0]!r}: pairs and resamples need the same frames')
     metrics = {n: RunMetrics(runs[n], class_names) for n in names}
     point = {n: metrics[n]() for n in names}
     required = {n: metrics[n].present() for n in names}   # (a variant may hold other GT)

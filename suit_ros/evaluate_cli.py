@@ -35,6 +35,10 @@ def configure_parser(parser: argparse.ArgumentParser) -> None:
                         help='evaluate only the frame (object) or sequence (tracking) ids listed '
                         'in FILE, one a line (e.g. ImageSets/val.txt); default: all')
     parser.add_argument('--det-topic', default='/detector/detections')
+    parser.add_argument('--unanswered', choices=['skip', 'empty'], default='skip',
+                        help='--bag: GT frames with no detections at their stamp (a live node '
+                        'skipped or failed them): left out (skip, said on stderr) or scored as '
+                        'frames with no box (empty: what a user of the output got)')
     parser.add_argument('--gt-topic', default='/gt/objects')
     parser.add_argument('--checkpoint', default='', help='default: the shipped checkpoint')
     parser.add_argument('--history', type=int, help='frames of history (default: all)')
@@ -89,10 +93,24 @@ def _from_bag(args: argparse.Namespace) -> Any:
     stamps = sorted(set(det) & set(gt))
     if not stamps:
         raise BagError(f'no frame of {args.bag} has both detections and GT at the same stamp')
+    unanswered = sorted(set(gt) - set(det))
+    if unanswered:        # clouds a live node skipped (busy) or failed: it published nothing
+        import sys
+        if args.unanswered == 'empty':
+            stamps = sorted(gt)
+            how = 'scored as frames with no box (--unanswered empty)'
+        else:
+            how = ('not scored: the figures are of the frames it answered; --unanswered empty '
+                   'scores them as frames with no box')
+        print(f'{len(unanswered)} of {len(gt)} GT frames have no detections at their stamp on '
+              f'{args.det_topic} (the detector skipped or failed them): {how}', file=sys.stderr)
+
+    def d_or_empty(x: dict[str, Any] | None) -> Detections:
+        return Detections.empty() if x is None else d(x)
 
     def d(x: dict[str, Any]) -> Detections:
         return Detections(x['boxes'], x['velocities'], x['scores'], x['labels'])
-    return evaluate([d(gt[s]) for s in stamps], [d(det[s]) for s in stamps],
+    return evaluate([d(gt[s]) for s in stamps], [d_or_empty(det.get(s)) for s in stamps],
                     ranges=_ranges(args, None),
                     num_points=[gt[s].get('num_points') for s in stamps])
 
@@ -176,6 +194,9 @@ def run(args: argparse.Namespace) -> int:
         # nuScenes keyframes come with their sweeps accumulated: nothing to buffer
         raise ConfigError('--run-every applies to a model run over drives of single sweeps '
                           '(--synthetic, --av2), without --history')
+    if args.unanswered != 'skip' and not args.bag:
+        raise ConfigError('--unanswered applies to --bag (frames a recorded detector did not '
+                          'answer); a model run here answers every frame')
     if args.bag and args.traffic_side != 'auto':
         # the bag's detections were made by detect-bag (or the node): the side was theirs
         raise ConfigError('--traffic-side applies where eval runs the model; a bag holds '

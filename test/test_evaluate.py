@@ -252,3 +252,37 @@ def test_eval_scores_real_data_within_50_m_for_every_class(capsys):
     assert _ranges(ns, NAMES) == dict.fromkeys(NAMES, 30.0)
     assert main(['eval', '--synthetic', 'val', '--max-range', 'nan']) == 1
     assert '--max-range must be a positive number' in capsys.readouterr().err
+
+
+def test_eval_of_a_bag_says_which_frames_the_detector_did_not_answer(tmp_path, capsys):
+    """A live node that skipped clouds (busy) published no detections at their stamps: eval
+    --bag says how many GT frames it leaves out, and --unanswered empty scores them as
+    frames with no box (what a user of the output got)."""
+    from suit_ros.cli import main
+    from suit_ros.data.bag import open_writer, typestore
+    from suit_ros.msg_adapters.classes import MessageClasses
+    from suit_ros.msg_adapters.detections import detections_to_pointcloud2
+    store = typestore()
+    C = MessageClasses.from_rosbags(store)
+    car = np.array([[10.0, 0, 0, 4.5, 1.9, 1.6, 0]])
+    counts = {'num_points': np.array([40], np.uint32), 'instance_id': np.array([1], np.uint32)}
+    with open_writer(tmp_path / 'b') as w:
+        for k in range(4):
+            stamp = 10**9 + k * 10**8
+            args = (car, np.zeros((1, 2)), np.ones(1), np.zeros(1, np.int64), C.header(stamp,
+                                                                                      'lidar'), C)
+            w.write('/gt/objects', 'sensor_msgs/msg/PointCloud2', stamp,
+                    detections_to_pointcloud2(*args, extra_fields=counts))
+            if k % 2 == 0:                          # the node answered every other cloud
+                w.write('/detector/detections', 'sensor_msgs/msg/PointCloud2', stamp,
+                        detections_to_pointcloud2(*args))
+    out = tmp_path / 'm.json'
+    assert main(['eval', '--bag', str(tmp_path / 'b'), '--json-out', str(out)]) == 0
+    assert '2 of 4 GT frames have no detections' in capsys.readouterr().err
+    import json
+    assert json.loads(out.read_text())['summary']['AP_car'] == pytest.approx(1.0)
+    assert main(['eval', '--bag', str(tmp_path / 'b'), '--unanswered', 'empty',
+                 '--json-out', str(out)]) == 0
+    summary = json.loads(out.read_text())['summary']
+    assert summary['frames'] == 4 and summary['AP_car'] < 0.6          # half the car missed
+    assert main(['eval', '--synthetic', 'val', '--unanswered', 'empty']) == 1
