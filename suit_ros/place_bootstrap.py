@@ -28,6 +28,7 @@ from suit_ros.structures import Detections
 
 REACH = 4.0                     # m: a detection goes with the nearest labelled object this near
 CELL = 20.0                     # m: the side of a place
+MIN_PLACES = 2                  # places holding a class for its AP to get an interval
 
 
 def place_keys(gt: Detections, det: Detections, cell: float = CELL
@@ -143,9 +144,20 @@ def ap_intervals(places: Places, class_names: Sequence[str], max_range: float,
         return float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5))
 
     out = APIntervals({}, {}, {}, len(places), resamples)
-    for c in names:
+    gt = places.runs[0].gt
+    for label, c in enumerate(names):
         key = f'AP {c}'
         out.ap[c] = [f[key] for f in full]
+        # a class in one place only: a resample holds it once or not at all, and its AP
+        # draws say nothing of how it varies from place to place: no interval
+        holding = sum(any((gt[k].labels == label).any() for k in piece)
+                      for piece in places.pieces)
+        if holding < MIN_PLACES:
+            unknown = (float('nan'), float('nan'))
+            out.interval[c] = [unknown] * len(metrics)
+            if len(metrics) == 2:
+                out.difference[c] = (full[0][key] - full[1][key], unknown)
+            continue
         out.interval[c] = [bounds([d[key] for d in run_draws]) for run_draws in draws]
         if len(metrics) == 2:
             out.difference[c] = (full[0][key] - full[1][key],

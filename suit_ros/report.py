@@ -94,6 +94,10 @@ def _f(x: float | None, digits: int = 3) -> str:
     return 'n/a' if x is None or not np.isfinite(x) else f'{x:.{digits}f}'
 
 
+def _finite(x: float | None) -> bool:
+    return x is not None and bool(np.isfinite(x))
+
+
 def _r(x: float) -> float:
     return round(float(x), 4) if np.isfinite(x) else float('nan')
 
@@ -212,7 +216,8 @@ class Report:
             ap = j['classes'][c]['ap']
             by_dist = ' / '.join(_f(v) for v in (j['classes'][c]['ap_by_distance'] or {}).values())
             iv = j['classes'][c]['ap_interval']
-            ap_cell = _f(ap) + (f' [{_f(iv[0])}, {_f(iv[1])}]' if iv else '')
+            ap_cell = _f(ap) + ('' if not iv else f' [{_f(iv[0])}, {_f(iv[1])}]'
+                                if _finite(iv[0]) else ' (one place: no interval)')
             lines.append(f'| {c} | {p["gt"]} | {_f(p["recall"])} | {_f(p["precision"])} | '
                          f'{p["fp_per_frame"]:.2f} | {ap_cell} | {by_dist or "n/a"} |')
         if 'places' in j:
@@ -230,8 +235,9 @@ class Report:
                       '|---|---|---|---|']
             for c, b in j['baseline']['classes'].items():
                 lines.append(f'| {c} | {_f(b["ap_this"])} | {_f(b["ap"])} | '
-                             f'{b["difference"]:+.3f} [{b["interval"][0]:+.3f}, '
-                             f'{b["interval"][1]:+.3f}] |')
+                             f'{b["difference"]:+.3f} '
+                             + (f'[{b["interval"][0]:+.3f}, {b["interval"][1]:+.3f}] |'
+                                if _finite(b['interval'][0]) else '(one place: no interval) |'))
         if 'car_heading' in j:
             h = j['car_heading']
             lines += ['', f'Car heading (matched cars at the published threshold): '

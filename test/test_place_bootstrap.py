@@ -100,3 +100,23 @@ def test_only_what_is_scored_makes_a_place():
     b = ap_intervals(cut_into_places(far, [dets], dark, class_names=NAMES, max_range=50.0),
                      NAMES, 50.0, resamples=50)
     assert a.interval == b.interval and a.ap == b.ap
+
+
+def test_a_class_in_one_place_gets_no_interval():
+    """One truck seen in two sweeps is one place: a resample holds it or not, so its AP draws
+    say nothing of how AP varies over places; no interval (it read [0.850, 0.852], and before
+    an absent class had AP 0, [0.000, 0.852])."""
+    gts, dets, npts = scene(5)
+    truck = [Detections(np.r_[g.boxes, [[30.0, -30.0, 0, 8, 2.5, 3, 0]]],
+                        np.zeros((len(g) + 1, 2)), np.ones(len(g) + 1), np.r_[g.labels, 2])
+             for g in gts]
+    found = [Detections(np.r_[d.boxes, [[30.2, -30.0, 0, 8, 2.5, 3, 0]]],
+                        np.zeros((len(d) + 1, 2)), np.r_[d.scores, 0.8], np.r_[d.labels, 2])
+             for d in dets]
+    pts = [np.r_[n, 50].astype(np.uint32) for n in npts]
+    names = NAMES + ('truck',)
+    iv = ap_intervals(cut_into_places(truck, [found, found], pts, class_names=names,
+                                      max_range=50.0), names, 50.0, resamples=50)
+    assert iv.ap['truck'][0] > 0.5 and all(np.isnan(iv.interval['truck'][0]))
+    assert np.isnan(iv.difference['truck'][1][0]) and iv.difference['truck'][0] == 0.0
+    assert not np.isnan(iv.interval['car'][0][0])
