@@ -491,17 +491,17 @@ def run(args: argparse.Namespace) -> int:
                                   args.length)
             counted['outage'][key] = counts
             result['runs'][key] = r = intervals(counts)
-            print(f'{key:<24} recall by outage frame ' + ' '.join(f'{v[0]:.2f}' for v in
+            print(f'{key:<24} recall by outage frame ' + ' '.join(_num(v[0]) for v in
                                                                    r['recall'])
                   + f' | frames 3+: {_band(r["recall_from_frame_3"])} | sector precision '
-                  + ' '.join(f'{v[0]:.2f}' for v in r['sector_precision']), flush=True)
+                  + ' '.join(_num(v[0]) for v in r['sector_precision']), flush=True)
             for what, drives in occlusion_sets.items():
                 run_ = _run(model, drives, tracker if tracked else None, args.deskew == 'on')
                 occ = count_events(drives, published_by_drive(run_, thr, carry), zero)
                 counted[what][key] = occ
                 result[what][key] = o = intervals(occ)
                 print(f'{key:<24} {what} events, recall by frame of the event '
-                      + ' '.join(f'{v[0]:.2f}' for v in o['recall'])
+                      + ' '.join(_num(v[0]) for v in o['recall'])
                       + f' | frames 3+: {_band(o["recall_from_frame_3"])}', flush=True)
                 if not tracked:
                     result[f'{what}_ap'][name] = a = occlusion_ap(
@@ -547,7 +547,7 @@ def tables(result: dict[str, Any]) -> str:
               + ' | frames 3+ | boxes |', '|---' * (n + 3) + '|']
     for key, r in runs.items():
         late = r.get('sector_precision_from_frame_3')
-        lines.append(f'| {key} | ' + ' | '.join(f'{v[0]:.2f}' for v in r['sector_precision'])
+        lines.append(f'| {key} | ' + ' | '.join(_num(v[0]) for v in r['sector_precision'])
                      + f' | {_band(late) if late else ""} | {sum(r["boxes"])} |')
     lines += _difference_table(result.get('outage_difference') or {},
                                'Paired differences (the same drives and resamples), outage '
@@ -573,7 +573,7 @@ def _occlusion_tables(result: dict[str, Any], what: str, title: str) -> list[str
         lines += ['', title, '', '| model | ' + ' | '.join(str(g) for g in range(1, gaps + 1))
                   + ' | frames 3+ |', '|---' * (gaps + 2) + '|']
         for key, r in occ.items():
-            lines.append(f'| {key} | ' + ' | '.join(f'{v[0]:.2f}' for v in r['recall'])
+            lines.append(f'| {key} | ' + ' | '.join(_num(v[0]) for v in r['recall'])
                          + f' | {_band(r["recall_from_frame_3"])} |')
         lines.append('| objects | ' + ' | '.join(str(c) for c in
                                                    next(iter(occ.values()))['objects'])
@@ -603,10 +603,15 @@ def _difference_table(diffs: dict[str, dict[str, list[float]]], title: str) -> l
     return lines
 
 
+def _num(x: float | None, signed: bool = False) -> str:
+    """A figure of the tables: nan for an undefined one (null in the JSON, nan in memory)."""
+    if x is None or not np.isfinite(x):
+        return 'nan'
+    return f'{x:+.2f}' if signed else f'{x:.2f}'
+
+
 def _band(v: Any, signed: bool = False) -> str:
-    if signed:
-        return f'{v[0]:+.2f} [{v[1]:+.2f}, {v[2]:+.2f}]'
-    return f'{v[0]:.2f} [{v[1]:.2f}, {v[2]:.2f}]'
+    return f'{_num(v[0], signed)} [{_num(v[1], signed)}, {_num(v[2], signed)}]'
 
 
 def _run(model: Any, seqs: Sequence[Sequence[Frame]], tracker: TrackerConfig | None,

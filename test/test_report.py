@@ -274,7 +274,10 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
     for b in j3['baseline']['classes'].values():
         # the difference is the one of the two columns shown (both over the places)
         assert b['difference'] == pytest.approx(b['ap_this'] - b['ap'], abs=2e-4)
-        assert b['interval'][0] <= b['interval'][1]
+        # (no interval for a class in one place: null)
+        assert b['interval'][0] is None or b['interval'][0] <= b['interval'][1]
+    # one car and one pedestrian, each in one place: AP, but no interval over places
+    assert '(one place: no interval)' in (tmp_path / 'rep3' / 'report.md').read_text()
     assert '## Against the baseline (centerpoint_single)' in \
         (tmp_path / 'rep3' / 'report.md').read_text()
     assert main(['report', '--av2', str(tmp_path / 'data'), '--out', str(tmp_path / 'rep4'),
