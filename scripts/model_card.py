@@ -65,7 +65,7 @@ def claims(res: dict[str, Any]) -> list[tuple[str, str, str]]:
 REAL_DEV = {'suit': 'docs/real_dev/suit.json', 'single': 'docs/real_dev/single.json',
             'suit_carry': 'docs/real_dev/suit_carry.json'}
 CARRY = 'suit_ros/checkpoints/suit_carry.safetensors'
-OUTAGE = 'docs/outage/shipped.json'
+OUTAGE = 'docs/outage/stop64.json'    # the shipped models as they are now (stop 64)
 CARRY_VAL = 'docs/experiments/memory_carry/val_run26/results.json'
 # measured with `suit-ros bench --threads 1 --frames 30 --skip-node` on each checkpoint,
 # alternated (default, carry, default, carry, default), 2026-12-05, run 26
