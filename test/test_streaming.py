@@ -227,3 +227,46 @@ def test_the_past_term_beside_the_encoder_gives_the_same_steps():
     del beside.model.past_term
     # the memory of frame 7 is still there, and fused again (the second thread started anew)
     assert beside.step(frame(9).points, frame(9).stamp_ns, frame(9).pose).used_memory
+
+
+def test_training_reads_the_carry_head_where_inference_does():
+    """A carry branch's head answers, in training as in inference, at the cells without returns
+    within two cells of the carry term, and the model's own head everywhere else: training
+    optimises the path the node runs (it took the carry head at every unobserved cell)."""
+    from dataclasses import replace
+
+    from suit_ros.model.detector import carry_cells, frame_points
+    model = carry_branch_model()
+    with torch.no_grad():                           # the two heads differ, as after training
+        for p in model.carry.head.parameters():
+            p.add_(torch.randn_like(p) * 0.2)
+    memory, checked = None, 0
+    with torch.no_grad():
+        for t in range(4):
+            f = frame(t)
+            pts = f.points if t < 2 else f.points[f.points[:, 0] < 0]      # x > 0 lost
+            f = replace(f, points=pts)
+            cur, obs = model.encode_observed([frame_points(f, torch.device('cpu'))])
+            past, aux = model.past_term(memory, f.pose[None], [f.stamp_ns])
+            fused = model.fuse(cur, past, obs)
+            infer = model.predict(cur, past, fused, obs)
+            if past is not None:
+                model.training = True               # the flag alone: batch norms stay as they are
+                try:
+                    train = model.predict(cur, past, fused, obs)
+                finally:
+                    model.training = False
+                for k in ('heatmap', 'reg', 'height', 'dim', 'rot', 'vel'):
+                    if k in infer:
+                        torch.testing.assert_close(train[k], infer[k], atol=1e-5, rtol=1e-5)
+                use = carry_cells(past.carry_gated, obs)
+                own = infer['own.heatmap']
+                assert use.any() and not torch.equal(infer['heatmap'][use.expand_as(own)],
+                                                     own[use.expand_as(own)])
+                assert torch.equal(infer['heatmap'][~use.expand_as(own)],
+                                   own[~use.expand_as(own)])
+                checked += 1
+            memory = model.sample_memory(fused, infer, f.pose[None], [f.stamp_ns],
+                                         model.carried(memory, aux, f.pose[None],
+                                                       [f.stamp_ns]), obs)
+    assert checked >= 2

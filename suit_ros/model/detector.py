@@ -269,13 +269,16 @@ class SUITDetector(nn.Module):
             carry_input = (past.carry_input if past.carry_input is not None
                            else self.fusion(current, carry_term))
             if self.training or not isinstance(carry_term, PastTerm):
+                # the carry head's outputs where inference reads them (below), the own head's
+                # elsewhere: training optimises the path the node runs (it took the carry
+                # head at every cell without returns before stop 64, which inference never did)
                 carried: dict[str, Tensor] = self.carry.head(carry_input)
-                merged = {k: torch.where(seen, v, carried[k]) for k, v in preds.items()}
+                use = carry_cells(carry_term, observed)
+                merged = {k: torch.where(use, carried[k], v) for k, v in preds.items()}
             else:
-                # inference: the carry head only where its output is read (cells without
-                # returns) and can differ from the model's own head (within its two-cell
-                # receptive field of the carry term), gathered; the own outputs elsewhere
-                # (the observed cells among them)
+                # inference: the carry head only at the cells without returns within its
+                # two-cell receptive field of the carry term, gathered; the own outputs
+                # elsewhere (the observed cells among them), as in training
                 _, _, H, W = carry_input.shape
                 needed = dilated_cells(carry_term.index, H, W, 2, skip=observed)
                 with one_thread(self.small_work_one_thread):
@@ -419,6 +422,21 @@ class SUITDetector(nn.Module):
         if self.geonet is None:
             raise RuntimeError('geo_loss needs the suit variant (GeoNet)')
         return self.geonet.loss(aux['geo_logits'][keep], vel, valid[keep])
+
+
+def carry_cells(carry_term: Tensor | PastTerm, observed: Tensor, reach: int = 2) -> Tensor:
+    """``(B, 1, H, W)`` bool: the cells a carry head answers for, those without returns
+    within ``reach`` cells (a square: its 3 x 3 layers' receptive field) of a cell the gated
+    carry term adds to; what inference gathers (:func:`~suit_ros.model.head.dilated_cells`)."""
+    from suit_ros.model.head import dilated_cells
+    B, H, W = observed.shape
+    if isinstance(carry_term, PastTerm):
+        mask = torch.zeros(B * H * W, dtype=torch.bool, device=observed.device)
+        mask[dilated_cells(carry_term.index, H, W, reach, skip=observed)] = True
+        return mask.view(B, 1, H, W)
+    support = (carry_term.detach() != 0).any(1, keepdim=True).float()
+    grown = torch.nn.functional.max_pool2d(support, 2 * reach + 1, 1, reach) > 0
+    return grown & ~observed[:, None]
 
 
 def gate_past(past: Tensor | PastTerm, observed: Tensor) -> Tensor | PastTerm:
