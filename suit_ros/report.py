@@ -479,6 +479,22 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
                   input_sweeps=dict(Counter(run.input_sweeps)))
 
 
+def picture_matches(gt: Detections, pub: Detections, classes: int, match_dist: float = 2.0
+                    ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Which objects a picture draws as missed and which boxes as true positives: one
+    matching per class (greedy by score, BEV centre within ``match_dist``); an object is
+    found when the matching gave it a box, not when a true positive of another lies near."""
+    from suit_ros.evaluate import match_frame
+    missed = np.ones(len(gt), bool)
+    tp_det = np.zeros(len(pub), bool)
+    for k in range(classes):
+        m = match_frame(gt, pub, k, match_dist)
+        assert m.gt_index is not None              # match_frame always records it
+        tp_det[pub.labels == k] = m.tp
+        missed[np.flatnonzero(gt.labels == k)[m.gt_index[m.tp]]] = False
+    return missed, tp_det
+
+
 def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det: Detections,
              class_names: Sequence[str], thresholds: Sequence[float],
              ignore: NDArray[np.floating[Any]] | None, max_range: float = 50.0,
@@ -489,7 +505,6 @@ def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det:
     matplotlib.use('Agg')
     import matplotlib.pyplot as plt
 
-    from suit_ros.evaluate import match_frame
     thr = np.asarray(thresholds, np.float64)
     pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
     fig, ax = plt.subplots(figsize=(10, 10))
@@ -498,16 +513,7 @@ def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det:
     p = p[near]
     ax.scatter(p[:, 0], p[:, 1], s=0.15, c=np.clip(p[:, 2], -1, 3), cmap='Greys', vmin=-2,
                vmax=3, linewidths=0)
-    missed = np.zeros(len(gt), bool)
-    tp_det = np.zeros(len(pub), bool)
-    for k in range(len(class_names)):
-        m = match_frame(gt, pub, k, match_dist)
-        tp_det[pub.labels == k] = m.tp
-        gi = np.flatnonzero(gt.labels == k)
-        dk = pub.boxes[pub.labels == k][m.tp]
-        for j in gi:
-            d = np.hypot(*(dk[:, :2] - gt.boxes[j, :2]).T) if len(dk) else np.zeros(0)
-            missed[j] = not (d < match_dist).any()
+    missed, tp_det = picture_matches(gt, pub, len(class_names), match_dist)
     for j, b in enumerate(gt.boxes):
         _box(ax, b, 'orange' if missed[j] else 'royalblue', 1.6 if missed[j] else 1.0)
     if ignore is not None:

@@ -398,3 +398,14 @@ def test_report_json_is_standard_json(tmp_path):
     assert data['classes']['car']['published']['precision'] is None
     assert json.loads(json_text({'a': [float('nan'), 1.5, float('inf')]})) == {'a': [None, 1.5,
                                                                                   None]}
+
+
+def test_the_picture_draws_an_object_found_only_when_a_box_was_matched_to_it():
+    """Two cars 1.5 m apart and one box between them: one car is found, the other missed
+    (the picture drew both as found: a true positive lay within 2 m of each)."""
+    from suit_ros.report import picture_matches
+    gt = dets([10.0, 11.5], [1, 1])
+    missed, tp = picture_matches(gt, dets([10.7], [0.9]), 1)
+    assert missed.tolist() == [False, True] and tp.tolist() == [True]
+    missed, _ = picture_matches(gt, dets([10.0, 11.5], [0.9, 0.8]), 1)
+    assert not missed.any()
