@@ -246,6 +246,22 @@ def match_frame(g: Detections, d: Detections, label: int, dist_th: float) -> Fra
     return FrameMatches(ps, tp, errors, int(len(gb)), placement, gt_index)
 
 
+def match_boxes(g: Detections, d: Detections, dist_th: float = TP_DIST
+                ) -> tuple[NDArray[np.int64], NDArray[np.bool_]]:
+    """One frame's detections of every class matched to its GT (:func:`match_frame` per
+    class): per detection the index in ``g`` of the GT box it took (-1: none), and per GT box
+    whether a detection took it."""
+    taken = np.full(len(d), -1, np.int64)
+    for k in np.unique(d.labels):
+        m = match_frame(g, d, int(k), dist_th)
+        assert m.gt_index is not None              # match_frame always records it
+        taken[np.flatnonzero(d.labels == k)[m.tp]] = \
+            np.flatnonzero(g.labels == k)[m.gt_index[m.tp]]
+    found = np.zeros(len(g), bool)
+    found[taken[taken >= 0]] = True
+    return taken, found
+
+
 def curve_from(matches: Sequence[FrameMatches]) -> tuple[ClassCurve, int]:
     """The class curve of a set of matched frames (frames may repeat)."""
     npos = int(sum(m.npos for m in matches))

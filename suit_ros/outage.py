@@ -40,7 +40,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from suit_ros.data.sequences import seen_ids
-from suit_ros.evaluate import ModelRun
+from suit_ros.evaluate import ModelRun, match_boxes
 from suit_ros.structures import Detections, Frame
 from suit_ros.tracking import TrackerConfig
 
@@ -162,26 +162,11 @@ def count_outage(gt_seqs: Sequence[Sequence[Frame]], det_seqs: Sequence[Sequence
                 pub_in = o.contains(pub.boxes[:, :2]) if len(pub) else np.zeros(0, bool)
                 objects[d, j] += int(in_sector.sum())
                 boxes[d, j] += int(pub_in.sum())
-                gt_hit, box_hit = matched(f.gt, pub, len(thresholds))
+                # matched against every object: a visible neighbour's box finds no lost one
+                taken, gt_hit = match_boxes(f.gt, pub, MATCH_DIST)
                 found[d, j] += int((gt_hit & in_sector).sum())
-                true[d, j] += int((box_hit & pub_in).sum())
+                true[d, j] += int(((taken >= 0) & pub_in).sum())
     return OutageCounts(objects, found, boxes, true)
-
-
-def matched(gt: Detections, boxes: Detections, classes: int
-            ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
-    """Which GT objects a box matches and which boxes match one, per class (greedy by score,
-    BEV centre within :data:`MATCH_DIST`), matched against every object of the frame: a box
-    goes to the object it is on, so a visible neighbour's box does not find a lost object."""
-    from suit_ros.evaluate import match_frame
-    gt_hit = np.zeros(len(gt), bool)
-    box_hit = np.zeros(len(boxes), bool)
-    for k in range(classes):
-        m = match_frame(gt, boxes, k, MATCH_DIST)
-        assert m.gt_index is not None              # match_frame always records it
-        gt_hit[np.flatnonzero(gt.labels == k)[m.gt_index[m.tp]]] = True
-        box_hit[np.flatnonzero(boxes.labels == k)[m.tp]] = True
-    return gt_hit, box_hit
 
 
 def frames_since_seen(frames: Sequence[Frame]
@@ -273,7 +258,7 @@ def _count_by_column(gt_seqs: Sequence[Sequence[Frame]],
                 continue
             near = np.hypot(f.gt.boxes[:, 0], f.gt.boxes[:, 1]) <= 50.0
             pub = det.select(det.scores >= thr[det.labels]) if len(det) else det
-            gt_hit, _ = matched(f.gt, pub, len(thresholds))
+            _, gt_hit = match_boxes(f.gt, pub, MATCH_DIST)
             for c in np.unique(col[near & (col > 0) & (col <= width)]):
                 objects[d, c - 1] += int((near & (col == c)).sum())
                 found[d, c - 1] += int((near & (col == c) & gt_hit).sum())

@@ -341,7 +341,7 @@ def findings(gt: Sequence[Detections], published: Sequence[Detections],
     with the nearest scored object of any class within :data:`NEAR_M` and whether it was
     found; sorted by class, then descending score.
     """
-    from suit_ros.evaluate import filter_frames, match_frame
+    from suit_ros.evaluate import filter_frames, match_boxes
     names = tuple(class_names)
     ranges = dict.fromkeys(names, max_range)
     gts, pubs, npts = filter_frames(gt, published, names, ranges, num_points)
@@ -349,13 +349,8 @@ def findings(gt: Sequence[Detections], published: Sequence[Detections],
     missed: list[dict[str, Any]] = []
     false: list[dict[str, Any]] = []
     for i, (g, p, d, n) in enumerate(zip(gts, pubs, decs, npts)):
-        found = np.zeros(len(g), bool)
-        unmatched = np.zeros(len(p), bool)
-        for k in range(len(names)):
-            m = match_frame(g, p, k, match_dist)
-            assert m.gt_index is not None          # match_frame always records it
-            found[np.flatnonzero(g.labels == k)[m.gt_index[m.tp]]] = True
-            unmatched[np.flatnonzero(p.labels == k)[~m.tp]] = True
+        taken, found = match_boxes(g, p, match_dist)
+        unmatched = taken < 0
         for gi in np.flatnonzero(~found):
             b, k = g.boxes[gi], int(g.labels[gi])
             near = np.hypot(d.boxes[:, 0] - b[0], d.boxes[:, 1] - b[1]) < match_dist
@@ -434,7 +429,7 @@ def on_seen(run: Any, dets: Sequence[Detections], match_dist: float = 2.0
     ``match_dist``) against every labelled object, a box that takes one without returns is
     neither a true nor a false positive in the counts, as nothing of the object is there to
     find; AP counts it as a false positive, as nuScenes does."""
-    from suit_ros.evaluate import match_frame
+    from suit_ros.evaluate import match_boxes
     if not run.num_points:
         return list(dets)
     out = []
@@ -442,14 +437,9 @@ def on_seen(run: Any, dets: Sequence[Detections], match_dist: float = 2.0
         if n is None or len(d) == 0 or (np.asarray(n) > 0).all():
             out.append(d)
             continue
-        seen, keep = np.asarray(n) > 0, np.ones(len(d), bool)
-        for k in np.unique(d.labels):
-            m = match_frame(g, d, int(k), match_dist)      # in the order of d's class-k boxes
-            assert m.gt_index is not None                  # match_frame always records it
-            on_dark = np.zeros(len(m.tp), bool)
-            on_dark[m.tp] = ~seen[np.flatnonzero(g.labels == k)[m.gt_index[m.tp]]]
-            keep[np.flatnonzero(d.labels == k)[on_dark]] = False
-        out.append(d.select(keep))
+        taken, _ = match_boxes(g, d, match_dist)
+        dark = np.asarray(n) == 0
+        out.append(d.select((taken < 0) | ~dark[np.maximum(taken, 0)]))
     return out
 
 
@@ -479,20 +469,14 @@ def build_report(run: Any, class_names: Sequence[str], thresholds: Sequence[floa
                   input_sweeps=dict(Counter(run.input_sweeps)))
 
 
-def picture_matches(gt: Detections, pub: Detections, classes: int, match_dist: float = 2.0
+def picture_matches(gt: Detections, pub: Detections, match_dist: float = 2.0
                     ) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
     """Which objects a picture draws as missed and which boxes as true positives: one
     matching per class (greedy by score, BEV centre within ``match_dist``); an object is
     found when the matching gave it a box, not when a true positive of another lies near."""
-    from suit_ros.evaluate import match_frame
-    missed = np.ones(len(gt), bool)
-    tp_det = np.zeros(len(pub), bool)
-    for k in range(classes):
-        m = match_frame(gt, pub, k, match_dist)
-        assert m.gt_index is not None              # match_frame always records it
-        tp_det[pub.labels == k] = m.tp
-        missed[np.flatnonzero(gt.labels == k)[m.gt_index[m.tp]]] = False
-    return missed, tp_det
+    from suit_ros.evaluate import match_boxes
+    taken, found = match_boxes(gt, pub, match_dist)
+    return ~found, taken >= 0
 
 
 def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det: Detections,
@@ -513,7 +497,7 @@ def draw_bev(path: Path, points: NDArray[np.floating[Any]], gt: Detections, det:
     p = p[near]
     ax.scatter(p[:, 0], p[:, 1], s=0.15, c=np.clip(p[:, 2], -1, 3), cmap='Greys', vmin=-2,
                vmax=3, linewidths=0)
-    missed, tp_det = picture_matches(gt, pub, len(class_names), match_dist)
+    missed, tp_det = picture_matches(gt, pub, match_dist)
     for j, b in enumerate(gt.boxes):
         _box(ax, b, 'orange' if missed[j] else 'royalblue', 1.6 if missed[j] else 1.0)
     if ignore is not None:

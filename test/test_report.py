@@ -405,7 +405,7 @@ def test_the_picture_draws_an_object_found_only_when_a_box_was_matched_to_it():
     (the picture drew both as found: a true positive lay within 2 m of each)."""
     from suit_ros.report import picture_matches
     gt = dets([10.0, 11.5], [1, 1])
-    missed, tp = picture_matches(gt, dets([10.7], [0.9]), 1)
+    missed, tp = picture_matches(gt, dets([10.7], [0.9]))
     assert missed.tolist() == [False, True] and tp.tolist() == [True]
-    missed, _ = picture_matches(gt, dets([10.0, 11.5], [0.9, 0.8]), 1)
+    missed, _ = picture_matches(gt, dets([10.0, 11.5], [0.9, 0.8]))
     assert not missed.any()

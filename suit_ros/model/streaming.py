@@ -49,8 +49,6 @@ class StepResult:
     :param track_ids: per detection, its velocity-filter track (0: no filter, or no pose).
     :param num_points: per detection, the current sweep's returns inside its box (0: a box
         held by the memory or the tracker where the sweep shows nothing).
-    :param carried: per detection, held where the input has no returns: decoded by a carry
-        branch or coasted by the tracker (published at the carry thresholds): ``held > 0``.
     :param held: per detection, why it is there (the detections cloud's ``held`` field): 0
         decoded from what the input shows, 1 decoded by a carry branch where it has no returns,
         2 coasted by the tracker (no detection this frame).
@@ -66,9 +64,14 @@ class StepResult:
     timings: dict[str, float] = field(default_factory=dict)
     track_ids: NDArray[np.int64] = field(default_factory=lambda: np.zeros(0, np.int64))
     num_points: NDArray[np.uint32] = field(default_factory=lambda: np.zeros(0, np.uint32))
-    carried: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(0, bool))
     velocity_std: NDArray[np.float32] = field(default_factory=lambda: np.zeros(0, np.float32))
     held: NDArray[np.uint8] = field(default_factory=lambda: np.zeros(0, np.uint8))
+
+    @property
+    def carried(self) -> NDArray[np.bool_]:
+        """Per detection, held where the input has no returns: decoded by a carry branch or
+        coasted by the tracker (published at the carry thresholds): ``held > 0``."""
+        return self.held > HELD_SEEN
 
 
 Result = TypeVar('Result')
@@ -491,4 +494,4 @@ class StreamingDetector:
                    'total': t6 - t0}
         samples = self._memory.num_samples if self._memory is not None else 0
         return StepResult(det, samples, self.memory_bytes, used, len(model_points), timings,
-                          ids, num_points, held > HELD_SEEN, vel_std, held)
+                          ids, num_points, vel_std, held)
