@@ -262,7 +262,7 @@ def load_model_as(path: str | os.PathLike[str], temporal: TemporalMode | None = 
     else:
         # carrying needs a sparse memory: the dense or single-frame variant of a carrying
         # checkpoint (suit_carry) is its base model
-        new = replace(cfg, temporal=temporal, sampling=replace(cfg.sampling, carry_frames=0),
+        new = replace(cfg, temporal=temporal, sampling=replace(cfg.sampling, carry_s=0.0),
                       fusion_gate='none' if cfg.fusion_gate == 'carry_branch'
                       else cfg.fusion_gate)
     other = SUITDetector(new)

@@ -98,6 +98,9 @@ class HeadConfig:
     yaw_velocity_min_speed: float = 1.0   # m/s: faster boxes face their velocity (0: off)
 
 
+MAX_CARRY_S = 2.5      # seconds: no model carries further than it was trained to (0.8 s)
+
+
 @dataclass(frozen=True)
 class SamplingConfig:
     """Significant sampling (paper section IV-A): alpha, K, refined NMS, relaxation."""
@@ -108,7 +111,7 @@ class SamplingConfig:
     relaxation: Relaxation = 'square'
     window: int = 3               # Hs = Ws for square; window bound for circle / rectangle
     radius: float = 1.5           # rho in cells, for circle
-    carry_frames: int = 0         # frames a sample outlives its object's returns (0: off)
+    carry_s: float = 0.0          # seconds a sample outlives its object's returns (0: off)
 
 
 @dataclass(frozen=True)
@@ -168,11 +171,12 @@ def validate(cfg: ModelConfig) -> None:
     if cfg.fusion_gate not in FUSION_GATES or not 0 <= cfg.fusion_gate_radius <= 8:
         raise bad(f'fusion_gate must be one of {FUSION_GATES} and fusion_gate_radius within '
                   f'0..8, got {cfg.fusion_gate!r} and {cfg.fusion_gate_radius}')
-    if not 0 <= cfg.sampling.carry_frames <= 20:
-        raise bad(f'sampling.carry_frames must be within 0..20, got {cfg.sampling.carry_frames}')
-    if cfg.sampling.carry_frames and (cfg.fusion_gate == 'none'
-                                      or cfg.temporal not in SPARSE_MEMORIES):
-        raise bad('sampling.carry_frames needs a sparse memory and a fusion_gate (unobserved, '
+    if not 0 <= cfg.sampling.carry_s <= MAX_CARRY_S:
+        raise bad(f'sampling.carry_s must be within 0..{MAX_CARRY_S} s, got '
+                  f'{cfg.sampling.carry_s}')
+    if cfg.sampling.carry_s and (cfg.fusion_gate == 'none'
+                                 or cfg.temporal not in SPARSE_MEMORIES):
+        raise bad('sampling.carry_s needs a sparse memory and a fusion_gate (unobserved, '
                   'unobserved_output or carry_branch): a sample is carried only where the '
                   'current input has no returns')
     if cfg.fusion_gate == 'carry_branch' and cfg.temporal not in SPARSE_MEMORIES:
@@ -321,10 +325,33 @@ def dataclass_from_dict(cls: type, data: Any, source: str) -> Any:
 # that meant "off"; any other value is refused
 RETIRED = {('pillars', 'time_channels'): False, ('memory_stride',): 1}
 
+# the carry's lifetime was once counted in frames (``sampling.carry_frames``), so a 20 Hz
+# sensor held a sample half as long as the 10 Hz drives it was trained on, and a node that
+# skipped clouds under load twice as long. A config (or a checkpoint's embedded one) that
+# names it gets ``carry_s`` = (frames + 0.5) x 0.1 s: exactly as many frames at 10 Hz, the
+# rate every model was trained at, whatever the jitter of the stamps.
+LEGACY_FRAME_S = 0.1
+
+
+def _carry_in_seconds(data: dict[str, Any], source: str) -> dict[str, Any]:
+    sampling = data.get('sampling')
+    if not isinstance(sampling, dict) or 'carry_frames' not in sampling:
+        return data
+    sampling = dict(sampling)
+    frames = sampling.pop('carry_frames')
+    if 'carry_s' in sampling:
+        raise ConfigError(f'{source}: sampling.carry_frames and sampling.carry_s both given; '
+                          'keep carry_s (seconds)')
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 0:
+        raise ConfigError(f'{source}: sampling.carry_frames must be a whole number of frames '
+                          f'>= 0, not {frames!r} (or give sampling.carry_s in seconds)')
+    sampling['carry_s'] = round((frames + 0.5) * LEGACY_FRAME_S, 6) if frames else 0.0
+    return {**data, 'sampling': sampling}
+
 
 def model_config_from_dict(data: dict[str, Any], source: str = '<dict>') -> ModelConfig:
     """Build a ModelConfig from a (possibly partial) mapping; missing keys take defaults."""
-    data = dict(data)
+    data = _carry_in_seconds(dict(data), source)
     for path, off in RETIRED.items():
         holder: Any = data
         for key in path[:-1]:

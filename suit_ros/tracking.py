@@ -257,7 +257,7 @@ class Tracker:
             the memory holds through an occlusion keeps the confidence it was tracked with,
             while the track lives (with ``carried_refresh`` off, the default, ``max_miss_s``
             after its last detection seen in the cloud; then the memory's boxes are passed on
-            untracked at their own scores while it holds them, ``sampling.carry_frames``).
+            untracked at their own scores while it holds them, ``sampling.carry_s``).
             Without a carry branch (None, or none carried) nothing changes.
         :param current: ``(M, >= 3)`` the current sweep's returns in the detections' frame,
             for ``coast_s`` (None: nothing coasts), and ``sensor`` where they were seen

@@ -244,11 +244,13 @@ def test_shipped_checkpoints_load_in_the_other_temporal_modes(name):
         cfg = load_model_as(name, temporal, 'cpu').cfg
         assert cfg.temporal == temporal
         if temporal in ('none', 'dense'):
-            assert cfg.sampling.carry_frames == 0 and cfg.fusion_gate != 'carry_branch'
+            assert cfg.sampling.carry_s == 0 and cfg.fusion_gate != 'carry_branch'
         else:
-            assert cfg.sampling.carry_frames == base.sampling.carry_frames
+            assert cfg.sampling.carry_s == base.sampling.carry_s
             assert cfg.fusion_gate == base.fusion_gate
     assert (base.fusion_gate == 'carry_branch') == (name == 'suit_carry')
+    # suit_carry's embedded config counts 8 frames: 8.5 x 0.1 s, 8 frames at 10 Hz
+    assert base.sampling.carry_s == (0.85 if name == 'suit_carry' else 0.0)
 
 
 @pytest.mark.parametrize('name', ['suit_default', 'suit_carry'])

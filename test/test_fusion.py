@@ -172,37 +172,45 @@ def test_moved_memory_puts_a_static_object_where_the_new_frame_sees_it():
     assert moved.boxes[0, 6].item() == pytest.approx(0.2 - 0.3, abs=1e-5)
     np.testing.assert_allclose(moved.velocities[0].numpy(), [np.cos(-0.3), np.sin(-0.3)],
                                atol=1e-5)
-    assert moved.age().tolist() == [1] and moved.stamps_ns == [100]
-    again = moved_memory(moved, positions, shift * 0, T, p1[None], [200])
-    assert again.age().tolist() == [2]
+    assert moved.age().tolist() == [100] and moved.stamps_ns == [100]     # ns since seen
+    again = moved_memory(moved, positions, shift * 0, T, p1[None], [250])
+    assert again.age().tolist() == [250]
+    same = moved_memory(again, positions, shift * 0, T, p1[None], [250])  # a repeated stamp
+    assert same.age().tolist() == [251]
 
 
-def test_the_carry_holds_an_object_through_empty_frames_then_lets_it_go():
-    """Streaming with ``carry_frames``: a sample whose returns vanish (the object's sector
-    lost) stays in the memory with a growing age for ``carry_frames`` frames, then is dropped;
-    training through such a clip reaches W2 and GeoNet."""
+@pytest.mark.parametrize('rate_hz', [10, 20])
+def test_the_carry_holds_an_object_through_empty_frames_then_lets_it_go(rate_hz):
+    """Streaming with ``carry_s``: a sample whose returns vanish (the object's sector lost)
+    stays in the memory with a growing age (nanoseconds) for ``carry_s`` seconds whatever the
+    sensor's rate (3 frames at 10 Hz, 7 at 20 Hz), then is dropped; training through such a
+    clip reaches W2 and GeoNet."""
     torch.manual_seed(0)
     cfg = replace(small_config('suit'), fusion_gate='unobserved', fusion_gate_radius=1,
-                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01,
+                  sampling=replace(small_config().sampling, carry_s=0.35, alpha=0.01,
                                    top_k=3))
     model = SUITDetector(cfg).eval()
     sd = StreamingDetector(model)
     f = frame(0)
+    frame_ns, never = 1_000_000_000 // rate_hz, 350_000_001     # a frame; past the limit
+    held = 350_000_000 // frame_ns                               # frames carried
     ages = []
-    for t in range(6):
+    for t in range(held + 3):
         pts = f.points if t == 0 else f.points[np.abs(f.points[:, 1]) > 30]   # all lost
-        sd.step(pts[:, :4], int(1e9 + t * 1e8), f.pose)
+        sd.step(pts[:, :4], int(1e9 + t * frame_ns), f.pose)
         ages.append(sorted(sd.memory.age().tolist()))
     seen = ages[0].count(0)
     assert seen > 0
     # held with a growing age while nothing is seen (beside them: samples the memory made
-    # itself in the empty frame, given the age limit at once, never carried on)
-    assert ages[1].count(1) == seen and ages[2].count(2) == seen
-    assert set(ages[4]) <= {3} and set(ages[5]) <= {3}      # too old: let go
-    model.train()
-    losses = model.forward_sequence([[frame(t) for t in range(3)]])
-    losses['loss'].backward()
-    assert model.fusion.past.weight.grad is not None
+    # itself in the empty frame, given an age past the limit at once, never carried on)
+    for t in range(1, held + 1):
+        assert ages[t].count(t * frame_ns) == seen
+    assert set(ages[held + 1]) <= {never} and set(ages[held + 2]) <= {never}   # too old
+    if rate_hz == 10:
+        model.train()
+        losses = model.forward_sequence([[frame(t) for t in range(3)]])
+        losses['loss'].backward()
+        assert model.fusion.past.weight.grad is not None
 
 
 def test_the_output_gate_keeps_the_observed_cells_as_the_current_frame_alone():
@@ -261,10 +269,10 @@ def test_the_carry_branch_decodes_observed_cells_as_the_model_without_it(tmp_pat
     from suit_ros.checkpoint import load_weights_into, save_checkpoint
     torch.manual_seed(0)
     cfg = replace(small_config('suit'), fusion_gate='carry_branch',
-                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
+                  sampling=replace(small_config().sampling, carry_s=0.35, alpha=0.01, top_k=5))
     branch = SUITDetector(cfg).eval()
     plain = SUITDetector(replace(cfg, fusion_gate='none',
-                                 sampling=replace(cfg.sampling, carry_frames=0))).eval()
+                                 sampling=replace(cfg.sampling, carry_s=0.0))).eval()
     torch.manual_seed(1)
     with torch.no_grad():
         for p in plain.parameters():
@@ -343,10 +351,10 @@ def test_a_carry_branch_on_a_single_frame_base_decodes_its_seen_cells_as_the_bas
     from suit_ros.model.inference import inference_copy
     torch.manual_seed(0)
     cfg = replace(small_config('suit'), fusion_gate='carry_branch',
-                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
+                  sampling=replace(small_config().sampling, carry_s=0.35, alpha=0.01, top_k=5))
     branch = SUITDetector(cfg).eval()
     single = SUITDetector(replace(cfg, temporal='none', fusion_gate='none',
-                                  sampling=replace(cfg.sampling, carry_frames=0))).eval()
+                                  sampling=replace(cfg.sampling, carry_s=0.0))).eval()
     single.load_state_dict({k: v for k, v in branch.state_dict().items()
                             if k in single.state_dict()})
     with torch.no_grad():

@@ -177,7 +177,7 @@ def test_the_heads_read_the_fused_map_through_w1_as_on_the_formed_map(monkeypatc
     cfg = small_config('suit')
     if carry:
         cfg = replace(cfg, fusion_gate='carry_branch',
-                      sampling=replace(cfg.sampling, carry_frames=3, alpha=0.01, top_k=5))
+                      sampling=replace(cfg.sampling, carry_s=0.35, alpha=0.01, top_k=5))
     model = _trained_fusion(SUITDetector(cfg))
     K = len(cfg.class_names)
 
@@ -334,7 +334,7 @@ def test_the_regression_read_where_decoded_gives_the_boxes_of_the_whole_maps():
     torch.manual_seed(0)
     cfg = small_config('suit')
     cfg = replace(cfg, fusion_gate='carry_branch',
-                  sampling=replace(cfg.sampling, carry_frames=3, alpha=0.01, top_k=5))
+                  sampling=replace(cfg.sampling, carry_s=0.35, alpha=0.01, top_k=5))
     model = _trained_fusion(SUITDetector(cfg))
     K = len(cfg.class_names)
     runs = []

@@ -190,7 +190,7 @@ def test_after_the_warm_up_a_detector_step_compiles_nothing(carry):
     cfg = small_config()
     if carry:
         cfg = replace(cfg, fusion_gate='carry_branch',
-                      sampling=replace(cfg.sampling, carry_frames=3, alpha=0.01, top_k=20))
+                      sampling=replace(cfg.sampling, carry_s=0.35, alpha=0.01, top_k=20))
     runner = StreamingDetector(SUITDetector(cfg).eval(), tracker=TrackerConfig())
     pose = np.eye(4)
     for t in range(3):
@@ -392,7 +392,7 @@ def test_the_memory_moves_the_same_compiled_as_in_tensors():
     for grad in (False, True):
         with torch.set_grad_enabled(grad):
             pos = transform_sample_positions(mem, T)
-            moved = moved_memory(mem, pos, shift, T, np.stack([np.eye(4)] * 2), [5, 5])
+            moved = moved_memory(mem, pos, shift, T, np.stack([np.eye(4)] * 2), [5, 7])
             results.append((pos, moved, rotate_velocities(mem.velocities, mem.batch_index, T)))
     (pos_c, mov_c, vel_c), (pos_t, mov_t, vel_t) = results
     torch.testing.assert_close(pos_c, pos_t, rtol=0, atol=2e-6)
@@ -400,7 +400,7 @@ def test_the_memory_moves_the_same_compiled_as_in_tensors():
     torch.testing.assert_close(mov_c.boxes, mov_t.boxes, rtol=0, atol=2e-6)
     torch.testing.assert_close(mov_c.velocities, mov_t.velocities, rtol=0, atol=2e-6)
     torch.testing.assert_close(vel_c, vel_t, rtol=0, atol=2e-6)
-    assert mov_c.age().tolist() == mov_t.age().tolist() == [1] * M
+    assert mov_c.age().tolist() == mov_t.age().tolist() == [5, 7, 7, 5, 7, 5]   # ns, by frame
     with pytest.raises(IndexError, match='without a transform'):
         kernels.move_cells(mem.cell_xy.numpy(), mem.boxes[:, 2].numpy().copy(), T[:1],
                            mem.batch_index.numpy(), np.empty((M, P, 2), np.float32))
@@ -460,7 +460,7 @@ def _random_memory(g: torch.Generator, M: int, B: int, ages: bool, own: bool) ->
                         torch.randn(M, P, C, generator=g), probs,
                         torch.rand(M, P, generator=g) < 0.8, boxes,
                         torch.randn(M, 2, generator=g), [7] * B, np.stack([np.eye(4)] * B), 3,
-                        torch.randint(0, 12, (M,), generator=g) if ages else None,
+                        torch.randint(0, 12, (M,), generator=g) * 100_000_000 if ages else None,
                         torch.rand(M, generator=g) < 0.5 if own else None)
 
 
@@ -487,7 +487,7 @@ def test_the_next_memory_s_samples_are_the_tensor_code_s(keep_new, seed):
     carried.boxes[:15, :2] += 0.3
     carried.batch_index[:15] = new.batch_index[:15]
     none = torch.zeros(0, dtype=torch.long)
-    cfg = SamplingConfig(carry_frames=8)
+    cfg = SamplingConfig(carry_s=0.8)
     results = []
     for a, b in ((new, carried), (new.select(none), carried), (new, carried.select(none))):
         with torch.no_grad():

@@ -18,14 +18,15 @@ def test_config_validation():
     with pytest.raises(ConfigError, match='time_scale'):
         replace(ModelConfig(), pillars=PillarConfig(time_scale=0.0))
     # the carry needs the gate (it keeps samples only where the input has no returns)
-    with pytest.raises(ConfigError, match='carry_frames needs'):
-        replace(ModelConfig(), sampling=SamplingConfig(carry_frames=4))
+    with pytest.raises(ConfigError, match='carry_s needs'):
+        replace(ModelConfig(), sampling=SamplingConfig(carry_s=0.4))
     gated = replace(ModelConfig(), fusion_gate='unobserved')
-    assert replace(gated, sampling=SamplingConfig(carry_frames=4)).sampling.carry_frames == 4
-    with pytest.raises(ConfigError, match='carry_frames must be within'):
-        replace(gated, sampling=SamplingConfig(carry_frames=21))
-    with pytest.raises(ConfigError, match='carry_frames needs'):
-        replace(gated, temporal='dense', sampling=SamplingConfig(carry_frames=4))
+    assert replace(gated, sampling=SamplingConfig(carry_s=0.4)).sampling.carry_s == 0.4
+    for bad in (3.0, -0.1):
+        with pytest.raises(ConfigError, match='carry_s must be within'):
+            replace(gated, sampling=SamplingConfig(carry_s=bad))
+    with pytest.raises(ConfigError, match='carry_s needs'):
+        replace(gated, temporal='dense', sampling=SamplingConfig(carry_s=0.4))
     # retired experiment settings: accepted at their 'off' value (older checkpoints carry
     # them), refused otherwise with where to find the experiment
     from suit_ros.config import model_config_from_dict
@@ -38,6 +39,27 @@ def test_config_validation():
         model_config_from_dict(old)
     with pytest.raises(ConfigError, match='memory_stride'):
         model_config_from_dict({'memory_stride': 3})
+
+
+def test_a_carry_counted_in_frames_is_read_in_seconds():
+    """Configs and checkpoints from before the carry's lifetime was in seconds name
+    ``sampling.carry_frames``: N frames read as (N + 0.5) x 0.1 s (the same N frames at the
+    10 Hz the models were trained at, with room for jittered stamps; twice as many at 20 Hz);
+    0 stays off; naming both, or a count that is not a whole number, is refused."""
+    from suit_ros.config import model_config_from_dict
+    from suit_ros.errors import ConfigError
+    gated = {'fusion_gate': 'carry_branch'}
+    assert model_config_from_dict({**gated, 'sampling': {'carry_frames': 8}}
+                                  ).sampling.carry_s == 0.85
+    assert model_config_from_dict({'sampling': {'carry_frames': 0, 'alpha': 0.2}}
+                                  ).sampling == SamplingConfig(alpha=0.2)
+    with pytest.raises(ConfigError, match='both given'):
+        model_config_from_dict({**gated, 'sampling': {'carry_frames': 8, 'carry_s': 0.8}})
+    for bad in (2.5, -1, True, '8'):
+        with pytest.raises(ConfigError, match='whole number of frames'):
+            model_config_from_dict({**gated, 'sampling': {'carry_frames': bad}})
+    with pytest.raises(ConfigError, match='carry_s must be within'):
+        model_config_from_dict({**gated, 'sampling': {'carry_frames': 30}})
 
 
 def test_model_yaml_base_and_overrides(tmp_path):

@@ -65,11 +65,12 @@ def _memory(xy, probs, ages=None, P=9):
 @pytest.mark.parametrize('grad', [True, False])
 def test_keep_carried_keeps_unseen_objects_until_their_age_runs_out(grad):
     """A carried sample survives where the input has no returns and no seen detection covers
-    it, up to ``carry_frames``; a seen detection replaces it; a place seen empty drops it; a
+    it, up to ``carry_s``; a seen detection replaces it; a place seen empty drops it; a
     detection at an unseen place is not carried further (it cannot keep itself alive). In
     training (the tensor code) and at inference (a compiled pass)."""
     from suit_ros.model.sampling import _keep_carried_compiled, keep_carried
-    cfg = SamplingConfig(carry_frames=3)
+    cfg = SamplingConfig(carry_s=0.35)
+    ms = 1_000_000
     observed = torch.zeros(1, GRID.H, GRID.W, dtype=torch.bool)
     seen_xy = (4.1, 4.1)
     c, r = torch.floor(GRID.xy_to_cell(torch.tensor(seen_xy))).long().tolist()
@@ -80,16 +81,17 @@ def test_keep_carried_keeps_unseen_objects_until_their_age_runs_out(grad):
     new = _memory([seen_xy, (-5.0, -5.0)], [0.3, 0.9])               # seen; made by the memory
     carried = _memory([(4.3, 4.2), (-5.2, -5.1), (12.0, -8.0), (15.0, 3.0), empty_xy,
                        (40.0, 0.0)],
-                      [0.9, 0.2, 0.5, 0.5, 0.8, 0.8], ages=[1, 1, 3, 4, 1, 1])
+                      [0.9, 0.2, 0.5, 0.5, 0.8, 0.8],
+                      ages=[100 * ms, 100 * ms, 350 * ms, 351 * ms, 100 * ms, 100 * ms])
     with torch.set_grad_enabled(grad):
         out = keep_carried(new, carried, observed, cfg, GRID)
         # (at inference the compiled pass answers, not the tensor code)
         assert (_keep_carried_compiled(new, carried, observed, cfg, GRID, False) is None) == grad
     centres = {tuple(round(v, 1) for v in b[:2].tolist()): int(a)
                for b, a in zip(out.boxes, out.age())}
-    assert centres == {seen_xy: 0,          # seen now: the new sample, age 0
-                       (-5.2, -5.1): 1,     # the carried one wins over the memory's own
-                       (12.0, -8.0): 3}     # unseen, age within the limit
+    assert centres == {seen_xy: 0,               # seen now: the new sample, age 0
+                       (-5.2, -5.1): 100 * ms,   # the carried one wins over the memory's own
+                       (12.0, -8.0): 350 * ms}   # unseen, age at the limit
     # (15, 3): too old; the seen-empty place and the one off the map (40, 0): dropped
     assert out.features.shape[1:] == new.features.shape[1:]
 

@@ -15,7 +15,7 @@ def carry_branch_model() -> SUITDetector:
     from dataclasses import replace
     torch.manual_seed(0)
     cfg = replace(small_config('suit'), fusion_gate='carry_branch',
-                  sampling=replace(small_config().sampling, carry_frames=3, alpha=0.01, top_k=5))
+                  sampling=replace(small_config().sampling, carry_s=0.35, alpha=0.01, top_k=5))
     model = SUITDetector(cfg).eval()
     with torch.no_grad():
         model.carry.past.weight.normal_(0, 0.2)
@@ -159,7 +159,7 @@ def test_a_memory_with_no_sample_fuses_nothing(temporal):
     from dataclasses import replace
     torch.manual_seed(0)
     cfg = small_config(temporal.split()[0])
-    carry = {'fusion_gate': 'carry_branch', 'sampling': replace(cfg.sampling, carry_frames=3)}
+    carry = {'fusion_gate': 'carry_branch', 'sampling': replace(cfg.sampling, carry_s=0.35)}
     cfg = replace(cfg, **carry) if temporal.endswith('carrying') else cfg
     model = SUITDetector(replace(cfg, sampling=replace(cfg.sampling, alpha=0.999))).eval()
     K = len(model.cfg.class_names)

@@ -149,7 +149,7 @@ class SUITDetector(nn.Module):
         :return: the term (``(B, C, H, W)`` for a dense memory, a sparse :class:`PastTerm` for
             a sparse one, two of them as :class:`BranchTerms` with a carry branch) and aux
             outputs (``geo_logits``, ``sample_index``, ``T_now_prev``) for the GeoNet loss;
-            with a carry (``sampling.carry_frames``) also ``carry_index``,
+            with a carry (``sampling.carry_s``) also ``carry_index``,
             ``carry_positions`` and ``carry_shift`` for :meth:`carried`.
         """
         aux: dict[str, Tensor] = {}
@@ -191,7 +191,7 @@ class SUITDetector(nn.Module):
         else:   # sparse: zero displacement
             disp, q, prune = feats.new_zeros(M, 1, 2), feats.new_ones(M, 1), 0.0
         aux['T_now_prev'] = torch.from_numpy(T_now_prev)
-        if self.cfg.sampling.carry_frames:
+        if self.cfg.sampling.carry_s:
             # the object's own expected displacement since the memory's frame
             shift = disp[:, 0] if q.shape[1] == 1 else (q[:, :, None] * disp).sum(dim=1)
             aux.update(carry_index=sel, carry_positions=positions, carry_shift=shift)
@@ -320,7 +320,7 @@ class SUITDetector(nn.Module):
                       observed: Tensor | None = None) -> Memory | None:
         """The state handed to the next frame (None for the single-frame model); with
         ``carried`` (:meth:`carried`) and ``observed`` (:meth:`encode_observed`), the carried
-        samples the current input does not see are kept (``sampling.carry_frames``). With a
+        samples the current input does not see are kept (``sampling.carry_s``). With a
         carry branch the samples come from the model's own outputs (``own.<name>``), so its
         own memory is the one it would have without the branch."""
         poses = np.asarray(poses, np.float64).copy()
@@ -342,7 +342,7 @@ class SUITDetector(nn.Module):
         new = SparseMemory(samples.batch_index, self.grid.cell_to_xy(cells), feats, probs,
                            mask, samples.boxes, samples.velocities, list(stamps_ns), poses,
                            self.cfg.sampling.window)
-        if carried is None or observed is None or not self.cfg.sampling.carry_frames:
+        if carried is None or observed is None or not self.cfg.sampling.carry_s:
             return new
         return keep_carried(new, carried, observed, self.cfg.sampling, self.grid,
                             keep_new=self.carry is not None)

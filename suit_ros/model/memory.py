@@ -30,8 +30,9 @@ class SparseMemory:
     :param boxes: ``(M, 7)`` box decoded at the sample's centre cell.
     :param velocities: ``(M, 2)`` velocity decoded at the sample's centre cell.
     :param poses: ``(B, 4, 4)`` float64 ``T_odom_base`` of each frame (the model frame's pose).
-    :param ages: ``(M,)`` frames since each sample's object last had returns under it (None:
-        all 0; only the carry of :func:`suit_ros.model.sampling.keep_carried` makes them grow).
+    :param ages: ``(M,)`` int64 nanoseconds since each sample's object last had returns under
+        it (None: all 0; only the carry of :func:`suit_ros.model.sampling.keep_carried` makes
+        them grow, by the stamps' gap each frame).
     :param own: ``(M,)`` bool, with a carry branch (``fusion_gate: carry_branch``): the
         samples the model's own memory holds (this frame's, from its own heatmap), the others
         being held by the carry only (None: all are its own).
@@ -167,7 +168,8 @@ def rotate_velocities(velocities: Tensor, batch_index: Tensor,
 def moved_memory(memory: SparseMemory, positions: Tensor, shift: Tensor,
                  T_now_prev: NDArray[np.float64], poses: NDArray[np.float64],
                  stamps_ns: list[int]) -> SparseMemory:
-    """The samples of ``memory`` carried into the current frame, one frame older.
+    """The samples of ``memory`` carried into the current frame, older by the gap between
+    their frame's stamp and the current one's (nanoseconds, at least 1).
 
     :param memory: the samples to carry (in their frame of capture).
     :param positions: ``(M, P, 2)`` their cells already moved by the ego transform
@@ -201,4 +203,15 @@ def moved_memory(memory: SparseMemory, positions: Tensor, shift: Tensor,
     return SparseMemory(memory.batch_index, positions + shift[:, None, :].to(positions.dtype),
                         memory.features, memory.probs, memory.mask, boxes, velocities,
                         list(stamps_ns), np.asarray(poses, np.float64).copy(), memory.window,
-                        memory.age() + 1)
+                        memory.age() + _gaps_ns(memory, stamps_ns))
+
+
+def _gaps_ns(memory: SparseMemory, stamps_ns: list[int]) -> Tensor:
+    """``(M,)`` int64: each sample's gap from its frame's stamp to the current one (at least
+    1 ns, so an age grows every frame whatever the stamps say)."""
+    if len(memory.stamps_ns) != len(stamps_ns):
+        raise ValueError(f'moved_memory: {len(memory.stamps_ns)} frames in the memory, '
+                         f'{len(stamps_ns)} now')
+    gaps = [max(int(now) - int(then), 1) for now, then in zip(stamps_ns, memory.stamps_ns)]
+    return torch.tensor(gaps, dtype=torch.int64,
+                        device=memory.batch_index.device)[memory.batch_index]

@@ -6,9 +6,9 @@ per object after NMS on the boxes decoded there (refined), and a neighbourhood a
 (relaxation: a square ``Hs x Ws`` window, a circle of radius ``rho`` cells, or the decoded box's
 rectangle). The features at these cells, their positions and probabilities form the memory.
 
-Carry (``carry_frames > 0``, with the unobserved-cell fusion gate): a sample whose object the
+Carry (``carry_s > 0``, with the unobserved-cell fusion gate): a sample whose object the
 current input no longer sees (no return at its centre cell) is kept as it was last stored,
-moved by ego motion and GeoNet, for up to ``carry_frames`` frames (:func:`keep_carried`), so an
+moved by ego motion and GeoNet, for up to ``carry_s`` seconds (:func:`keep_carried`), so an
 object held through a sensor outage or an occlusion keeps the features it had when seen instead
 of fading through re-sampling. Where the input sees the place again the carried sample goes:
 either the object is detected there anew or it is gone.
@@ -182,6 +182,12 @@ def cell_flags(flags: Tensor, batch_index: Tensor, xy: Tensor, grid: BEVGrid) ->
     return out
 
 
+def max_age_ns(cfg: SamplingConfig) -> int:
+    """The oldest a carried sample may be (``carry_s`` in nanoseconds); a sample the memory
+    made where nothing is seen starts one past it, so it is never carried."""
+    return int(round(cfg.carry_s * 1e9))
+
+
 def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
                  cfg: SamplingConfig, grid: BEVGrid, keep_new: bool = False) -> SparseMemory:
     """The next memory: this frame's samples and the carried ones, one per object.
@@ -192,7 +198,7 @@ def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
     :param observed: ``(B, H, W)`` cells with returns in the current input.
 
     Priority, then the refined NMS of :func:`significant_sampling`: a new sample at an observed
-    centre (the object is seen now; age 0) wins over a carried one of age <= ``carry_frames``
+    centre (the object is seen now; age 0) wins over a carried one of age <= ``carry_s``
     at an unobserved centre inside the map, which wins over a new sample at an unobserved
     centre (a detection the memory made; it is not carried further, so nothing the memory
     invents can keep itself alive).
@@ -208,8 +214,8 @@ def keep_carried(new: SparseMemory, carried: SparseMemory, observed: Tensor,
     seen_new = cell_flags(observed, new.batch_index, new.cell_xy[:, P // 2], grid)
     unseen_old = cell_flags(~observed, carried.batch_index, carried.cell_xy[:, P // 2], grid)
     carried = carried.select(torch.nonzero(unseen_old
-                                           & (carried.age() <= cfg.carry_frames))[:, 0])
-    new = replace(new, ages=torch.where(seen_new, 0, cfg.carry_frames))
+                                           & (carried.age() <= max_age_ns(cfg)))[:, 0])
+    new = replace(new, ages=torch.where(seen_new, 0, max_age_ns(cfg) + 1))
     both = concat_memories(new, carried)
     centre_p = both.probs[:, P // 2].detach().float()
     tier = torch.cat([torch.where(seen_new | keep_new, 2.0, 0.0),
@@ -257,14 +263,14 @@ def _keep_carried_compiled(new: SparseMemory, carried: SparseMemory, observed: T
     index, seen = carry_selection(
         arr(observed), arr(new.batch_index), arr(new.cell_xy), arr(new.probs), arr(new.boxes),
         arr(carried.batch_index), arr(carried.cell_xy), arr(carried.probs),
-        arr(carried.boxes), arr(ages), int(cfg.carry_frames), bool(keep_new), origin, cell,
+        arr(carried.boxes), arr(ages), max_age_ns(cfg), bool(keep_new), origin, cell,
         np.float32(cfg.nms_iou_threshold), float(grid.cell))
 
     def rows(x: NDArray[Any], y: NDArray[Any]) -> Tensor:
         return torch.from_numpy(np.concatenate((x, y))[index])
 
     bi, xy, feats, probs, mask, boxes, vel = (rows(t.numpy(), u.numpy()) for t, u in zip(a, b))
-    new_ages = np.where(seen, 0, cfg.carry_frames).astype(np.int64)
+    new_ages = np.where(seen, 0, max_age_ns(cfg) + 1).astype(np.int64)
     if keep_new:
         own: Tensor | None = torch.from_numpy(index < new.num_samples)
     elif new.own is None and carried.own is None:

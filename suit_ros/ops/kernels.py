@@ -865,14 +865,14 @@ def flags_at(flags: Any, batch_index: Any, xy: Any, origin: Any, cell: Any,
 @_jit
 def carry_selection(observed: Any, new_index: Any, new_xy: Any, new_probs: Any, new_boxes: Any,
                     old_index: Any, old_xy: Any, old_probs: Any, old_boxes: Any, old_ages: Any,
-                    carry_frames: int, keep_new: bool, origin: Any, cell: Any,
+                    max_age: int, keep_new: bool, origin: Any, cell: Any,
                     iou_threshold: Any, min_distance: float) -> Any:  # pragma: no cover
     """The next memory's samples from this frame's (``new_*``) and the carried ones
     (``old_*``), as :func:`suit_ros.model.sampling.keep_carried`'s tensor code picks them:
     each sample's centre cell (``*_xy`` ``(M, P, 2)`` float32, the window's middle cell) read
     in ``observed`` (``(B, H, W)`` bool, :func:`flags_at`); a carried sample stays a
-    candidate where its centre is on the map without returns and its age is at most
-    ``carry_frames``; each candidate's priority is its tier (a new sample seen now, or every
+    candidate where its centre is on the map without returns and its age (nanoseconds) is at
+    most ``max_age``; each candidate's priority is its tier (a new sample seen now, or every
     new one with ``keep_new``: 2; a carried one: 1; a new one unseen: 0) plus its centre
     probability (float32), and :func:`greedy_bev_nms` over the frame keeps one per object
     in that order (stable; the priorities are finite: probabilities). Returns the kept
@@ -888,7 +888,7 @@ def carry_selection(observed: Any, new_index: Any, new_xy: Any, new_probs: Any, 
         rows[i] = i
     T = N
     for j in range(R):
-        if unseen[j] and old_ages[j] <= carry_frames:
+        if unseen[j] and old_ages[j] <= max_age:
             rows[T] = N + j
             T += 1
     rows = rows[:T]
