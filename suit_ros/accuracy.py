@@ -275,15 +275,25 @@ def past_share(model: Any, sequences: Sequence[Sequence[Frame]], class_index: in
 
 @dataclass
 class Interval:
-    """A point estimate with its bootstrap 95% interval."""
+    """A point estimate with its bootstrap 95% interval; ``left_out``: resamples in which the
+    metric is undefined (they hold no GT of a class) and which the interval leaves out."""
 
     value: float
     low: float
     high: float
+    left_out: int = 0
 
     def fmt(self, digits: int = 3) -> str:
         """``value [low, high]``."""
         return f'{self.value:.{digits}f} [{self.low:.{digits}f}, {self.high:.{digits}f}]'
+
+
+def left_out_counts(d: dict[str, dict[str, Interval]]) -> dict[str, dict[str, int]]:
+    """``{run: {metric: resamples left out}}`` of the intervals that left any out while the
+    metric is defined over all drives (one undefined there is n/a, not an interval)."""
+    out = {r: {k: v.left_out for k, v in m.items() if v.left_out and np.isfinite(v.value)}
+           for r, m in d.items()}
+    return {r: m for r, m in out.items() if m}
 
 
 def plain_intervals(d: dict[str, dict[str, Interval]]) -> dict[str, dict[str, list[float]]]:
@@ -327,9 +337,11 @@ def bootstrap(runs: dict[str, ModelRun], class_names: Sequence[str],
     def interval(values: list[float], value: float) -> Interval:
         v = np.asarray(values, np.float64)
         v = v[np.isfinite(v)]
+        left = len(values) - len(v)
         if len(v) == 0:
-            return Interval(value, float('nan'), float('nan'))
-        return Interval(value, float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5)))
+            return Interval(value, float('nan'), float('nan'), left)
+        return Interval(value, float(np.percentile(v, 2.5)), float(np.percentile(v, 97.5)),
+                        left)
 
     out = {n: {k: interval([s[k] for s in samples[n]], point[n][k]) for k in point[n]}
            for n in names}

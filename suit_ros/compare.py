@@ -302,6 +302,7 @@ def render(r: Comparison, title: str, command: str) -> str:
     lines += _table(r.stats, SHOW[6:] + [f'AP {c}' for c in r.class_names])
     lines += ['', '## Paired differences (same drive resamples)', '']
     lines += _table(r.diffs, DIFF_COLUMNS)
+    lines += _left_out(r)
     lines += _extra_sections(r)
     lines += ['', '## Latency and memory', '',
               '| run | model step p50 (ms; runs one after another, not a speed comparison) | '
@@ -310,6 +311,20 @@ def render(r: Comparison, title: str, command: str) -> str:
         mem = r.memory.get(name, {})
         lines.append(f'| {name} | {ms:.1f} | {mem.get(2, 0)} / {mem.get(10, 0)} |')
     return '\n'.join(lines) + '\n'
+
+
+def _left_out(r: Comparison) -> list[str]:
+    """A line naming the intervals that left out resamples holding no GT of a class (their
+    AP is undefined, and so is a mean over the classes); none when every resample held all."""
+    from suit_ros.accuracy import left_out_counts
+    counts = {**left_out_counts(r.stats), **left_out_counts(r.diffs)}
+    if not counts:
+        return []
+    per_run = '; '.join(f'{run}: ' + ', '.join(f'{k} {n}' for k, n in m.items())
+                        for run, m in counts.items())
+    return ['', f'Resamples of the drives in which a metric is undefined (they hold no object '
+            f'of a class, or no moving car) are left out of its interval; of '
+            f'{r.meta["resamples"]}: {per_run}.']
 
 
 def _extra_sections(r: Comparison) -> list[str]:
@@ -337,13 +352,17 @@ def _extra_sections(r: Comparison) -> list[str]:
 
 def write(result: Comparison, out: Path, title: str, command: str) -> str:
     """``OUT/results.json`` and ``OUT/results.md``; :return: the page."""
-    from suit_ros.accuracy import plain_intervals
+    from suit_ros.accuracy import left_out_counts, plain_intervals
     from suit_ros.outputs import json_text
     out.mkdir(parents=True, exist_ok=True)
     (out / 'results.json').write_text(json_text(
         {'meta': result.meta, 'runs': plain_intervals(result.stats),
          'differences': plain_intervals(result.diffs),
          'heldout_sensor': plain_intervals(result.heldout),
+         # resamples without a class: left out of that metric's interval (absent: none)
+         'resamples_left_out': {'runs': left_out_counts(result.stats),
+                                'differences': left_out_counts(result.diffs),
+                                'heldout_sensor': left_out_counts(result.heldout)},
          'latency_p50_ms': result.latency, 'memory_bytes': result.memory,
          'clutter_fp_per_frame': result.clutter,
          'past_share_at_car_centres': result.share}, indent=1), encoding='utf-8')

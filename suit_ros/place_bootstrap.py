@@ -18,7 +18,7 @@ positives are places too: a street full of sidewalk furniture weighs as it shoul
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
@@ -110,6 +110,9 @@ class APIntervals:
     difference: dict[str, tuple[float, tuple[float, float]]]
     places: int
     resamples: int
+    # per class: resamples holding none of its objects (AP undefined), left out of its
+    # intervals; absent where none was
+    left_out: dict[str, int] = field(default_factory=dict)
 
 
 def ap_intervals(places: Places, class_names: Sequence[str], max_range: float,
@@ -159,6 +162,9 @@ def ap_intervals(places: Places, class_names: Sequence[str], max_range: float,
                 out.difference[c] = (full[0][key] - full[1][key], unknown)
             continue
         out.interval[c] = [bounds([d[key] for d in run_draws]) for run_draws in draws]
+        lacking = sum(not np.isfinite(d[key]) for d in draws[0])
+        if lacking:
+            out.left_out[c] = lacking
         if len(metrics) == 2:
             out.difference[c] = (full[0][key] - full[1][key],
                                  bounds([a[key] - b[key] for a, b in zip(*draws)]))

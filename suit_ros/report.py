@@ -187,7 +187,8 @@ class Report:
         out['false_positives'] = self.false
         if self.intervals is not None:
             iv = self.intervals
-            out['places'] = {'places': iv.places, 'resamples': iv.resamples}
+            out['places'] = {'places': iv.places, 'resamples': iv.resamples,
+                             'left_out': dict(iv.left_out)}
             if self.baseline:
                 out['baseline'] = {
                     'checkpoint': self.baseline,
@@ -224,7 +225,12 @@ class Report:
             lines += ['', f'AP intervals: 95% over {j["places"]["resamples"]} resamples of the '
                       f'{j["places"]["places"]} places the frames cover ({CELL:g} m squares; a '
                       'box goes with the nearest labelled object within 4 m: '
-                      'suit_ros/place_bootstrap.py). A small set gives a wide interval.']
+                      'suit_ros/place_bootstrap.py). A small set gives a wide interval.'
+                      + ('' if not j['places'].get('left_out') else
+                         ' Resamples holding no object of a class leave its AP undefined and '
+                         'are left out of its interval: '
+                         + ', '.join(f'{c} {n}' for c, n in j['places']['left_out'].items())
+                         + '.')]
         if 'baseline' in j:
             lines += ['', f'## Against the baseline ({j["baseline"]["checkpoint"]})', '',
                       'Paired: the same place resamples score both; the difference is this '

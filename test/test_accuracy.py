@@ -83,6 +83,18 @@ def test_a_class_absent_from_a_resample_leaves_its_means_out():
     mAP = stats['a']['mAP']                         # every resample's over car and truck
     assert mAP.value == pytest.approx((1.0 + truck.value) / 2) and mAP.high < 1.0
     assert np.isnan(RunMetrics(run, NAMES)([1, 2, 3])['AP truck'])
+    # how many resamples were left out is kept and said: about (3/4)^4 of 200 lack drive 0
+    from suit_ros.accuracy import left_out_counts
+    assert 30 < truck.left_out == mAP.left_out < 100 and stats['a']['AP car'].left_out == 0
+    counts = left_out_counts(stats)['a']
+    assert counts['AP truck'] == truck.left_out and 'AP car' not in counts
+    from suit_ros.compare import Comparison, _left_out
+    meta = {'resamples': 200}
+    line = _left_out(Comparison(stats, {}, {}, {}, meta, list(NAMES)))[-1]
+    assert f'AP truck {truck.left_out}' in line and 'of 200' in line
+    full = make_run(True)
+    assert _left_out(Comparison(bootstrap({'a': full}, NAMES[:1], resamples=20)[0], {}, {},
+                                {}, meta, list(NAMES[:1]))) == []
 
 
 def make_run(good: bool, drives: int = 4, frames: int = 3, seed: int = 0) -> ModelRun:

@@ -120,3 +120,22 @@ def test_a_class_in_one_place_gets_no_interval():
     assert iv.ap['truck'][0] > 0.5 and all(np.isnan(iv.interval['truck'][0]))
     assert np.isnan(iv.difference['truck'][1][0]) and iv.difference['truck'][0] == 0.0
     assert not np.isnan(iv.interval['car'][0][0])
+
+
+def test_resamples_without_a_class_are_counted():
+    """A class in two places of many: the resamples that draw neither leave its AP undefined;
+    the interval leaves them out and says how many (about e^-2 of them)."""
+    gts, dets, npts = scene(5)
+    trucks = np.array([[30.0, -30.0, 0, 8, 2.5, 3, 0], [-30.0, 30.0, 0, 8, 2.5, 3, 0]])
+    gt = [Detections(np.r_[g.boxes, trucks], np.zeros((len(g) + 2, 2)), np.ones(len(g) + 2),
+                     np.r_[g.labels, 2, 2]) for g in gts]
+    found = [Detections(np.r_[d.boxes, trucks + [0.2, 0, 0, 0, 0, 0, 0]],
+                        np.zeros((len(d) + 2, 2)), np.r_[d.scores, 0.8, 0.7],
+                        np.r_[d.labels, 2, 2])
+             for d in dets]
+    pts = [np.r_[n, 50, 50].astype(np.uint32) for n in npts]
+    names = NAMES + ('truck',)
+    iv = ap_intervals(cut_into_places(gt, [found], pts, class_names=names, max_range=50.0),
+                      names, 50.0, resamples=200)
+    assert 5 < iv.left_out['truck'] < 80 and 'car' not in iv.left_out
+    assert not np.isnan(iv.interval['truck'][0][0])

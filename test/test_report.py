@@ -271,6 +271,7 @@ def test_report_command_on_an_av2_log(tmp_path, capsys):
     j3 = json.loads((tmp_path / 'rep3' / 'report.json').read_text())
     assert j3['baseline']['checkpoint'] == 'centerpoint_single'
     assert j3['places']['resamples'] == 50 and j3['places']['places'] >= 1
+    assert j3['places']['left_out'] == {}       # (a class in one place: no interval at all)
     for b in j3['baseline']['classes'].values():
         # the difference is the one of the two columns shown (both over the places)
         assert b['difference'] == pytest.approx(b['ap_this'] - b['ap'], abs=2e-4)
