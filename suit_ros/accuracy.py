@@ -276,7 +276,8 @@ def past_share(model: Any, sequences: Sequence[Sequence[Frame]], class_index: in
 @dataclass
 class Interval:
     """A point estimate with its bootstrap 95% interval; ``left_out``: resamples in which the
-    metric is undefined (they hold no GT of a class) and which the interval leaves out."""
+    metric is undefined (no GT of a class in them; for the car heading and velocity figures,
+    no matched or moving car), which the interval leaves out."""
 
     value: float
     low: float

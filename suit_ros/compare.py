@@ -313,18 +313,21 @@ def render(r: Comparison, title: str, command: str) -> str:
     return '\n'.join(lines) + '\n'
 
 
-def _left_out(r: Comparison) -> list[str]:
-    """A line naming the intervals that left out resamples holding no GT of a class (their
-    AP is undefined, and so is a mean over the classes); none when every resample held all."""
+def _left_out(r: Comparison, heldout: bool = False) -> list[str]:
+    """A line naming the intervals that left out resamples in which their metric is undefined
+    (none when every resample defined every metric): of the validation tables, or with
+    ``heldout`` of the held-out sensor's."""
     from suit_ros.accuracy import left_out_counts
-    counts = {**left_out_counts(r.stats), **left_out_counts(r.diffs)}
+    counts = (left_out_counts(r.heldout) if heldout
+              else {**left_out_counts(r.stats), **left_out_counts(r.diffs)})
     if not counts:
         return []
     per_run = '; '.join(f'{run}: ' + ', '.join(f'{k} {n}' for k, n in m.items())
                         for run, m in counts.items())
-    return ['', f'Resamples of the drives in which a metric is undefined (they hold no object '
-            f'of a class, or no moving car) are left out of its interval; of '
-            f'{r.meta["resamples"]}: {per_run}.']
+    return ['', f'Resamples in which a metric is undefined (their drives hold no object of a '
+            f'class; for the car heading and velocity figures, the run matched no car, or no '
+            f'two moving cars) are left out of its interval, which is then over the resamples '
+            f'that define it; of {r.meta["resamples"]}: {per_run}.']
 
 
 def _extra_sections(r: Comparison) -> list[str]:
@@ -335,6 +338,7 @@ def _extra_sections(r: Comparison) -> list[str]:
         lines += ['', f'## Held-out sensor ({sensors}, never in training; seeds '
                   f'{held[0][0]}+)', '']
         lines += _table(r.heldout, ['mAP', 'NDS', 'mAVE'] + [f'AP {c}' for c in r.class_names])
+        lines += _left_out(r, heldout=True)
     if r.clutter:
         types = [t for t in next(iter(r.clutter.values())) if t != 'all']
         lines += ['', '## False positives on clutter (per frame, score >= 0.3, no GT within '

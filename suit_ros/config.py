@@ -333,7 +333,9 @@ RETIRED = {('pillars', 'time_channels'): False, ('memory_stride',): 1}
 LEGACY_FRAME_S = 0.1
 
 
-def _carry_in_seconds(data: dict[str, Any], source: str) -> dict[str, Any]:
+def carry_in_seconds(data: dict[str, Any], source: str) -> dict[str, Any]:
+    """``data`` (a model config mapping) with a legacy ``sampling.carry_frames`` read as
+    ``carry_s`` (see above); every other key as it is."""
     sampling = data.get('sampling')
     if not isinstance(sampling, dict) or 'carry_frames' not in sampling:
         return data
@@ -351,7 +353,7 @@ def _carry_in_seconds(data: dict[str, Any], source: str) -> dict[str, Any]:
 
 def model_config_from_dict(data: dict[str, Any], source: str = '<dict>') -> ModelConfig:
     """Build a ModelConfig from a (possibly partial) mapping; missing keys take defaults."""
-    data = _carry_in_seconds(dict(data), source)
+    data = carry_in_seconds(dict(data), source)
     for path, off in RETIRED.items():
         holder: Any = data
         for key in path[:-1]:
@@ -396,6 +398,8 @@ def _read_config(path: str, seen: tuple[str, ...]) -> dict[str, Any]:
     base = data.pop('_base_', None)
     if isinstance(data, dict) and set(data) == {'model'}:
         data = data['model'] or {}
+    if isinstance(data, dict):      # each file's own: a child's carry_s overrides a base's
+        data = carry_in_seconds(data, path)     # carry_frames
     if base is None:
         return dict(data)
     parent = _read_config(os.path.join(os.path.dirname(path), str(base)), seen + (path,))

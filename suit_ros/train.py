@@ -431,6 +431,35 @@ def _differences(before: dict[str, Any], now: dict[str, Any], prefix: str = '') 
     return out
 
 
+def carry_span_warning(data: list[list[Frame]], lengths: list[int], carry_s: float,
+                       tc: TrainConfig) -> str:
+    """Why the clips ask the carry for more than it keeps ('' when they do not): with
+    ``carry_gt`` or outages drawn in (lasting to a clip's end), a clip spanning longer than
+    ``carry_s`` (its frames' median gap times its length) keeps GT of objects the memory
+    has let go, and the loss teaches the carry head to invent them (2 Hz labelled frames:
+    bags, nuScenes keyframes)."""
+    if not carry_s or not (tc.carry_gt or tc.outage_probability > 0):
+        return ''
+    gaps = [b.stamp_ns - a.stamp_ns for seq in data for a, b in zip(seq, seq[1:])]
+    if not gaps:
+        return ''
+    gap_s = float(np.median(gaps)) / 1e9
+    span = (max(lengths) - 1) * gap_s
+    if span <= carry_s:
+        return ''
+    return (f'clips of {max(lengths)} frames {gap_s:.2f} s apart span {span:.2f} s, longer '
+            f'than the carry ({carry_s:g} s, sampling.carry_s): with carry_gt or outages the '
+            'loss asks for objects the memory has already let go; raise sampling.carry_s or '
+            'shorten clip_lengths')
+
+
+def _model_differences(before: dict[str, Any], now: dict[str, Any], source: str) -> list[str]:
+    """:func:`_differences` of two model configs, a run saved before a setting was renamed
+    read as it is named now (``sampling.carry_frames`` as ``carry_s``)."""
+    from suit_ros.config import carry_in_seconds
+    return _differences(carry_in_seconds(before, source), now)
+
+
 def _config_dict(tc: TrainConfig) -> dict[str, Any]:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in tc.__dict__.items()}
 
@@ -458,7 +487,7 @@ def _resume(last: Path, module: Any, opt: Any, tc: TrainConfig, mcfg: Any
                              f'no {", ".join(k for k in needed if k not in state)}')
                           + ", not a suit-ros training run's state; train into a new --out")
     before = state.get('model_config')
-    diff = [] if before is None else _differences(before, mcfg.to_dict())
+    diff = [] if before is None else _model_differences(before, mcfg.to_dict(), str(last))
     if diff:
         raise ConfigError(f'{last} was trained with another model config ({", ".join(diff)} '
                           "differ): resume with the run's own, or train into a new --out")
@@ -599,6 +628,10 @@ def train(tc: TrainConfig, out: Path, device: str = 'auto', threads: int = 0,
     out.mkdir(parents=True, exist_ok=True)
     data = training_sequences(tc, mcfg.class_names, mcfg.sweeps)
     lengths = [1] if mcfg.temporal == 'none' else list(tc.clip_lengths)
+    if rank == 0:
+        span = carry_span_warning(data, lengths, mcfg.sampling.carry_s, tc)
+        if span:
+            print(f'[train] warning: {span}')
     batch = tc.batch_size * (2 if mcfg.temporal == 'none' else 1)
     ground = None
     if mcfg.pillars.ground == 'local':

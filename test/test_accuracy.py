@@ -92,6 +92,8 @@ def test_a_class_absent_from_a_resample_leaves_its_means_out():
     meta = {'resamples': 200}
     line = _left_out(Comparison(stats, {}, {}, {}, meta, list(NAMES)))[-1]
     assert f'AP truck {truck.left_out}' in line and 'of 200' in line
+    held = Comparison({}, {}, {}, {}, meta, list(NAMES), heldout=stats)   # its own line
+    assert _left_out(held) == [] and _left_out(held, heldout=True)[-1] == line
     full = make_run(True)
     assert _left_out(Comparison(bootstrap({'a': full}, NAMES[:1], resamples=20)[0], {}, {},
                                 {}, meta, list(NAMES[:1]))) == []

@@ -62,6 +62,19 @@ def test_a_carry_counted_in_frames_is_read_in_seconds():
         model_config_from_dict({**gated, 'sampling': {'carry_frames': 30}})
 
 
+def test_a_child_config_in_seconds_overrides_a_base_in_frames(tmp_path):
+    """Each file's legacy carry is read before the merge, so a child's ``carry_s`` replaces
+    its base's ``carry_frames`` (and the other way round), instead of both being given."""
+    from suit_ros.config import load_model_config
+    (tmp_path / 'base.yaml').write_text('fusion_gate: carry_branch\nsampling:\n'
+                                        '  carry_frames: 8\n  alpha: 0.2\n')
+    (tmp_path / 'child.yaml').write_text('_base_: base.yaml\nsampling:\n  carry_s: 1.2\n')
+    (tmp_path / 'old.yaml').write_text('_base_: child.yaml\nsampling:\n  carry_frames: 3\n')
+    child = load_model_config(tmp_path / 'child.yaml').sampling
+    assert child.carry_s == 1.2 and child.alpha == 0.2
+    assert load_model_config(tmp_path / 'old.yaml').sampling.carry_s == 0.35
+
+
 def test_model_yaml_base_and_overrides(tmp_path):
     from suit_ros.config import load_model_config
     from suit_ros.errors import ConfigError

@@ -475,3 +475,26 @@ def test_a_resume_compares_the_settings_both_runs_have():
     now['pillars']['ground'] = 'as_given'
     now['lr'] = 2e-3
     assert _differences(before, now) == ['lr', 'pillars.ground']
+    # a run saved while the carry counted frames: compared in seconds
+    from suit_ros.train import _model_differences
+    old = {'sampling': {'carry_frames': 8, 'alpha': 0.2}}
+    assert _model_differences(old, {'sampling': {'carry_s': 0.85, 'alpha': 0.2}}, 'last.pt') == []
+    assert _model_differences(old, {'sampling': {'carry_s': 2.0, 'alpha': 0.2}}, 'last.pt') == [
+        'sampling.carry_s']
+
+
+def test_clips_longer_than_the_carry_are_warned_of():
+    """With carry_gt (or outages) a clip that spans longer than ``carry_s`` asks the memory
+    for objects it has let go: at 2 Hz (bags, nuScenes keyframes) an 8-frame clip spans 3.5 s
+    against 0.85 s; at 10 Hz it spans 0.7 s, no warning; without carry_gt or a carry none."""
+    from suit_ros.train import TrainConfig, carry_span_warning
+
+    def drive(gap_ns):
+        return [[Frame(np.zeros((1, 5), np.float32), np.eye(4), i * gap_ns)
+                 for i in range(10)]]
+    tc = TrainConfig(carry_gt=True)
+    line = carry_span_warning(drive(500_000_000), [8], 0.85, tc)
+    assert '8 frames 0.50 s apart span 3.50 s' in line and 'sampling.carry_s' in line
+    assert carry_span_warning(drive(100_000_000), [8], 0.85, tc) == ''
+    assert carry_span_warning(drive(500_000_000), [8], 0.0, tc) == ''
+    assert carry_span_warning(drive(500_000_000), [8], 0.85, TrainConfig()) == ''

@@ -236,8 +236,9 @@ class SUITDetector(nn.Module):
 
     def carried(self, memory: Memory | None, aux: dict[str, Tensor],
                 poses: NDArray[np.float64], stamps_ns: Sequence[int]) -> SparseMemory | None:
-        """The previous memory's samples moved into the current frame, one frame older, for the
-        carry of :meth:`sample_memory` (None without a carry or a usable memory)."""
+        """The previous memory's samples moved into the current frame, older by the frames'
+        stamp gap, for the carry of :meth:`sample_memory` (None without a carry or a usable
+        memory)."""
         if not isinstance(memory, SparseMemory) or 'carry_index' not in aux:
             return None
         # every sample (a node's frame fuses its whole memory; the index is sorted): no copy
