@@ -77,6 +77,14 @@ def run(args: argparse.Namespace) -> int:
     if args.keep_published and getattr(model, 'carry', None) is None:
         raise ConfigError(f'--keep-published chooses carry thresholds only: {path} has no '
                           'carry branch')
+    missing = [c for c in names if c not in (meta.get('publish_thresholds') or {})]
+    if args.keep_published and missing:
+        # (a checkpoint `suit-ros train` wrote has none: it would keep the decoding threshold,
+        # 0.1, and choose carry thresholds for that)
+        raise ConfigError(f'--keep-published: {path} has no published thresholds for '
+                          f'{", ".join(missing)} to keep; copy them from the checkpoint it '
+                          'was trained from (its publish_thresholds metadata), or choose them '
+                          'all without --keep-published')
     seqs = synthetic_split('tune', args.drives, TUNE_FRAMES, args.cache_dir)
     run_ = run_model(model, seqs, tracker=TrackerConfig(), deskew=True)   # as the node
     counts = class_counts(run_.gt, run_.det, names, run_.num_points)

@@ -57,6 +57,25 @@ def test_counts_that_make_no_sense_are_refused(tmp_path, capsys):
         assert code == 1 and message in err, (argv, err)
 
 
+def test_keeping_published_thresholds_a_checkpoint_lacks_is_refused(tmp_path, capsys):
+    """A carry branch fine-tuned by `suit-ros train` has no published thresholds: keeping
+    them would keep the decoding threshold (0.1) and choose carry thresholds for it."""
+    import shutil
+
+    from safetensors.torch import load_file
+
+    from suit_ros.checkpoint import _write, read_metadata, resolve_checkpoint
+    src = resolve_checkpoint('suit_carry')
+    meta = {k: v for k, v in read_metadata(src).items() if k != 'publish_thresholds'}
+    bare = tmp_path / 'trained.safetensors'
+    shutil.copy(src, bare)
+    _write(bare, load_file(str(src)), meta)
+    code, err = run_cli(capsys, 'choose-thresholds', '--checkpoint', str(bare),
+                        '--keep-published')
+    assert code == 1 and 'has no published thresholds for car, truck, pedestrian, cyclist' \
+        in err and 'copy them from the checkpoint it was trained from' in err
+
+
 def test_a_broken_training_config_is_named(tmp_path, capsys):
     bad = tmp_path / 'bad.yaml'
     bad.write_text('steps: [1, 2\n', encoding='utf-8')
