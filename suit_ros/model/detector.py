@@ -56,6 +56,8 @@ from suit_ros.structures import Frame
 Memory = SparseMemory | DenseMemory
 Past = Tensor | PastTerm | BranchTerms
 OWN = 'own.'    # with a carry branch, the model's own head outputs in the predictions, by name
+# cells around the gated carry term a carry head answers for: its two 3 x 3 layers' reach
+CARRY_REACH = 2
 
 
 class CarryBranch(nn.Module):
@@ -281,7 +283,7 @@ class SUITDetector(nn.Module):
                 # two-cell receptive field of the carry term, gathered; the own outputs
                 # elsewhere (the observed cells among them), as in training
                 _, _, H, W = carry_input.shape
-                needed = dilated_cells(carry_term.index, H, W, 2, skip=observed)
+                needed = dilated_cells(carry_term.index, H, W, CARRY_REACH, skip=observed)
                 with one_thread(self.small_work_one_thread):
                     merged = self.carry.head.forward_at(carry_input, needed, preds)
             merged.update({OWN + k: v for k, v in preds.items()})
@@ -425,11 +427,11 @@ class SUITDetector(nn.Module):
         return self.geonet.loss(aux['geo_logits'][keep], vel, valid[keep])
 
 
-def carry_cells(carry_term: Tensor | PastTerm, observed: Tensor, reach: int = 2) -> Tensor:
+def carry_cells(carry_term: Tensor | PastTerm, observed: Tensor, reach: int = CARRY_REACH
+                ) -> Tensor:
     """``(B, 1, H, W)`` bool: the cells a carry head answers for, those without returns
     within ``reach`` cells (a square: its 3 x 3 layers' receptive field) of a cell the gated
     carry term adds to; what inference gathers (:func:`~suit_ros.model.head.dilated_cells`)."""
-    from suit_ros.model.head import dilated_cells
     B, H, W = observed.shape
     if isinstance(carry_term, PastTerm):
         mask = torch.zeros(B * H * W, dtype=torch.bool, device=observed.device)
