@@ -89,50 +89,75 @@ def slerp(q0: NDArray[np.float64], q1: NDArray[np.float64], f: float) -> NDArray
 
 
 REWIND_NS = 1_000_000_000   # a stamp this far before the newest: late, or time went back
+NEAR_RUN = 3                # stamps in a row before the newest, each after the last: went back
 
 
 class TimeLine:
-    """Whether stamps went back: two in a row more than ``rewind_ns`` before the newest, the
-    second not more than ``rewind_ns`` before the first (one alone is a late message; at any
-    message rate). A late message just before the time line went back is not taken for the
-    new line's first stamp: the stamp after it lies far before it too, and takes its place."""
+    """Whether stamps went back, to another time line (a looped bag, a simulator or clock
+    reset), or only came late (out of order), at any message rate:
 
-    def __init__(self, rewind_ns: int = REWIND_NS) -> None:
-        self.rewind_ns = int(rewind_ns)
-        self.pending: int | None = None     # a stamp far behind, waiting for a second one
+    - far: two stamps in a row more than ``rewind_ns`` before the newest, the second not more
+      than ``rewind_ns`` before the first (one alone is a late message). A late message just
+      before the time line went back is not taken for the new line's first stamp: the stamp
+      after it lies far before it too, and takes its place;
+    - near: ``near_run`` stamps in a row before the newest, each after the one before and
+      within ``rewind_ns`` of it: a time line that went back by less than ``rewind_ns`` (a
+      simulator reset soon after its start, a short bag looped) goes on from there, where late
+      messages (one writer's arrive in order) do not line up so.
+
+    :attr:`run` holds the stamps before the newest in a row so far (not yet either).
+    ``rewind_ns`` None: time never goes back (offline, where every stamp is kept in place).
+    """
+
+    def __init__(self, rewind_ns: int | None = REWIND_NS, near_run: int = NEAR_RUN) -> None:
+        self.rewind_ns = None if rewind_ns is None else int(rewind_ns)
+        self.near_run = int(near_run)
+        self.run: list[int] = []
+        self.far = False        # whether the run's stamps lie far before the newest
 
     def went_back(self, stamp_ns: int, newest_ns: int) -> bool:
-        """Observe ``stamp_ns`` against the newest so far; True once time went back."""
-        if stamp_ns >= newest_ns - self.rewind_ns:
-            self.pending = None
+        """Observe ``stamp_ns`` against the newest so far; True once time went back (the run,
+        ending with ``stamp_ns``, is the new line's first stamps)."""
+        run, rewind = self.run, self.rewind_ns
+        if rewind is None or stamp_ns >= newest_ns:
+            run.clear()
             return False
-        if self.pending is not None and stamp_ns >= self.pending - self.rewind_ns:
-            self.pending = None
-            return True
-        self.pending = stamp_ns
+        far = stamp_ns < newest_ns - rewind
+        if run and far == self.far and (stamp_ns >= run[-1] - rewind if far
+                                        else run[-1] < stamp_ns <= run[-1] + rewind):
+            run.append(stamp_ns)
+            if len(run) >= (2 if far else self.near_run):
+                run.clear()
+                return True
+            return False
+        run[:] = [stamp_ns]
+        self.far = far
         return False
 
 
 class PoseBuffer:
     """Recent poses by stamp; interpolates (linear position, slerp rotation) at any stamp.
 
-    Out-of-order arrivals are inserted in place, a duplicate stamp replaces the old pose, poses
-    older than ``max_age_ns`` before the newest are dropped. Two poses in a row stamped more
-    than ``rewind_ns`` before the newest mean that time went back (a looped bag, a simulator
-    reset, a clock reset): the buffer starts again from them (counted in :attr:`rewinds`),
-    since its poses are from another time line and a lookup at the new stamps must not
-    interpolate between the two. One such pose alone is a
-    late message, inserted in place (:class:`TimeLine`). A lookup within ``tolerance_ns``
-    outside the buffered span returns the edge pose; further out raises PoseLookupError.
+    A duplicate stamp replaces the old pose, poses older than ``max_age_ns`` before the newest
+    are dropped. A pose stamped before the newest is held aside until the poses after it say
+    what it is (:class:`TimeLine`): a late message, then inserted in place; or the first of
+    a time line that went back (a looped bag, a simulator or clock reset), then the buffer
+    starts again from the held poses (counted in :attr:`rewinds`), since the old line's
+    poses are from another time and a lookup at the new stamps must not interpolate between
+    the two. While poses a little before the newest are held, a lookup at or after the first
+    of them raises: which line such a stamp is on is not settled (a few messages).
+    ``rewind_ns`` None (offline: every pose of a recording at once, in any order): every pose
+    goes in place at once. A lookup within ``tolerance_ns`` outside the buffered span returns
+    the edge pose; further out raises PoseLookupError.
     """
 
     def __init__(self, max_age_ns: int = 10_000_000_000, tolerance_ns: int = 100_000_000,
-                 rewind_ns: int = REWIND_NS) -> None:
+                 rewind_ns: int | None = REWIND_NS) -> None:
         self.max_age_ns = int(max_age_ns)
         self.tolerance_ns = int(tolerance_ns)
         self.rewinds = 0
         self._line = TimeLine(rewind_ns)
-        self._aside: tuple[int, NDArray[np.float64], NDArray[np.float64]] | None = None
+        self._held: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]] = []
         self._stamps: list[int] = []
         self._t: list[NDArray[np.float64]] = []
         self._q: list[NDArray[np.float64]] = []
@@ -141,10 +166,12 @@ class PoseBuffer:
         return len(self._stamps)
 
     def clear(self) -> None:
-        """Drop every pose."""
+        """Drop every pose (those held aside too)."""
         self._stamps.clear()
         self._t.clear()
         self._q.clear()
+        self._held.clear()
+        self._line.run.clear()
 
     def span(self) -> tuple[int, int] | None:
         """``(first_ns, last_ns)`` or None when empty."""
@@ -155,32 +182,49 @@ class PoseBuffer:
         T = np.asarray(T, np.float64)
         if T.shape != (4, 4) or not np.isfinite(T).all():
             raise MessageError('pose must be a finite 4x4 matrix')
-        q = matrix_to_quaternion(T[:3, :3])
-        if self._stamps and self._line.went_back(int(stamp_ns), self._stamps[-1]):
-            aside = self._aside
-            self.clear()                   # the new time line, from its first pose on
-            if aside is not None:
-                self._stamps.append(aside[0])
-                self._t.append(aside[1])
-                self._q.append(aside[2])
+        pose = (int(stamp_ns), T[:3, 3].copy(), matrix_to_quaternion(T[:3, :3]))
+        if not self._stamps or self._line.rewind_ns is None:
+            self._insert(*pose)
+        elif self._line.went_back(pose[0], self._stamps[-1]):
+            run = self._held + [pose]
+            self.clear()                   # the new time line, from its first poses on
+            for held in run:
+                self._insert(*held)
             self.rewinds += 1
-        elif self._line.pending == stamp_ns:   # far behind: late, or a new time line's first
-            self._aside = (int(stamp_ns), T[:3, 3].copy(), q)
-        i = bisect.bisect_left(self._stamps, stamp_ns)
-        if i < len(self._stamps) and self._stamps[i] == stamp_ns:
-            self._t[i], self._q[i] = T[:3, 3].copy(), q
-        else:
-            self._stamps.insert(i, int(stamp_ns))
-            self._t.insert(i, T[:3, 3].copy())
-            self._q.insert(i, q)
+        elif pose[0] < self._stamps[-1]:   # before the newest: late, or a new line's first
+            in_run = set(self._line.run)
+            for held in self._held:        # no longer a new line's: late, in place
+                if held[0] not in in_run:
+                    self._insert(*held)
+            self._held = [h for h in self._held if h[0] in in_run] + [pose]
+        else:                              # the newest: whatever was held came late
+            for held in self._held:
+                self._insert(*held)
+            self._held.clear()
+            self._insert(*pose)
         cut = bisect.bisect_left(self._stamps, self._stamps[-1] - self.max_age_ns)
         if cut:
             del self._stamps[:cut], self._t[:cut], self._q[:cut]
+
+    def _insert(self, stamp_ns: int, t: NDArray[np.float64], q: NDArray[np.float64]) -> None:
+        i = bisect.bisect_left(self._stamps, stamp_ns)
+        if i < len(self._stamps) and self._stamps[i] == stamp_ns:
+            self._t[i], self._q[i] = t, q
+        else:
+            self._stamps.insert(i, stamp_ns)
+            self._t.insert(i, t)
+            self._q.insert(i, q)
 
     def lookup(self, stamp_ns: int) -> NDArray[np.float64]:
         """The pose at ``stamp_ns`` as a 4x4 float64 matrix."""
         if not self._stamps:
             raise PoseLookupError('no pose buffered yet')
+        if (self._held and not self._line.far
+                and stamp_ns >= self._held[0][0] - self.tolerance_ns):
+            raise PoseLookupError(
+                f'odometry stamped up to {(self._stamps[-1] - self._held[0][0]) * 1e-9:.3f} s '
+                'before its newest came in (time went back, or late messages): which time '
+                f'line stamp {stamp_ns * 1e-9:.3f} s is on is not settled yet')
         first, last = self._stamps[0], self._stamps[-1]
         if stamp_ns < first - self.tolerance_ns or stamp_ns > last + self.tolerance_ns:
             raise PoseLookupError(

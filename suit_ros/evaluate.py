@@ -632,7 +632,7 @@ def deskewed(seq: Sequence[Frame]) -> list[Frame]:
     covers a sweep by the time it runs; ``times`` None after."""
     from suit_ros.deskew import deskew_sweep
     from suit_ros.msg_adapters.odometry import PoseBuffer
-    poses = PoseBuffer(max_age_ns=2 ** 62, rewind_ns=2 ** 62)   # offline: every pose kept
+    poses = PoseBuffer(max_age_ns=2 ** 62, rewind_ns=None)   # offline: every pose kept
     for frame in seq:              # the odometry: every frame's pose, as the node has it by
         poses.add(*step_inputs(frame)[1:3])   # the end of a sweep (at 50 Hz; here 10 Hz)
     out = []

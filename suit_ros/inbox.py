@@ -9,9 +9,8 @@
 - :class:`OdometryGate`: odometry queued by its callback and drained by the worker, and the
   worker's wait (up to a timeout) for odometry that reaches a cloud's stamp, as a tf2 message
   filter would. A stamp further ahead of the clock than the skew tolerance does not end a
-  wait (the pipeline refuses that message when it is drained); when time goes back (two
-  stamps in a row more than :data:`REWIND_NS` before the newest: ``TimeLine``), the newest is
-  the new time line's.
+  wait (the pipeline refuses that message when it is drained); when time goes back (stamps in
+  a row before the newest: ``TimeLine``), the newest is the new time line's.
 
 Both are thread-safe; :meth:`close` wakes every waiter for shutdown.
 """
@@ -170,9 +169,11 @@ class OdometryGate(Generic[T]):
 
     def _reached(self, stamp_ns: int, went_back: bool) -> bool:
         # a cloud whose stamp went back (a loop, a reset) comes before its time line's
-        # odometry: the old line's, far ahead of it, is not its own
-        return stamp_ns <= self.latest_ns and (not went_back
-                                               or self.latest_ns <= stamp_ns + REWIND_NS)
+        # odometry: the old line's, far ahead of it, is not its own, nor is odometry that is
+        # still settling whether it went back a little (TimeLine's near run)
+        return stamp_ns <= self.latest_ns and (
+            not went_back or (self.latest_ns <= stamp_ns + REWIND_NS
+                              and not (self._line.run and not self._line.far)))
 
     def covers(self, stamp_ns: int, went_back: bool = False) -> bool:
         """Whether odometry reached ``stamp_ns`` (for a cloud whose stamp ``went_back``

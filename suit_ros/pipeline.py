@@ -137,6 +137,7 @@ class DetectionPipeline:
         self.last_frame_id: str | None = None
         self.last_pose: NDArray[np.float64] | None = None
         self.last_pose_ns = 0                 # the stamp of the cloud last_pose was read for
+        self.pose_rewinds = 0                 # odometry's rewinds when a cloud last took a pose
         self.last_reset_reason = 'start'
         self.resets = 0
         self.odom_rejected = 0
@@ -396,7 +397,10 @@ class DetectionPipeline:
             out.warnings.pop('sector_gap', None)
             out.warnings['frame_changed'] = (f'frame_id changed from {self.last_frame_id!r} '
                                              f'to {frame_id!r} (memory reset)')
-        pose, out.pose_source, out.pose_age_s = self._pose(stamp_ns)
+        back = self.last_stamp_ns is not None and stamp_ns < self.last_stamp_ns
+        pose, out.pose_source, out.pose_age_s = self._pose(stamp_ns, back)
+        if pose is not None:
+            self.pose_rewinds = self.poses.rewinds
         if pose is None:
             out.single_frame = 'no_odometry' if self.poses.span() is None else 'outside_odometry'
             if (coverage and reason is None and len(points)      # a cloud the model runs on
@@ -562,13 +566,21 @@ class DetectionPipeline:
         span = self.poses.span()
         return span is not None and span[1] >= stamp_ns
 
-    def _pose(self, stamp_ns: int) -> tuple[NDArray[np.float64] | None, str, float]:
+    def _pose(self, stamp_ns: int, went_back: bool = False
+              ) -> tuple[NDArray[np.float64] | None, str, float]:
+        """The cloud's pose, its source and the odometry's age; a cloud whose stamp
+        ``went_back`` before the last one's (a loop, a reset) takes a pose only once the
+        odometry went back too (:attr:`pose_rewinds`): the buffered poses about its stamp
+        are otherwise the old time line's."""
         span = self.poses.span()
         if span is None:
             if self.last_odom_refused:       # odometry comes, but none of it is usable
                 return None, f'none: odometry rejected: {self.last_odom_error}', float('nan')
             return None, 'none: no odometry received', float('nan')
         age = (stamp_ns - span[1]) * 1e-9
+        if went_back and self.poses.rewinds == self.pose_rewinds:
+            return None, ('none: the cloud went back in time and the odometry has not (yet): '
+                          'its poses are of the time before'), age
         try:
             T_odom_base = self.poses.lookup(stamp_ns)
         except PoseLookupError as exc:

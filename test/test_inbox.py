@@ -148,6 +148,23 @@ def test_the_odometry_gate_follows_time_back():
     assert slow.latest_ns == 4 * S
 
 
+def test_the_odometry_gate_follows_time_back_a_little():
+    """Time goes back 0.3 s (a simulator reset soon after its start): three stamps in a row
+    before the newest, each after the last, are the new time line. While it settles a cloud
+    that went back is not covered (the odometry about its stamp may be either line's); a late
+    cloud with nothing settling is, as before."""
+    gate: OdometryGate[str] = OdometryGate()
+    for k in range(21):                                # 0 .. 0.4 s at 50 Hz
+        gate.put('o', k * S // 50, 0, 1.0)
+    assert gate.covers(S // 4, went_back=True)         # late, nothing settling: covered
+    gate.put('r', S // 10, 0, 1.0)                     # 0.3 s back: settling
+    assert gate.latest_ns == 2 * S // 5 and not gate.covers(S // 10, went_back=True)
+    assert gate.covers(S // 4)                         # a cloud in order: as before
+    gate.put('r', S // 10 + S // 50, 0, 1.0)
+    gate.put('r', S // 10 + 2 * S // 50, 0, 1.0)       # the third: the new line
+    assert gate.latest_ns == S // 10 + 2 * S // 50 and gate.covers(S // 10, went_back=True)
+
+
 def test_odometry_far_ahead_of_a_cloud_is_not_its_odometry():
     """After time went back the first cloud of the new time line (its stamp before the last
     cloud's) can come before its odometry: the old line's, 60 s ahead, does not cover it, so

@@ -9,6 +9,7 @@ from suit_ros.msg_adapters.classes import MessageClasses
 from suit_ros.msg_adapters.errors import MessageError, PoseLookupError
 from suit_ros.msg_adapters.odometry import (
     PoseBuffer,
+    TimeLine,
     matrix_to_quaternion,
     ns_to_stamp,
     odometry_to_pose,
@@ -108,7 +109,8 @@ def make_pose(t, yaw):
 
 
 def test_interpolation_against_scipy():
-    buf = PoseBuffer(max_age_ns=10**10, tolerance_ns=50_000_000)
+    # offline (rewind_ns None): any order of arrival, every pose in place at once
+    buf = PoseBuffer(max_age_ns=10**10, tolerance_ns=50_000_000, rewind_ns=None)
     stamps = np.arange(0, 10) * 20_000_000
     rots = Rotation.from_euler('zyx', np.random.default_rng(3).uniform(-1, 1, (10, 3)))
     trans = np.random.default_rng(4).normal(size=(10, 3))
@@ -152,8 +154,10 @@ def test_duplicates_replace_and_old_poses_evicted():
         buf.add(k * 400_000_000, make_pose([k, 0, 0], 0))
     # newest 2.8 s: everything before 1.8 s is gone, the rest kept in order
     assert buf.span() == (2_000_000_000, 2_800_000_000) and len(buf) == 3
-    buf.add(2_200_000_000, make_pose([7, 0, 0], 0))       # late but recent: inserted in order
-    np.testing.assert_allclose(buf.lookup(2_100_000_000)[0, 3], 6.0)
+    buf.add(2_200_000_000, make_pose([7, 0, 0], 0))       # late but recent: held, until
+    np.testing.assert_allclose(buf.lookup(2_100_000_000)[0, 3], 5.25)
+    buf.add(2_900_000_000, make_pose([8, 0, 0], 0))       # the next pose says it was late
+    np.testing.assert_allclose(buf.lookup(2_100_000_000)[0, 3], 6.0)     # in place
     buf.add(3_000_000_000 + 10**9, make_pose([1, 0, 0], 0))
     assert buf.span() == (4_000_000_000, 4_000_000_000) and buf.rewinds == 0
 
@@ -166,9 +170,10 @@ def test_time_going_back_empties_the_buffer():
     buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0, rewind_ns=10**9)
     for k in range(50):                                   # 1000.0 .. 1004.9 s
         buf.add(1000 * 10**9 + k * 10**8, make_pose([100 + k, 0, 0], 0))
-    buf.add(1004 * 10**9 + 5 * 10**7, make_pose([0, 0, 0], 0))   # 0.85 s late: in place
+    buf.add(1004 * 10**9 + 5 * 10**7, make_pose([0, 0, 0], 0))   # 0.85 s late: held,
+    assert buf.rewinds == 0 and len(buf) == 50
+    buf.add(1001 * 10**9 + 5 * 10**7, make_pose([0, 0, 0], 0))   # in place after one 3.85 s late
     assert buf.rewinds == 0 and len(buf) == 51
-    buf.add(1001 * 10**9 + 5 * 10**7, make_pose([0, 0, 0], 0))   # one 3.85 s late: in place
     buf.add(1005 * 10**9, make_pose([150, 0, 0], 0))              # and on as before
     assert buf.rewinds == 0 and len(buf) == 53
     for k in range(20):                                   # the bag again: 5.0 .. 6.9 s
@@ -192,6 +197,63 @@ def test_a_late_pose_just_before_time_goes_back_is_not_the_new_line():
     for k in range(3, 30):
         buf.add(k * 10**8, make_pose([k, 0, 0], 0))
     assert buf.rewinds == 1 and buf.span() == (100_000_000, 2_900_000_000)
+
+
+def _moving(buf, start_ns, n, x0, period_ns=20_000_000):
+    """``n`` poses at 50 Hz from ``start_ns``, x going up by 1 a pose from ``x0``."""
+    for k in range(n):
+        buf.add(start_ns + k * period_ns, make_pose([x0 + k, 0, 0], 0))
+
+
+def test_time_going_back_less_than_a_second_is_not_mixed_with_the_time_before():
+    """A simulator reset 0.4 s into its run: odometry goes back 0.3 s to another place.
+    Three poses in a row before the newest, each after the last, are the new time line: the
+    buffer starts again from them. Until the third, the poses are held aside, so no lookup
+    ever interpolates between the two lines, and one at the stamps they may be on says that
+    the time line is not settled (what the pipeline then reports as its pose source)."""
+    buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0)
+    _moving(buf, 0, 21, 0)                                # 0 .. 0.4 s, x 0 .. 20
+    buf.add(100_000_000, make_pose([-500, 0, 0], 0))      # the reset: 0.3 s back, elsewhere
+    np.testing.assert_allclose(buf.lookup(50_000_000)[0, 3], 2.5)   # before it: the old line
+    with pytest.raises(PoseLookupError, match='not settled'):
+        buf.lookup(110_000_000)
+    buf.add(120_000_000, make_pose([-499, 0, 0], 0))
+    assert buf.rewinds == 0 and len(buf) == 21
+    buf.add(140_000_000, make_pose([-498, 0, 0], 0))      # the third: time went back
+    assert buf.rewinds == 1 and buf.span() == (100_000_000, 140_000_000) and len(buf) == 3
+    np.testing.assert_allclose(buf.lookup(130_000_000)[0, 3], -498.5)
+    _moving(buf, 160_000_000, 20, -497)                   # and on, past the old newest
+    xs = [buf.lookup(t)[0, 3] for t in range(100_000_000, 540_000_000, 10_000_000)]
+    np.testing.assert_allclose(np.diff(xs), 0.5)          # one line: no old pose in it
+    assert buf.rewinds == 1
+
+
+def test_late_poses_and_a_pose_from_the_future():
+    """Late poses that do not line up (each followed by newer ones) go in place and never
+    count as time going back; a single pose stamped 0.5 s ahead (a glitch) is left behind
+    once three poses in a row come before it, rather than bending the path for 0.5 s."""
+    buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0)
+    _moving(buf, 0, 10, 0)                                # 0 .. 0.18 s
+    for k in range(10, 30, 2):                            # pairs swapped on the way
+        buf.add((k + 1) * 20_000_000, make_pose([k + 1, 0, 0], 0))
+        buf.add(k * 20_000_000, make_pose([k, 0, 0], 0))
+    assert buf.rewinds == 0 and len(buf) == 29            # the last one held, late
+    buf.add(30 * 20_000_000, make_pose([30, 0, 0], 0))
+    assert buf.rewinds == 0 and len(buf) == 31
+    np.testing.assert_allclose(buf.lookup(570_000_000)[0, 3], 28.5)
+    buf.add(31 * 20_000_000 + 500_000_000, make_pose([99, 0, 0], 0))   # the glitch
+    _moving(buf, 31 * 20_000_000, 3, 31)
+    assert buf.rewinds == 1 and buf.span() == (620_000_000, 660_000_000)
+    np.testing.assert_allclose(buf.lookup(650_000_000)[0, 3], 32.5)
+
+
+def test_time_line_never_goes_back_offline():
+    line = TimeLine(None)
+    assert not any(line.went_back(s, 10**12) for s in (0, 1, 2, 3, 4))
+    near = TimeLine(10**9)
+    assert [near.went_back(s, 10**9) for s in (1, 2, 3)] == [False, False, True]
+    assert [near.went_back(s, 10**9) for s in (3, 2, 1, 4, 5)] == [False] * 4 + [True]
+    assert [near.went_back(s, 10**10) for s in (1, 2)] == [False, True]     # far: two
 
 
 def test_nan_pose_rejected():

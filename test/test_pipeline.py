@@ -651,6 +651,27 @@ def test_odometry_from_the_future_is_refused_and_counted(model, classes):
     assert pipe.odom_rejected == 1
 
 
+def test_a_cloud_that_went_back_takes_a_pose_only_from_odometry_that_went_back(model,
+                                                                              classes):
+    """A simulator reset 0.4 s back, to another place: a cloud of the new time line takes
+    its pose from the new line's odometry once that went back too; a cloud that went back
+    while the odometry did not runs without a pose, and says why (the poses about its stamp
+    are of the time before)."""
+    pipe = make_pipeline(model, classes)
+    feed_odometry(pipe, T0, T0 + S)
+    assert pipe.process(cloud(classes, T0 + 9 * S // 10)).pose_source == 'odometry'
+    back = T0 + S // 2
+    for k in range(3):                         # the new line's odometry comes first
+        assert pipe.add_odometry(odom(back - S // 50 + k * S // 50, -300.0))
+    assert pipe.odom_rewinds == 1
+    out = pipe.process(cloud(classes, back))
+    assert 'backwards' in out.reset_reason and out.pose_source == 'odometry'
+    out = pipe.process(cloud(classes, back - S // 5))      # back again, the odometry not
+    assert 'backwards' in out.reset_reason
+    assert out.pose_source.startswith('none: the cloud went back in time and the odometry')
+    assert out.single_frame == 'outside_odometry'
+
+
 @pytest.mark.slow
 def test_max_gap_s_is_the_one_staleness_threshold(model, classes):
     pipe = make_pipeline(model, classes)

@@ -190,7 +190,7 @@ class Av2Sequence(LazySequence):
             raise DatasetError(f'{self.log_dir / "sensors/lidar"} holds no sweep (.feather)')
         self.stamps_ns = [int(p.stem) for p in self.sweeps]
         poses = read_table(self.log_dir / 'city_SE3_egovehicle.feather', POSE_COLUMNS)
-        self.poses = PoseBuffer(max_age_ns=2 ** 62, tolerance_ns=50_000_000, rewind_ns=2 ** 62)
+        self.poses = PoseBuffer(max_age_ns=2 ** 62, tolerance_ns=50_000_000, rewind_ns=None)
         for k in np.argsort(poses['timestamp_ns'], kind='stable'):
             T = np.eye(4)
             T[:3, :3] = quaternion_to_matrix(poses['qx'][k], poses['qy'][k], poses['qz'][k],

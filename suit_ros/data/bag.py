@@ -156,7 +156,7 @@ def read_bag_frames(path: str | os.PathLike[str], points_topic: str = '/points',
         check_topic(reader, gt_topic, POINTCLOUD2, required=False)
         # every pose is read before any cloud: none may age out of the buffer (a bag longer
         # than the buffer's age failed at its first cloud), and none is a time jump
-        buf = PoseBuffer(max_age_ns=2**62, tolerance_ns=150_000_000, rewind_ns=2**62)
+        buf = PoseBuffer(max_age_ns=2**62, tolerance_ns=150_000_000, rewind_ns=None)
         extr = np.eye(4)
         gts: dict[int, dict[str, Any]] = {}
         clouds = []
