@@ -98,6 +98,7 @@ class DetectorNode(Node):
                                                  qos_overriding_options=overrides)
         self.pub_diag = self.create_publisher(DiagnosticArray, '/diagnostics', 10)
         self.create_service(Trigger, '~/reset_memory', self._on_reset)
+        self._restoring = False     # parameters being set back to what the pipeline runs
         self.add_on_set_parameters_callback(self._on_params)
         self._worker = threading.Thread(target=self.worker.run, name='suit_ros_worker',
                                         daemon=True)
@@ -121,6 +122,29 @@ class DetectorNode(Node):
     def _update_subscriptions(self) -> None:
         self.points.update()
         self.odom.update()
+        self._restore_parameters()
+
+    def _restore_parameters(self) -> None:
+        """After a set the pipeline could not apply (the worker applied the settings before
+        again), the node's parameters are set back to what runs: a parameter read then says
+        what the node does."""
+        restored = self.worker.take_restored()
+        if restored is None:
+            return
+        now, back = self.params.ros_values(), restored.ros_values()
+        changed = sorted(n for n in back if back[n] != now[n])
+        if not changed:
+            return
+        self._restoring = True
+        try:
+            results = self.set_parameters([Parameter(n, value=back[n]) for n in changed])
+        finally:
+            self._restoring = False
+        failed = [f'{n}: {r.reason}' for n, r in zip(changed, results) if not r.successful]
+        self.get_logger().warn(
+            'parameters set back to the settings in use (the new ones were not applied): '
+            + ', '.join(f'{n}={back[n]!r}' for n in changed)
+            + (f'; not set back: {failed}' if failed else ''))
 
     def _load_model(self, params: DetectorParams) -> Any:
         from suit_ros.checkpoint import resolve_checkpoint
@@ -144,7 +168,8 @@ class DetectorNode(Node):
         except ConfigError as exc:
             return SetParametersResult(successful=False, reason=str(exc))
         self.params = candidate                # node-side settings take effect now
-        self.worker.request(params=candidate)  # pipeline settings before the next frame
+        if not self._restoring:                # (set back: the pipeline runs on them)
+            self.worker.request(params=candidate)  # pipeline settings before the next frame
         return SetParametersResult(successful=True)
 
     def _on_cloud(self, msg: PointCloud2, info: dict[str, Any] | None) -> None:

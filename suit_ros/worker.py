@@ -102,6 +102,9 @@ class FrameWorker:
         self.odometry: OdometryGate[Any] = OdometryGate()
         self.reset_request: str | None = None
         self.pending: DetectorParams | None = None
+        # the settings applied again after a set the pipeline could not apply, until the node
+        # sets its parameters back to them (take_restored)
+        self.restored: DetectorParams | None = None
         self.stopping = False
         self.started = time.monotonic()
         self.failing_since: float | None = None     # the first failure since the last frame out
@@ -168,7 +171,7 @@ class FrameWorker:
         """Apply a parameter set the node accepted; if the pipeline cannot (a failure past
         validation, after part of it may have been applied), the settings before are applied
         again and the frame runs with them, and the diagnostics hold why (the node's
-        parameters then say more than the pipeline does)."""
+        parameters are set back to them: :meth:`take_restored`)."""
         before = self.pipeline.params
         try:
             self.pipeline.configure(params)
@@ -177,11 +180,22 @@ class FrameWorker:
                 return
             try:
                 self.pipeline.configure(before)
+                with self.lock:
+                    self.restored = before
             except Exception as again:  # noqa: BLE001 - said, and the frame still runs
                 self.log.error(f'settings before not restored either: {again}')
             self.log.error(f'parameters not applied: {type(exc).__name__}: {exc}')
             self.reasons.report({'params_not_applied': 'parameters not applied: '
                                  f'{type(exc).__name__}: {exc}'}, time.monotonic())
+
+    def take_restored(self) -> DetectorParams | None:
+        """The settings the pipeline runs on after a set it could not apply (once; None when
+        there are none, or while a newer set waits, which says for itself)."""
+        with self.lock:
+            if self.pending is not None:
+                return None
+            restored, self.restored = self.restored, None
+            return restored
 
     def _wait_for_odometry(self, stamp: int) -> None:
         """Wait up to ``odom_wait_s`` for odometry at or after ``stamp``; no wait while

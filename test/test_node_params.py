@@ -378,3 +378,33 @@ def test_a_parameter_the_node_does_not_have_is_named_not_dropped_in_silence(make
     values = {kv.key: kv.value for kv in make_node().diagnostic_status().values}
     assert values['ignored_parameters'] == 'none'
 
+
+
+def test_a_set_the_pipeline_cannot_apply_is_set_back_on_the_node(make_node):
+    """A parameter set the node accepts but the pipeline fails on past validation (here
+    made to fail): the frames run on the settings before, and the node's parameters are set
+    back to them, so that a parameter read says what the node does; a later set applies."""
+    node = make_node(input_timeout_s=60.0)
+    real = node.pipeline.configure
+
+    def refuse(params):
+        real(params)
+        if params.max_detections == 7:
+            raise RuntimeError('cannot apply')
+
+    node.pipeline.configure = refuse
+    set_param(node, 'max_detections', 7)
+    assert node.get_parameter('max_detections').value == 7        # accepted, not yet run
+    t = node.get_clock().now().nanoseconds
+    node._on_cloud(cloud(t), None)
+    wait_frames(node, 1)
+    assert node.pipeline.params.max_detections == 200              # the settings before
+    node._restore_parameters()                                     # (the node's 1 s timer)
+    assert node.get_parameter('max_detections').value == 200
+    assert node.params.max_detections == 200 and node.worker.pending is None
+    set_param(node, 'max_detections', 9)
+    node._on_cloud(cloud(t + S // 10), None)
+    wait_frames(node, 2)
+    assert node.pipeline.params.max_detections == 9
+    node._restore_parameters()
+    assert node.get_parameter('max_detections').value == 9
