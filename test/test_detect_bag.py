@@ -240,3 +240,33 @@ def test_the_lidar_extrinsic_is_the_transform_into_the_clouds_frame(capsys):
     # none into the clouds' frame: the vehicle frame, said
     assert (lidar_extrinsic([imu], 'lidar', 'b') == np.eye(4)).all()
     assert 'no /tf_static transform into lidar' in capsys.readouterr().err
+
+
+def test_the_mcap_bags_written_here_carry_chunk_crcs(tmp_path):
+    """rosbags writes 0 ("not checked") as each chunk's CRC; the bags this package writes
+    carry the real ones (as ros2 bag's do), which rosbags checks as it reads."""
+    import struct
+    from zlib import crc32
+
+    from suit_ros.data.bag import MCAP_MAGIC, open_writer, write_chunk_crcs
+    with open_writer(tmp_path / 'b') as bag:
+        for k in range(3):
+            bag.write('/n', 'std_msgs/msg/String', k, bag.store.types['std_msgs/msg/String'](
+                data='x' * 1000))
+    data = next((tmp_path / 'b').glob('*.mcap')).read_bytes()
+    assert data[:8] == MCAP_MAGIC
+    pos, crcs = 8, []
+    while data[pos] != 0x0F:
+        length = struct.unpack_from('<Q', data, pos + 1)[0]
+        if data[pos] == 0x06:
+            body = pos + 9
+            crc, name_len = struct.unpack_from('<II', data, body + 24)
+            size = struct.unpack_from('<Q', data, body + 32 + name_len)[0]
+            records = data[body + 40 + name_len:body + 40 + name_len + size]
+            crcs.append((crc, crc32(records)))
+        pos += 9 + length
+    assert crcs and all(c == want != 0 for c, want in crcs)
+    not_mcap = tmp_path / 'x.mcap'
+    not_mcap.write_bytes(b'not an mcap file')
+    with pytest.raises(BagError, match='not an mcap file'):
+        write_chunk_crcs(not_mcap)

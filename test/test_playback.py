@@ -219,6 +219,13 @@ def test_corrupt_bags_and_checkpoints_are_rejected(bag, tmp_path, capsys):
     mcap.write_bytes(mcap.read_bytes()[:3000])
     assert main(['detect-bag', str(tmp_path / 'm'), str(tmp_path / 'o2')]) == 1
     assert 'error' in capsys.readouterr().err
+    write_bag(tmp_path / 'c', preset('test', frames=2), 1, 'mcap')    # damaged in a chunk
+    mcap = next((tmp_path / 'c').glob('*.mcap'))
+    data = bytearray(mcap.read_bytes())
+    data[len(data) // 3:len(data) // 3 + 64] = bytes(64)     # inside a cloud's points
+    mcap.write_bytes(bytes(data))
+    assert main(['detect-bag', str(tmp_path / 'c'), str(tmp_path / 'o4')]) == 1
+    assert 'Chunk checksum mismatch' in capsys.readouterr().err
     junk = tmp_path / 'junk.safetensors'
     junk.write_bytes(b'not a checkpoint' * 10)
     assert main(['detect-bag', str(bag), str(tmp_path / 'o3'), '--checkpoint', str(junk)]) == 1
