@@ -141,11 +141,13 @@ class PoseBuffer:
     A duplicate stamp replaces the old pose, poses older than ``max_age_ns`` before the newest
     are dropped. A pose stamped before the newest is held aside until the poses after it say
     what it is (:class:`TimeLine`): a late message, then inserted in place; or the first of
-    a time line that went back (a looped bag, a simulator or clock reset), then the buffer
-    starts again from the held poses (counted in :attr:`rewinds`), since the old line's
-    poses are from another time and a lookup at the new stamps must not interpolate between
-    the two. While poses a little before the newest are held, a lookup at or after the first
-    of them raises: which line such a stamp is on is not settled (a few messages).
+    a time line that went back (a looped bag, a simulator or clock reset, or the poses after
+    one stamped ahead, a glitch), then the poses stamped from the held ones' first on are
+    dropped and the held ones take their place (counted in :attr:`rewinds`): a lookup at the
+    new stamps must not interpolate between two lines, and what lies before them stays. While
+    poses a little before the newest are held, a lookup at or after the first of them raises:
+    which line such a stamp is on is not settled (a few messages). A step back shorter than
+    ``NEAR_RUN - 1`` messages of the odometry is not seen: its poses go in place as late ones.
     ``rewind_ns`` None (offline: every pose of a recording at once, in any order): every pose
     goes in place at once. A lookup within ``tolerance_ns`` outside the buffered span returns
     the edge pose; further out raises PoseLookupError.
@@ -187,7 +189,11 @@ class PoseBuffer:
             self._insert(*pose)
         elif self._line.went_back(pose[0], self._stamps[-1]):
             run = self._held + [pose]
-            self.clear()                   # the new time line, from its first poses on
+            # the new time line from its first stamp on: the poses stamped from there on are
+            # the old line's (or one pose stamped ahead, a glitch), those before it stay
+            cut = bisect.bisect_left(self._stamps, min(h[0] for h in run))
+            del self._stamps[cut:], self._t[cut:], self._q[cut:]
+            self._held = []
             for held in run:
                 self._insert(*held)
             self.rewinds += 1
@@ -196,7 +202,8 @@ class PoseBuffer:
             for held in self._held:        # no longer a new line's: late, in place
                 if held[0] not in in_run:
                     self._insert(*held)
-            self._held = [h for h in self._held if h[0] in in_run] + [pose]
+            self._held = [h for h in self._held if h[0] in in_run and h[0] != pose[0]]
+            self._held.append(pose)        # (a repeated stamp replaces: at most a run's)
         else:                              # the newest: whatever was held came late
             for held in self._held:
                 self._insert(*held)

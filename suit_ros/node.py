@@ -136,15 +136,15 @@ class DetectorNode(Node):
         if not changed:
             return
         self._restoring = True
-        try:
-            results = self.set_parameters([Parameter(n, value=back[n]) for n in changed])
+        try:        # at once: one at a time, a pair such as min/max_range may not validate
+            result = self.set_parameters_atomically(
+                [Parameter(n, value=back[n]) for n in changed])
         finally:
             self._restoring = False
-        failed = [f'{n}: {r.reason}' for n, r in zip(changed, results) if not r.successful]
         self.get_logger().warn(
             'parameters set back to the settings in use (the new ones were not applied): '
             + ', '.join(f'{n}={back[n]!r}' for n in changed)
-            + (f'; not set back: {failed}' if failed else ''))
+            + ('' if result.successful else f'; not set back: {result.reason}'))
 
     def _load_model(self, params: DetectorParams) -> Any:
         from suit_ros.checkpoint import resolve_checkpoint

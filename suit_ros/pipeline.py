@@ -138,6 +138,9 @@ class DetectionPipeline:
         self.last_pose: NDArray[np.float64] | None = None
         self.last_pose_ns = 0                 # the stamp of the cloud last_pose was read for
         self.pose_rewinds = 0                 # odometry's rewinds when a cloud last took a pose
+        # (the odometry's newest stamp, its rewinds) when a cloud went back in time and the
+        # odometry did not: its poses up to there may be another time line's
+        self.pose_doubt: tuple[int, int] | None = None
         self.last_reset_reason = 'start'
         self.resets = 0
         self.odom_rejected = 0
@@ -568,10 +571,11 @@ class DetectionPipeline:
 
     def _pose(self, stamp_ns: int, went_back: bool = False
               ) -> tuple[NDArray[np.float64] | None, str, float]:
-        """The cloud's pose, its source and the odometry's age; a cloud whose stamp
-        ``went_back`` before the last one's (a loop, a reset) takes a pose only once the
-        odometry went back too (:attr:`pose_rewinds`): the buffered poses about its stamp
-        are otherwise the old time line's."""
+        """The cloud's pose, its source and the odometry's age. After a cloud whose stamp
+        ``went_back`` before the last one's (a loop, a reset) the clouds take a pose only once
+        the odometry went back too (:attr:`pose_rewinds`), or where they are stamped past the
+        odometry buffered then (:attr:`pose_doubt`): the poses about their stamps are
+        otherwise the old time line's."""
         span = self.poses.span()
         if span is None:
             if self.last_odom_refused:       # odometry comes, but none of it is usable
@@ -579,8 +583,14 @@ class DetectionPipeline:
             return None, 'none: no odometry received', float('nan')
         age = (stamp_ns - span[1]) * 1e-9
         if went_back and self.poses.rewinds == self.pose_rewinds:
-            return None, ('none: the cloud went back in time and the odometry has not (yet): '
-                          'its poses are of the time before'), age
+            self.pose_doubt = (span[1], self.poses.rewinds)
+        if self.pose_doubt is not None:     # settled once the odometry went back, or is
+            until, rewinds = self.pose_doubt     # read past what was buffered then
+            if self.poses.rewinds != rewinds or stamp_ns > until:
+                self.pose_doubt = None
+            else:
+                return None, ('none: the clouds went back in time and the odometry has not '
+                              '(yet): its poses are of the time before'), age
         try:
             T_odom_base = self.poses.lookup(stamp_ns)
         except PoseLookupError as exc:

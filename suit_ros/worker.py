@@ -173,6 +173,8 @@ class FrameWorker:
         again and the frame runs with them, and the diagnostics hold why (the node's
         parameters are set back to them: :meth:`take_restored`)."""
         before = self.pipeline.params
+        with self.lock:
+            self.restored = None            # a set before, not applied: this one says now
         try:
             self.pipeline.configure(params)
         except Exception as exc:  # the node goes on with what it had
@@ -217,8 +219,9 @@ class FrameWorker:
                                      f'{self.pipeline.last_odom_error}'}, time.monotonic(),
                                     hold=False)
         if self.pipeline.odom_rewinds != rewinds:       # (Reasons logs it)
-            message = ('odometry went back in time (a looped bag, a simulator or clock reset): '
-                       'the poses before it were dropped')
+            message = ('odometry went back in time (a looped bag, a simulator or clock reset, '
+                       'or after one pose stamped ahead): the poses stamped after it were '
+                       'dropped')
             self.reasons.report({'odometry_rewound': message}, time.monotonic(), hold=False)
 
     def _in_order(self, skipped: list[Received[Any]], newest: Received[Any]

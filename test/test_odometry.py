@@ -208,9 +208,10 @@ def _moving(buf, start_ns, n, x0, period_ns=20_000_000):
 def test_time_going_back_less_than_a_second_is_not_mixed_with_the_time_before():
     """A simulator reset 0.4 s into its run: odometry goes back 0.3 s to another place.
     Three poses in a row before the newest, each after the last, are the new time line: the
-    buffer starts again from them. Until the third, the poses are held aside, so no lookup
-    ever interpolates between the two lines, and one at the stamps they may be on says that
-    the time line is not settled (what the pipeline then reports as its pose source)."""
+    poses stamped from its first on are dropped and its own take their place. Until the
+    third, the poses are held aside, so no lookup ever interpolates between the two lines,
+    and one at the stamps they may be on says that the time line is not settled (what the
+    pipeline then reports as its pose source)."""
     buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0)
     _moving(buf, 0, 21, 0)                                # 0 .. 0.4 s, x 0 .. 20
     buf.add(100_000_000, make_pose([-500, 0, 0], 0))      # the reset: 0.3 s back, elsewhere
@@ -220,7 +221,8 @@ def test_time_going_back_less_than_a_second_is_not_mixed_with_the_time_before():
     buf.add(120_000_000, make_pose([-499, 0, 0], 0))
     assert buf.rewinds == 0 and len(buf) == 21
     buf.add(140_000_000, make_pose([-498, 0, 0], 0))      # the third: time went back
-    assert buf.rewinds == 1 and buf.span() == (100_000_000, 140_000_000) and len(buf) == 3
+    # the old line from 0.1 s on dropped, before it kept
+    assert buf.rewinds == 1 and buf.span() == (0, 140_000_000) and len(buf) == 8
     np.testing.assert_allclose(buf.lookup(130_000_000)[0, 3], -498.5)
     _moving(buf, 160_000_000, 20, -497)                   # and on, past the old newest
     xs = [buf.lookup(t)[0, 3] for t in range(100_000_000, 540_000_000, 10_000_000)]
@@ -230,8 +232,9 @@ def test_time_going_back_less_than_a_second_is_not_mixed_with_the_time_before():
 
 def test_late_poses_and_a_pose_from_the_future():
     """Late poses that do not line up (each followed by newer ones) go in place and never
-    count as time going back; a single pose stamped 0.5 s ahead (a glitch) is left behind
-    once three poses in a row come before it, rather than bending the path for 0.5 s."""
+    count as time going back; a single pose stamped 0.5 s ahead (a glitch) is dropped once
+    three poses in a row come before it, rather than bending the path for 0.5 s, and the path
+    before it stays."""
     buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0)
     _moving(buf, 0, 10, 0)                                # 0 .. 0.18 s
     for k in range(10, 30, 2):                            # pairs swapped on the way
@@ -243,8 +246,12 @@ def test_late_poses_and_a_pose_from_the_future():
     np.testing.assert_allclose(buf.lookup(570_000_000)[0, 3], 28.5)
     buf.add(31 * 20_000_000 + 500_000_000, make_pose([99, 0, 0], 0))   # the glitch
     _moving(buf, 31 * 20_000_000, 3, 31)
-    assert buf.rewinds == 1 and buf.span() == (620_000_000, 660_000_000)
+    assert buf.rewinds == 1 and buf.span() == (0, 660_000_000) and len(buf) == 34
     np.testing.assert_allclose(buf.lookup(650_000_000)[0, 3], 32.5)
+    np.testing.assert_allclose(buf.lookup(490_000_000)[0, 3], 24.5)    # the path before it
+    for _ in range(5):                  # a stamp repeated before the newest: held once
+        buf.add(600_000_000, make_pose([30, 0, 0], 0))
+    assert len(buf._held) == 1
 
 
 def test_time_line_never_goes_back_offline():

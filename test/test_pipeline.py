@@ -666,10 +666,23 @@ def test_a_cloud_that_went_back_takes_a_pose_only_from_odometry_that_went_back(m
     assert pipe.odom_rewinds == 1
     out = pipe.process(cloud(classes, back))
     assert 'backwards' in out.reset_reason and out.pose_source == 'odometry'
+    doubt = 'none: the clouds went back in time and the odometry has not'
     out = pipe.process(cloud(classes, back - S // 5))      # back again, the odometry not
-    assert 'backwards' in out.reset_reason
-    assert out.pose_source.startswith('none: the cloud went back in time and the odometry')
+    assert 'backwards' in out.reset_reason and out.pose_source.startswith(doubt)
     assert out.single_frame == 'outside_odometry'
+    # the next cloud, in order, is no surer: the odometry about it is still the line before
+    assert pipe.process(cloud(classes, back - S // 10)).pose_source.startswith(doubt)
+    for k in range(3):                         # until the odometry goes back too
+        assert pipe.add_odometry(odom(back - S // 5 + k * S // 50, 700.0))
+    assert pipe.odom_rewinds == 2
+    feed_odometry(pipe, back - S // 5 + 3 * S // 50, back + S)
+    assert pipe.process(cloud(classes, back - S // 10 + S // 100)).pose_source == 'odometry'
+    # a cloud that was only late: the next ones past the odometry buffered then have poses
+    assert pipe.process(cloud(classes, back + S // 2)).pose_source == 'odometry'
+    assert pipe.process(cloud(classes, back + S // 4)).pose_source.startswith(doubt)
+    assert pipe.process(cloud(classes, back + 3 * S // 4)).pose_source.startswith(doubt)
+    feed_odometry(pipe, back + S + S // 50, back + 2 * S)
+    assert pipe.process(cloud(classes, back + S + S // 10)).pose_source == 'odometry'
 
 
 @pytest.mark.slow
@@ -711,8 +724,6 @@ def test_skipped_clouds_buffered_keep_the_inputs_sweeps_as_in_training(model, cl
     assert set(pipe.buffer(bad).warnings) == {'unusable_cloud'}
     out = pipe.process(cloud(classes, T0 + 5 * S // 10))
     assert out.input_lags_s == pytest.approx((0.0, 0.3, 0.4))   # only the good sweeps
-    # the stream's checks run on a skipped cloud too: time going backwards resets
-    assert 'backwards' in pipe.buffer(cloud(classes, T0 + 4 * S // 10)).reset_reason
     # clouds only buffered for longer than max_gap_s: the memory is too old to fuse, the
     # sweeps just before the cloud stand
     pipe.process(cloud(classes, T0 + 6 * S // 10))
@@ -721,6 +732,8 @@ def test_skipped_clouds_buffered_keep_the_inputs_sweeps_as_in_training(model, cl
     out = pipe.process(cloud(classes, T0 + 13 * S // 10))
     assert 'memory 0.70 s old' in out.reset_reason and not out.used_memory
     assert out.input_lags_s == pytest.approx((0.0, 0.1, 0.2))
+    # the stream's checks run on a skipped cloud too: time going backwards resets
+    assert 'backwards' in pipe.buffer(cloud(classes, T0 + 12 * S // 10)).reset_reason
     # without a pose a skipped cloud is not buffered (it cannot be placed), nothing is reset,
     # and the next cloud's pose-jump check still sees the last pose
     short = make_pipeline(model, classes)

@@ -279,6 +279,15 @@ def test_settings_the_pipeline_cannot_apply_leave_the_frame_running(worker):
     assert w.frames_failed == 0 and w.pipeline.params == before      # the settings before
     level, message, _ = health_report(w.snapshot({}))
     assert level >= 1 and 'parameters not applied: RuntimeError' in message
+    # what the node sets its parameters back to, once; not after a later set that applied
+    assert w.take_restored() == before and w.take_restored() is None
+    w.request(params=replace(DetectorParams(), max_detections=1))
+    put_cloud(w, mc, T0 + S // 10)
+    assert until(lambda: w.frames_out == 2)
+    w.request(params=replace(DetectorParams(), max_detections=5))
+    put_cloud(w, mc, T0 + 2 * S // 10)
+    assert until(lambda: w.frames_out == 3)
+    assert w.pipeline.params.max_detections == 5 and w.take_restored() is None
 
 
 def test_the_detections_go_out_before_their_markers_are_built(request):
