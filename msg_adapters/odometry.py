@@ -144,7 +144,8 @@ class PoseBuffer:
     a time line that went back (a looped bag, a simulator or clock reset, or the poses after
     one stamped ahead, a glitch), then the poses stamped from the held ones' first on are
     dropped and the held ones take their place (counted in :attr:`rewinds`): a lookup at the
-    new stamps must not interpolate between two lines, and what lies before them stays. While
+    new stamps must not interpolate between two lines, and what lies before them stays (the
+    line as it was is kept as :attr:`previous`, for its clouds still on their way). While
     poses a little before the newest are held, a lookup at or after the first of them raises:
     which line such a stamp is on is not settled (a few messages). A step back shorter than
     ``NEAR_RUN - 1`` messages of the odometry is not seen: its poses go in place as late ones.
@@ -158,6 +159,9 @@ class PoseBuffer:
         self.max_age_ns = int(max_age_ns)
         self.tolerance_ns = int(tolerance_ns)
         self.rewinds = 0
+        # the time line before the last time the stamps went back, as it was then (for the
+        # clouds of that line still on their way)
+        self.previous: PoseBuffer | None = None
         self._line = TimeLine(rewind_ns)
         self._held: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]] = []
         self._stamps: list[int] = []
@@ -192,6 +196,9 @@ class PoseBuffer:
             # the new time line from its first stamp on: the poses stamped from there on are
             # the old line's (or one pose stamped ahead, a glitch), those before it stay
             cut = bisect.bisect_left(self._stamps, min(h[0] for h in run))
+            self.previous = PoseBuffer(self.max_age_ns, self.tolerance_ns, None)
+            self.previous._stamps, self.previous._t, self.previous._q = (
+                self._stamps[:], self._t[:], self._q[:])
             del self._stamps[cut:], self._t[cut:], self._q[cut:]
             self._held = []
             for held in run:

@@ -145,6 +145,7 @@ class OdometryGate(Generic[T]):
         self._queue: collections.deque[T] = collections.deque(maxlen=capacity)
         self.latest_ns = -1         # newest usable stamp (not from beyond the clock)
         self._line = TimeLine(REWIND_NS)
+        self.rewinds = 0            # how often the odometry's time went back
         self.waits = 0
         self.delays: collections.deque[float] = collections.deque(maxlen=500)
         self.closed = False
@@ -156,8 +157,11 @@ class OdometryGate(Generic[T]):
             self.delays.append(delay)
             self._queue.append(msg)
             if not now_ns or -delay <= max_ahead_s:
-                self.latest_ns = (stamp_ns if self._line.went_back(stamp_ns, self.latest_ns)
-                                  else max(self.latest_ns, stamp_ns))
+                if self._line.went_back(stamp_ns, self.latest_ns):
+                    self.latest_ns = stamp_ns
+                    self.rewinds += 1
+                else:
+                    self.latest_ns = max(self.latest_ns, stamp_ns)
             self._cv.notify_all()
 
     def drain(self) -> list[T]:
@@ -167,34 +171,36 @@ class OdometryGate(Generic[T]):
             self._queue.clear()
         return batch
 
-    def _reached(self, stamp_ns: int, went_back: bool) -> bool:
+    def _reached(self, stamp_ns: int, rewinds_before: int | None) -> bool:
         # a cloud whose stamp went back (a loop, a reset) comes before its time line's
-        # odometry: the old line's, far ahead of it, is not its own, nor is odometry that is
-        # still settling whether it went back a little (TimeLine's near run)
+        # odometry: the odometry buffered before it is another line's, so only odometry that
+        # went back since (and settled) is its own
         return stamp_ns <= self.latest_ns and (
-            not went_back or (self.latest_ns <= stamp_ns + REWIND_NS
-                              and not (self._line.run and not self._line.far)))
+            rewinds_before is None or (self.rewinds > rewinds_before
+                                       and not (self._line.run and not self._line.far)))
 
-    def covers(self, stamp_ns: int, went_back: bool = False) -> bool:
-        """Whether odometry reached ``stamp_ns`` (for a cloud whose stamp ``went_back``
-        before the last one: odometry of its own time line, within REWIND_NS after it)."""
+    def covers(self, stamp_ns: int, rewinds_before: int | None = None) -> bool:
+        """Whether odometry reached ``stamp_ns``; for a cloud whose stamp went back before the
+        last one's, ``rewinds_before`` (:attr:`rewinds` when the last cloud was taken): only
+        odometry that went back since covers it."""
         with self._cv:
-            return self._reached(stamp_ns, went_back)
+            return self._reached(stamp_ns, rewinds_before)
 
-    def wait_for(self, stamp_ns: int, timeout: float, went_back: bool = False) -> bool:
-        """Wait up to ``timeout`` s for odometry that reaches ``stamp_ns`` (see
-        :meth:`covers`); True if it did."""
+    def wait_for(self, stamp_ns: int, timeout: float, rewinds_before: int | None = None
+                 ) -> bool:
+        """Wait up to ``timeout`` s for odometry that covers ``stamp_ns`` (:meth:`covers`);
+        True if it did."""
         deadline = time.monotonic() + timeout
         with self._cv:
-            if self._reached(stamp_ns, went_back):
+            if self._reached(stamp_ns, rewinds_before):
                 return True
             self.waits += 1
-            while not self._reached(stamp_ns, went_back) and not self.closed:
+            while not self._reached(stamp_ns, rewinds_before) and not self.closed:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
                 self._cv.wait(left)
-            return self._reached(stamp_ns, went_back)
+            return self._reached(stamp_ns, rewinds_before)
 
     def close(self) -> None:
         """Wake a waiting worker for shutdown."""

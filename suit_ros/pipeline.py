@@ -137,10 +137,11 @@ class DetectionPipeline:
         self.last_frame_id: str | None = None
         self.last_pose: NDArray[np.float64] | None = None
         self.last_pose_ns = 0                 # the stamp of the cloud last_pose was read for
-        self.pose_rewinds = 0                 # odometry's rewinds when a cloud last took a pose
-        # (the odometry's newest stamp, its rewinds) when a cloud went back in time and the
-        # odometry did not: its poses up to there may be another time line's
-        self.pose_doubt: tuple[int, int] | None = None
+        # the odometry's time line the clouds are on (PoseBuffer.rewinds; one more: the clouds
+        # went back in time and the odometry not yet, whose poses up to ahead_until were then
+        # the line before)
+        self.cloud_line = 0
+        self.ahead_until = 0
         self.last_reset_reason = 'start'
         self.resets = 0
         self.odom_rejected = 0
@@ -229,7 +230,7 @@ class DetectionPipeline:
 
     @property
     def odom_rewinds(self) -> int:
-        """How often odometry went back in time (the pose buffer emptied: PoseBuffer)."""
+        """How often odometry went back in time (:attr:`PoseBuffer.rewinds`)."""
         return self.poses.rewinds
 
     @property
@@ -401,9 +402,7 @@ class DetectionPipeline:
             out.warnings['frame_changed'] = (f'frame_id changed from {self.last_frame_id!r} '
                                              f'to {frame_id!r} (memory reset)')
         back = self.last_stamp_ns is not None and stamp_ns < self.last_stamp_ns
-        pose, out.pose_source, out.pose_age_s = self._pose(stamp_ns, back)
-        if pose is not None:
-            self.pose_rewinds = self.poses.rewinds
+        pose, out.pose_source, out.pose_age_s, poses = self._pose(stamp_ns, back)
         if pose is None:
             out.single_frame = 'no_odometry' if self.poses.span() is None else 'outside_odometry'
             if (coverage and reason is None and len(points)      # a cloud the model runs on
@@ -434,7 +433,7 @@ class DetectionPipeline:
             # checked against the last placed pose
             self.last_pose, self.last_pose_ns = pose, stamp_ns
         if times is not None and len(points):
-            points = self._deskew(points, times, stamp_ns, pose is not None, out)
+            points = self._deskew(points, times, stamp_ns, poses, out)
         elif times is not None:
             out.deskew = 'off: no points'
         return points, stamp_ns, pose
@@ -506,14 +505,15 @@ class DetectionPipeline:
         return times
 
     def _deskew(self, points: NDArray[np.float32], times: NDArray[np.float32], stamp_ns: int,
-                have_pose: bool, out: PipelineOutput) -> NDArray[np.float32]:
-        """The points moved to the sensor's pose at the stamp (:mod:`suit_ros.deskew`), or as
-        they are (and why, in ``out.deskew``) when the odometry cannot say how the vehicle
-        moved over the sweep; a motion no vehicle makes is an input warning too."""
-        if not have_pose:
+                poses: PoseBuffer | None, out: PipelineOutput) -> NDArray[np.float32]:
+        """The points moved to the sensor's pose at the stamp (:mod:`suit_ros.deskew`) by the
+        odometry the cloud's pose came from (``poses``: None without one), or as they are
+        (and why, in ``out.deskew``) when the odometry cannot say how the vehicle moved over
+        the sweep; a motion no vehicle makes is an input warning too."""
+        if poses is None:
             out.deskew = 'off: no odometry at the stamp'
             return points
-        moved, twist, why = deskew_sweep(points, times, stamp_ns, self.poses, self.T_base_lidar)
+        moved, twist, why = deskew_sweep(points, times, stamp_ns, poses, self.T_base_lidar)
         if twist is None:
             out.deskew = f'off: {why}'
             if why.startswith('odometry '):     # a jump: implausible or uneven
@@ -570,29 +570,44 @@ class DetectionPipeline:
         return span is not None and span[1] >= stamp_ns
 
     def _pose(self, stamp_ns: int, went_back: bool = False
-              ) -> tuple[NDArray[np.float64] | None, str, float]:
-        """The cloud's pose, its source and the odometry's age. After a cloud whose stamp
-        ``went_back`` before the last one's (a loop, a reset) the clouds take a pose only once
-        the odometry went back too (:attr:`pose_rewinds`), or where they are stamped past the
-        odometry buffered then (:attr:`pose_doubt`): the poses about their stamps are
-        otherwise the old time line's."""
+              ) -> tuple[NDArray[np.float64] | None, str, float, PoseBuffer | None]:
+        """The cloud's pose, its source, the odometry's age and the poses it came from.
+
+        Clouds and odometry each go back in time on their own (a loop, a reset), in either
+        order. A cloud whose stamp ``went_back`` before the last one's takes its pose from
+        odometry that went back too (:attr:`cloud_line`); while the odometry has not, the
+        poses about its stamp are of the time before, and the clouds take none (the cloud was
+        only late once they are stamped past the odometry buffered then). The clouds of the
+        line before that are still on their way when the odometry went back take their poses
+        from that line as it was (:attr:`PoseBuffer.previous`).
+        """
         span = self.poses.span()
         if span is None:
             if self.last_odom_refused:       # odometry comes, but none of it is usable
-                return None, f'none: odometry rejected: {self.last_odom_error}', float('nan')
-            return None, 'none: no odometry received', float('nan')
+                return (None, f'none: odometry rejected: {self.last_odom_error}',
+                        float('nan'), None)
+            return None, 'none: no odometry received', float('nan'), None
         age = (stamp_ns - span[1]) * 1e-9
-        if went_back and self.poses.rewinds == self.pose_rewinds:
-            self.pose_doubt = (span[1], self.poses.rewinds)
-        if self.pose_doubt is not None:     # settled once the odometry went back, or is
-            until, rewinds = self.pose_doubt     # read past what was buffered then
-            if self.poses.rewinds != rewinds or stamp_ns > until:
-                self.pose_doubt = None
+        now = self.poses.rewinds
+        if went_back:
+            if now > self.cloud_line:         # the odometry went back before the cloud did
+                self.cloud_line = now
             else:
+                self.cloud_line, self.ahead_until = now + 1, span[1]
+        if self.cloud_line > now:
+            if stamp_ns <= self.ahead_until:
                 return None, ('none: the clouds went back in time and the odometry has not '
-                              '(yet): its poses are of the time before'), age
+                              '(yet): its poses are of the time before'), age, None
+            self.cloud_line = now             # only late: one time line after all
         try:
             T_odom_base = self.poses.lookup(stamp_ns)
+            self.cloud_line = now
+            return T_odom_base, 'odometry', age, self.poses
         except PoseLookupError as exc:
-            return None, f'none: {exc}', age
-        return T_odom_base, 'odometry', age
+            previous = self.poses.previous
+            if self.cloud_line < now and previous is not None:
+                try:                          # a cloud of the line before, on its way
+                    return previous.lookup(stamp_ns), 'odometry', age, previous
+                except PoseLookupError:
+                    pass
+            return None, f'none: {exc}', age, None

@@ -150,35 +150,36 @@ def test_the_odometry_gate_follows_time_back():
 
 def test_the_odometry_gate_follows_time_back_a_little():
     """Time goes back 0.3 s (a simulator reset soon after its start): three stamps in a row
-    before the newest, each after the last, are the new time line. While it settles a cloud
-    that went back is not covered (the odometry about its stamp may be either line's); a late
-    cloud with nothing settling is, as before."""
+    before the newest, each after the last, are the new time line. A cloud that went back is
+    covered only by odometry that went back since the cloud before (``rewinds_before``), and
+    settled: while the run is open the odometry about its stamp may be either line's."""
     gate: OdometryGate[str] = OdometryGate()
     for k in range(21):                                # 0 .. 0.4 s at 50 Hz
         gate.put('o', k * S // 50, 0, 1.0)
-    assert gate.covers(S // 4, went_back=True)         # late, nothing settling: covered
+    before = gate.rewinds
+    assert gate.covers(S // 4) and not gate.covers(S // 4, before)   # in order / went back
     gate.put('r', S // 10, 0, 1.0)                     # 0.3 s back: settling
-    assert gate.latest_ns == 2 * S // 5 and not gate.covers(S // 10, went_back=True)
+    assert gate.latest_ns == 2 * S // 5 and not gate.covers(S // 10, before)
     assert gate.covers(S // 4)                         # a cloud in order: as before
     gate.put('r', S // 10 + S // 50, 0, 1.0)
     gate.put('r', S // 10 + 2 * S // 50, 0, 1.0)       # the third: the new line
-    assert gate.latest_ns == S // 10 + 2 * S // 50 and gate.covers(S // 10, went_back=True)
+    assert gate.latest_ns == S // 10 + 2 * S // 50 and gate.rewinds == before + 1
+    assert gate.covers(S // 10, before) and not gate.covers(S // 10, gate.rewinds)
 
 
-def test_odometry_far_ahead_of_a_cloud_is_not_its_odometry():
+def test_odometry_from_before_a_cloud_that_went_back_is_not_its_odometry():
     """After time went back the first cloud of the new time line (its stamp before the last
-    cloud's) can come before its odometry: the old line's, 60 s ahead, does not cover it, so
-    the worker waits (odom_wait_s) for the new line's. A cloud that is only late (a busy node,
-    a bag played fast) is covered by the odometry ahead of it, and does not wait."""
+    cloud's) can come before its odometry: the old line's does not cover it (60 s ahead, or
+    a little), so the worker waits (odom_wait_s) for the new line's. A cloud that is only
+    late (none went back) waits as long, then runs (the pipeline gives it no pose)."""
     gate: OdometryGate[str] = OdometryGate()
     gate.put('a', 1000 * S, 0, 1.0)
-    assert gate.covers(1000 * S - S // 2) and gate.covers(995 * S)       # late: covered
-    assert gate.covers(1000 * S - S // 2, went_back=True)
-    assert not gate.covers(940 * S, went_back=True)
+    assert gate.covers(1000 * S - S // 2) and gate.covers(995 * S)      # in order: covered
+    assert not gate.covers(1000 * S - S // 2, 0) and not gate.covers(940 * S, 0)
     t0 = time.monotonic()
-    assert not gate.wait_for(940 * S, 0.05, went_back=True) and time.monotonic() - t0 >= 0.04
-    assert gate.wait_for(995 * S, 0.05) and gate.waits == 1          # the late one: no wait
-    waiter = threading.Thread(target=lambda: got.append(gate.wait_for(940 * S, 5.0, True)))
+    assert not gate.wait_for(940 * S, 0.05, 0) and time.monotonic() - t0 >= 0.04
+    assert gate.wait_for(995 * S, 0.05) and gate.waits == 1          # in order: no wait
+    waiter = threading.Thread(target=lambda: got.append(gate.wait_for(940 * S, 5.0, 0)))
     got: list[bool] = []
     waiter.start()
     for t in (939 * S, 939 * S + S // 2, 940 * S):       # the new line's odometry comes

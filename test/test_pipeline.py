@@ -685,6 +685,24 @@ def test_a_cloud_that_went_back_takes_a_pose_only_from_odometry_that_went_back(m
     assert pipe.process(cloud(classes, back + S + S // 10)).pose_source == 'odometry'
 
 
+def test_a_cloud_on_its_way_when_the_odometry_went_back_keeps_its_time_line(model, classes):
+    """A bag played in a loop: the loop's odometry comes before the last cloud of the pass
+    before has run. That cloud takes its pose from its own time line, as it was (not from
+    the new line, which does not reach it); the loop's first cloud from the new line."""
+    pipe = make_pipeline(model, classes)
+    feed_odometry(pipe, T0, T0 + S)                      # x = 10 m/s from T0
+    assert pipe.process(cloud(classes, T0 + 8 * S // 10)).pose_source == 'odometry'
+    for k in range(3):                                   # the loop's odometry, 0.9 s back
+        assert pipe.add_odometry(odom(T0 + S // 10 + k * S // 50, -300.0))
+    assert pipe.odom_rewinds == 1
+    out = pipe.process(cloud(classes, T0 + 9 * S // 10))  # the pass before's last cloud
+    assert out.pose_source == 'odometry' and out.reset_reason == ''
+    assert pipe.last_pose[0, 3] == pytest.approx(9.0)
+    out = pipe.process(cloud(classes, T0 + S // 10 + S // 50))     # the loop's first
+    assert 'backwards' in out.reset_reason and out.pose_source == 'odometry'
+    assert pipe.last_pose[0, 3] == pytest.approx(-300.0)
+
+
 @pytest.mark.slow
 def test_max_gap_s_is_the_one_staleness_threshold(model, classes):
     pipe = make_pipeline(model, classes)

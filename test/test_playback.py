@@ -108,8 +108,9 @@ def test_a_bag_played_in_a_loop_gives_the_same_detections_each_time(bag, checkpo
     played in a loop: time goes back between the passes, and every cloud's stamp comes again.
     The node answers every cloud of both passes, and the second pass publishes what the first
     did (memory, sweeps and tracks started again; track ids go on counting). Before, the
-    repeated stamps were taken for copies and dropped. (This bag lasts under a second, so
-    its odometry stays within the pose buffer's rewind limit; a long loop's odometry is
+    repeated stamps were taken for copies and dropped. (This bag lasts under a second: its
+    odometry goes back less than a second, told by three stamps in a row, and comes before
+    the pass's last cloud has run, which keeps its own time line; a long loop's odometry is
     test_worker's.)"""
     from nav_msgs.msg import Odometry
     from sensor_msgs.msg import PointCloud2
