@@ -145,9 +145,8 @@ class PoseBuffer:
     one stamped ahead, a glitch), then the poses stamped from the held ones' first on are
     dropped and the held ones take their place (counted in :attr:`rewinds`): a lookup at the
     new stamps must not interpolate between two lines, and what lies before them stays (the
-    line as it was is kept as :attr:`previous`, for its clouds still on their way). While
-    poses a little before the newest are held, a lookup at or after the first of them raises:
-    which line such a stamp is on is not settled (a few messages). A step back shorter than
+    line as it was is kept as :attr:`previous`, for its clouds still on their way). Held
+    poses are not looked up (the line is the one before them). A step back shorter than
     ``NEAR_RUN - 1`` messages of the odometry is not seen: its poses go in place as late ones.
     ``rewind_ns`` None (offline: every pose of a recording at once, in any order): every pose
     goes in place at once. A lookup within ``tolerance_ns`` outside the buffered span returns
@@ -233,12 +232,6 @@ class PoseBuffer:
         """The pose at ``stamp_ns`` as a 4x4 float64 matrix."""
         if not self._stamps:
             raise PoseLookupError('no pose buffered yet')
-        if (self._held and not self._line.far
-                and stamp_ns >= self._held[0][0] - self.tolerance_ns):
-            raise PoseLookupError(
-                f'odometry stamped up to {(self._stamps[-1] - self._held[0][0]) * 1e-9:.3f} s '
-                'before its newest came in (time went back, or late messages): which time '
-                f'line stamp {stamp_ns * 1e-9:.3f} s is on is not settled yet')
         first, last = self._stamps[0], self._stamps[-1]
         if stamp_ns < first - self.tolerance_ns or stamp_ns > last + self.tolerance_ns:
             raise PoseLookupError(

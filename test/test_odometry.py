@@ -208,22 +208,21 @@ def _moving(buf, start_ns, n, x0, period_ns=20_000_000):
 def test_time_going_back_less_than_a_second_is_not_mixed_with_the_time_before():
     """A simulator reset 0.4 s into its run: odometry goes back 0.3 s to another place.
     Three poses in a row before the newest, each after the last, are the new time line: the
-    poses stamped from its first on are dropped and its own take their place. Until the
-    third, the poses are held aside, so no lookup ever interpolates between the two lines,
-    and one at the stamps they may be on says that the time line is not settled (what the
-    pipeline then reports as its pose source)."""
+    poses stamped from its first on are dropped and its own take their place (the old line
+    kept as it was, ``previous``). Until the third, the poses are held aside, so no lookup
+    ever interpolates between the two lines."""
     buf = PoseBuffer(max_age_ns=10 * 10**9, tolerance_ns=0)
     _moving(buf, 0, 21, 0)                                # 0 .. 0.4 s, x 0 .. 20
     buf.add(100_000_000, make_pose([-500, 0, 0], 0))      # the reset: 0.3 s back, elsewhere
     np.testing.assert_allclose(buf.lookup(50_000_000)[0, 3], 2.5)   # before it: the old line
-    with pytest.raises(PoseLookupError, match='not settled'):
-        buf.lookup(110_000_000)
+    np.testing.assert_allclose(buf.lookup(110_000_000)[0, 3], 5.5)  # held: still the old line
     buf.add(120_000_000, make_pose([-499, 0, 0], 0))
     assert buf.rewinds == 0 and len(buf) == 21
     buf.add(140_000_000, make_pose([-498, 0, 0], 0))      # the third: time went back
     # the old line from 0.1 s on dropped, before it kept
     assert buf.rewinds == 1 and buf.span() == (0, 140_000_000) and len(buf) == 8
     np.testing.assert_allclose(buf.lookup(130_000_000)[0, 3], -498.5)
+    np.testing.assert_allclose(buf.previous.lookup(300_000_000)[0, 3], 15.0)
     _moving(buf, 160_000_000, 20, -497)                   # and on, past the old newest
     xs = [buf.lookup(t)[0, 3] for t in range(100_000_000, 540_000_000, 10_000_000)]
     np.testing.assert_allclose(np.diff(xs), 0.5)          # one line: no old pose in it
