@@ -141,11 +141,11 @@ class PoseBuffer:
     A duplicate stamp replaces the old pose, poses older than ``max_age_ns`` before the newest
     are dropped. A pose stamped before the newest is held aside until the poses after it say
     what it is (:class:`TimeLine`): a late message, then inserted in place; or the first of
-    a time line that went back (a looped bag, a simulator or clock reset, or the poses after
-    one stamped ahead, a glitch), then the poses stamped from the held ones' first on are
-    dropped and the held ones take their place (counted in :attr:`rewinds`): a lookup at the
-    new stamps must not interpolate between two lines, and what lies before them stays (the
-    line as it was is kept as :attr:`previous`, for its clouds still on their way). Held
+    a time line that went back (a looped bag, a simulator or clock reset), then the buffer
+    starts again from the held poses (counted in :attr:`rewinds`): a lookup at the new stamps
+    must not interpolate between two lines. The line before is kept as it was
+    (:attr:`previous`), for its clouds still on their way. Where the held poses come after a
+    single pose stamped ahead of them (a glitch), only that pose goes (counted too). Held
     poses are not looked up (the line is the one before them). A step back shorter than
     ``NEAR_RUN - 1`` messages of the odometry is not seen: its poses go in place as late ones.
     ``rewind_ns`` None (offline: every pose of a recording at once, in any order): every pose
@@ -192,13 +192,17 @@ class PoseBuffer:
             self._insert(*pose)
         elif self._line.went_back(pose[0], self._stamps[-1]):
             run = self._held + [pose]
-            # the new time line from its first stamp on: the poses stamped from there on are
-            # the old line's (or one pose stamped ahead, a glitch), those before it stay
             cut = bisect.bisect_left(self._stamps, min(h[0] for h in run))
-            self.previous = PoseBuffer(self.max_age_ns, self.tolerance_ns, None)
-            self.previous._stamps, self.previous._t, self.previous._q = (
-                self._stamps[:], self._t[:], self._q[:])
-            del self._stamps[cut:], self._t[cut:], self._q[cut:]
+            if cut < len(self._stamps) - 1:
+                # another time line: none of the old line's poses goes with it (they are
+                # another trajectory, or the same one at other stamps); kept as it was for
+                # its clouds still on their way
+                self.previous = PoseBuffer(self.max_age_ns, self.tolerance_ns, None)
+                self.previous._stamps, self.previous._t, self.previous._q = (
+                    self._stamps, self._t, self._q)
+                self._stamps, self._t, self._q = [], [], []
+            else:           # one pose stamped ahead (a glitch): only it goes
+                del self._stamps[cut:], self._t[cut:], self._q[cut:]
             self._held = []
             for held in run:
                 self._insert(*held)

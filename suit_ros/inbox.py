@@ -146,6 +146,7 @@ class OdometryGate(Generic[T]):
         self.latest_ns = -1         # newest usable stamp (not from beyond the clock)
         self._line = TimeLine(REWIND_NS)
         self.rewinds = 0            # how often the odometry's time went back
+        self.previous_latest = -1   # the newest stamp before it last went back
         self.waits = 0
         self.delays: collections.deque[float] = collections.deque(maxlen=500)
         self.closed = False
@@ -158,7 +159,7 @@ class OdometryGate(Generic[T]):
             self._queue.append(msg)
             if not now_ns or -delay <= max_ahead_s:
                 if self._line.went_back(stamp_ns, self.latest_ns):
-                    self.latest_ns = stamp_ns
+                    self.previous_latest, self.latest_ns = self.latest_ns, stamp_ns
                     self.rewinds += 1
                 else:
                     self.latest_ns = max(self.latest_ns, stamp_ns)
@@ -171,36 +172,43 @@ class OdometryGate(Generic[T]):
             self._queue.clear()
         return batch
 
-    def _reached(self, stamp_ns: int, rewinds_before: int | None) -> bool:
-        # a cloud whose stamp went back (a loop, a reset) comes before its time line's
-        # odometry: the odometry buffered before it is another line's, so only odometry that
-        # went back since (and settled) is its own
-        return stamp_ns <= self.latest_ns and (
-            rewinds_before is None or (self.rewinds > rewinds_before
-                                       and not (self._line.run and not self._line.far)))
+    def _reached(self, stamp_ns: int, went_back: bool, since: int) -> bool:
+        if went_back:
+            # a cloud whose stamp went back (a loop, a reset) comes before its time line's
+            # odometry: the odometry buffered before it is another line's, so only odometry
+            # that went back since the clouds last did (and settled) is its own
+            return (self.rewinds > since and stamp_ns <= self.latest_ns
+                    and not (self._line.run and not self._line.far))
+        # the odometry went back and the clouds not yet: theirs is the line before
+        return stamp_ns <= self.latest_ns or (self.rewinds > since
+                                              and stamp_ns <= self.previous_latest)
 
-    def covers(self, stamp_ns: int, rewinds_before: int | None = None) -> bool:
-        """Whether odometry reached ``stamp_ns``; for a cloud whose stamp went back before the
-        last one's, ``rewinds_before`` (:attr:`rewinds` when the last cloud was taken): only
-        odometry that went back since covers it."""
+    def covers(self, stamp_ns: int, went_back: bool = False, since: int | None = None
+               ) -> bool:
+        """Whether odometry reached ``stamp_ns``. For a cloud whose stamp ``went_back``
+        before the last one's, only odometry that went back since :attr:`rewinds` was
+        ``since`` (when the clouds last went back) does; a cloud that did not is on the line
+        before while the odometry went back since then. ``since`` None: the count now."""
         with self._cv:
-            return self._reached(stamp_ns, rewinds_before)
+            return self._reached(stamp_ns, went_back,
+                                 self.rewinds if since is None else since)
 
-    def wait_for(self, stamp_ns: int, timeout: float, rewinds_before: int | None = None
-                 ) -> bool:
+    def wait_for(self, stamp_ns: int, timeout: float, went_back: bool = False,
+                 since: int | None = None) -> bool:
         """Wait up to ``timeout`` s for odometry that covers ``stamp_ns`` (:meth:`covers`);
         True if it did."""
         deadline = time.monotonic() + timeout
         with self._cv:
-            if self._reached(stamp_ns, rewinds_before):
+            since = self.rewinds if since is None else since
+            if self._reached(stamp_ns, went_back, since):
                 return True
             self.waits += 1
-            while not self._reached(stamp_ns, rewinds_before) and not self.closed:
+            while not self._reached(stamp_ns, went_back, since) and not self.closed:
                 left = deadline - time.monotonic()
                 if left <= 0:
                     return False
                 self._cv.wait(left)
-            return self._reached(stamp_ns, rewinds_before)
+            return self._reached(stamp_ns, went_back, since)
 
     def close(self) -> None:
         """Wake a waiting worker for shutdown."""

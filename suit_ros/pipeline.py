@@ -138,8 +138,8 @@ class DetectionPipeline:
         self.last_pose: NDArray[np.float64] | None = None
         self.last_pose_ns = 0                 # the stamp of the cloud last_pose was read for
         # the odometry's time line the clouds are on (PoseBuffer.rewinds; one more: the clouds
-        # went back in time and the odometry not yet, whose poses up to ahead_until were then
-        # the line before)
+        # went back in time and the odometry not yet, until they pass ahead_until, the stamp
+        # of the cloud before or of the odometry then: that one was only late)
         self.cloud_line = 0
         self.ahead_until = 0
         self.last_reset_reason = 'start'
@@ -577,9 +577,10 @@ class DetectionPipeline:
         order. A cloud whose stamp ``went_back`` before the last one's takes its pose from
         odometry that went back too (:attr:`cloud_line`); while the odometry has not, the
         poses about its stamp are of the time before, and the clouds take none (the cloud was
-        only late once they are stamped past the odometry buffered then). The clouds of the
-        line before that are still on their way when the odometry went back take their poses
-        from that line as it was (:attr:`PoseBuffer.previous`).
+        only late once they are stamped past the cloud before it, or past the odometry
+        buffered then: a cloud stamped ahead may have gone before it). The clouds of the line
+        before that are still on their way when the odometry went back take their poses from
+        that line as it was (:attr:`PoseBuffer.previous`).
         """
         span = self.poses.span()
         if span is None:
@@ -587,27 +588,31 @@ class DetectionPipeline:
                 return (None, f'none: odometry rejected: {self.last_odom_error}',
                         float('nan'), None)
             return None, 'none: no odometry received', float('nan'), None
-        age = (stamp_ns - span[1]) * 1e-9
         now = self.poses.rewinds
         if went_back:
             if now > self.cloud_line:         # the odometry went back before the cloud did
                 self.cloud_line = now
-            else:
-                self.cloud_line, self.ahead_until = now + 1, span[1]
+            else:       # not yet: until the clouds pass the cloud before (or the odometry)
+                self.cloud_line = now + 1
+                self.ahead_until = min(self.last_stamp_ns or 0, span[1])
         if self.cloud_line > now:
             if stamp_ns <= self.ahead_until:
                 return None, ('none: the clouds went back in time and the odometry has not '
-                              '(yet): its poses are of the time before'), age, None
+                              '(yet): its poses are of the time before'), \
+                    (stamp_ns - span[1]) * 1e-9, None
             self.cloud_line = now             # only late: one time line after all
-        try:
-            T_odom_base = self.poses.lookup(stamp_ns)
-            self.cloud_line = now
-            return T_odom_base, 'odometry', age, self.poses
-        except PoseLookupError as exc:
-            previous = self.poses.previous
-            if self.cloud_line < now and previous is not None:
-                try:                          # a cloud of the line before, on its way
-                    return previous.lookup(stamp_ns), 'odometry', age, previous
-                except PoseLookupError:
-                    pass
-            return None, f'none: {exc}', age, None
+        lines = [self.poses]
+        if self.cloud_line < now and self.poses.previous is not None:
+            lines.insert(0, self.poses.previous)   # a cloud of the line before, on its way
+        error = ''
+        for poses in lines:
+            try:
+                T_odom_base = poses.lookup(stamp_ns)
+            except PoseLookupError as exc:
+                error = error or str(exc)
+                continue
+            if poses is self.poses:
+                self.cloud_line = now
+            newest = poses.span() or span
+            return T_odom_base, 'odometry', (stamp_ns - newest[1]) * 1e-9, poses
+        return None, f'none: {error}', (stamp_ns - span[1]) * 1e-9, None

@@ -100,7 +100,7 @@ class FrameWorker:
         self.mailbox: CloudMailbox[Received[Any]] = CloudMailbox(keep_replaced=keep_skipped)
         self.frames_sweeps_only = 0     # skipped clouds taken into the sweeps (no detection)
         self.odometry: OdometryGate[Any] = OdometryGate()
-        self.taken_rewinds = 0          # the odometry's rewinds when the last cloud was taken
+        self.back_rewinds = 0           # the odometry's rewinds when the clouds last went back
         self.reset_request: str | None = None
         self.pending: DetectorParams | None = None
         # the settings applied again after a set the pipeline could not apply, until the node
@@ -142,9 +142,6 @@ class FrameWorker:
             received, skipped = self.mailbox.take_all(0.5)
             if received is None:
                 continue
-            # the odometry's rewinds when the cloud before was taken: a cloud that went back
-            # takes only odometry that went back since
-            rewinds_before, self.taken_rewinds = self.taken_rewinds, self.odometry.rewinds
             with self.lock:
                 reset, self.reset_request = self.reset_request, None
                 pending, self.pending = self.pending, None
@@ -153,7 +150,7 @@ class FrameWorker:
             try:
                 if reset:
                     self.pipeline.reset(reset)
-                self._wait_for_odometry(stamp_ns(received.msg), rewinds_before)
+                self._wait_for_odometry(stamp_ns(received.msg))
                 self._drain_odometry()
                 t0 = time.perf_counter()
                 for old in ([] if reset else self._in_order(skipped, received)):
@@ -203,17 +200,19 @@ class FrameWorker:
             restored, self.restored = self.restored, None
             return restored
 
-    def _wait_for_odometry(self, stamp: int, rewinds_before: int) -> None:
-        """Wait up to ``odom_wait_s`` for odometry at or after ``stamp`` (for a cloud whose
-        stamp went back: odometry that went back since the cloud before was taken,
-        ``rewinds_before``); no wait while nobody publishes odometry."""
+    def _wait_for_odometry(self, stamp: int) -> None:
+        """Wait up to ``odom_wait_s`` for odometry at or after ``stamp`` of the cloud's time
+        line (:meth:`OdometryGate.covers`: for a cloud whose stamp went back, odometry that
+        went back since the clouds last did); no wait while nobody publishes odometry."""
         wait = self.params().odom_wait_s
         last = self.pipeline.last_stamp_ns
-        back = rewinds_before if last is not None and stamp < last else None
-        if self.odometry.covers(stamp, back) or wait <= 0.0 or (
-                self.odometry.latest_ns < 0 and not self.odometry_published()):
-            return
-        self.odometry.wait_for(stamp, wait, back)
+        back = last is not None and stamp < last
+        gate = self.odometry
+        if not (gate.covers(stamp, back, self.back_rewinds) or wait <= 0.0 or (
+                gate.latest_ns < 0 and not self.odometry_published())):
+            gate.wait_for(stamp, wait, back, self.back_rewinds)
+        if back:
+            self.back_rewinds = gate.rewinds
 
     def _drain_odometry(self) -> None:
         now = self.clock_ns()

@@ -151,20 +151,23 @@ def test_the_odometry_gate_follows_time_back():
 def test_the_odometry_gate_follows_time_back_a_little():
     """Time goes back 0.3 s (a simulator reset soon after its start): three stamps in a row
     before the newest, each after the last, are the new time line. A cloud that went back is
-    covered only by odometry that went back since the cloud before (``rewinds_before``), and
-    settled: while the run is open the odometry about its stamp may be either line's."""
+    covered only by odometry that went back since the clouds last did (``since``), and
+    settled: while the run is open the odometry about its stamp may be either line's. A cloud
+    that did not go back is on the line before (one still on its way)."""
     gate: OdometryGate[str] = OdometryGate()
     for k in range(21):                                # 0 .. 0.4 s at 50 Hz
         gate.put('o', k * S // 50, 0, 1.0)
-    before = gate.rewinds
-    assert gate.covers(S // 4) and not gate.covers(S // 4, before)   # in order / went back
+    since = gate.rewinds
+    assert gate.covers(S // 4) and not gate.covers(S // 4, True, since)
     gate.put('r', S // 10, 0, 1.0)                     # 0.3 s back: settling
-    assert gate.latest_ns == 2 * S // 5 and not gate.covers(S // 10, before)
+    assert gate.latest_ns == 2 * S // 5 and not gate.covers(S // 10, True, since)
     assert gate.covers(S // 4)                         # a cloud in order: as before
     gate.put('r', S // 10 + S // 50, 0, 1.0)
     gate.put('r', S // 10 + 2 * S // 50, 0, 1.0)       # the third: the new line
-    assert gate.latest_ns == S // 10 + 2 * S // 50 and gate.rewinds == before + 1
-    assert gate.covers(S // 10, before) and not gate.covers(S // 10, gate.rewinds)
+    assert gate.latest_ns == S // 10 + 2 * S // 50 and gate.rewinds == since + 1
+    assert gate.covers(S // 10, True, since) and not gate.covers(S // 10, True, gate.rewinds)
+    # the line before's last cloud, on its way: covered by the line before, without a wait
+    assert gate.covers(2 * S // 5, False, since) and not gate.covers(2 * S // 5)
 
 
 def test_odometry_from_before_a_cloud_that_went_back_is_not_its_odometry():
@@ -175,11 +178,11 @@ def test_odometry_from_before_a_cloud_that_went_back_is_not_its_odometry():
     gate: OdometryGate[str] = OdometryGate()
     gate.put('a', 1000 * S, 0, 1.0)
     assert gate.covers(1000 * S - S // 2) and gate.covers(995 * S)      # in order: covered
-    assert not gate.covers(1000 * S - S // 2, 0) and not gate.covers(940 * S, 0)
+    assert not gate.covers(1000 * S - S // 2, True, 0) and not gate.covers(940 * S, True, 0)
     t0 = time.monotonic()
-    assert not gate.wait_for(940 * S, 0.05, 0) and time.monotonic() - t0 >= 0.04
+    assert not gate.wait_for(940 * S, 0.05, True, 0) and time.monotonic() - t0 >= 0.04
     assert gate.wait_for(995 * S, 0.05) and gate.waits == 1          # in order: no wait
-    waiter = threading.Thread(target=lambda: got.append(gate.wait_for(940 * S, 5.0, 0)))
+    waiter = threading.Thread(target=lambda: got.append(gate.wait_for(940 * S, 5.0, True, 0)))
     got: list[bool] = []
     waiter.start()
     for t in (939 * S, 939 * S + S // 2, 940 * S):       # the new line's odometry comes
