@@ -88,6 +88,7 @@ def slerp(q0: NDArray[np.float64], q1: NDArray[np.float64], f: float) -> NDArray
     return np.asarray(q / np.linalg.norm(q), np.float64)
 
 
+Pose = tuple[int, NDArray[np.float64], NDArray[np.float64]]     # stamp, position, quaternion
 REWIND_NS = 1_000_000_000   # a stamp this far before the newest: late, or time went back
 NEAR_RUN = 3                # stamps in a row before the newest, each after the last: went back
 
@@ -139,14 +140,15 @@ class PoseBuffer:
     """Recent poses by stamp; interpolates (linear position, slerp rotation) at any stamp.
 
     A duplicate stamp replaces the old pose, poses older than ``max_age_ns`` before the newest
-    are dropped. A pose stamped before the newest is held aside until the poses after it say
-    what it is (:class:`TimeLine`): a late message, then inserted in place; or the first of
-    a time line that went back (a looped bag, a simulator or clock reset), then the buffer
-    starts again from the held poses (counted in :attr:`rewinds`): a lookup at the new stamps
-    must not interpolate between two lines. The line before is kept as it was
-    (:attr:`previous`), for its clouds still on their way. Where the held poses come after a
-    single pose stamped ahead of them (a glitch), only that pose goes (counted too). Held
-    poses are not looked up (the line is the one before them). A step back shorter than
+    are dropped. A pose stamped before the newest pose but one is held aside until the poses
+    after it say what it is (:class:`TimeLine`): a late message, then inserted in place; or
+    the first of a time line that went back (a looped bag, a simulator or clock reset), then
+    the buffer starts again from the held poses (counted in :attr:`rewinds`): a lookup at the
+    new stamps must not interpolate between two lines. The line before is kept as it was
+    (:attr:`previous`), for its clouds still on their way. Poses after the newest but one go
+    in place at once (a message late by less than one, or the way on after a single pose
+    stamped ahead: a glitch, which goes once three such come, counted too). Held poses are
+    not looked up (the line is the one before them). A step back shorter than
     ``NEAR_RUN - 1`` messages of the odometry is not seen: its poses go in place as late ones.
     ``rewind_ns`` None (offline: every pose of a recording at once, in any order): every pose
     goes in place at once. A lookup within ``tolerance_ns`` outside the buffered span returns
@@ -162,7 +164,9 @@ class PoseBuffer:
         # clouds of that line still on their way)
         self.previous: PoseBuffer | None = None
         self._line = TimeLine(rewind_ns)
-        self._held: list[tuple[int, NDArray[np.float64], NDArray[np.float64]]] = []
+        # the poses of the TimeLine's run (before the newest, in a row), each with whether it
+        # is in place already (or held aside)
+        self._run: list[tuple[Pose, bool]] = []
         self._stamps: list[int] = []
         self._t: list[NDArray[np.float64]] = []
         self._q: list[NDArray[np.float64]] = []
@@ -175,7 +179,7 @@ class PoseBuffer:
         self._stamps.clear()
         self._t.clear()
         self._q.clear()
-        self._held.clear()
+        self._run = []
         self._line.run.clear()
 
     def span(self) -> tuple[int, int] | None:
@@ -191,37 +195,52 @@ class PoseBuffer:
         if not self._stamps or self._line.rewind_ns is None:
             self._insert(*pose)
         elif self._line.went_back(pose[0], self._stamps[-1]):
-            run = self._held + [pose]
-            cut = bisect.bisect_left(self._stamps, min(h[0] for h in run))
-            if cut < len(self._stamps) - 1:
-                # another time line: none of the old line's poses goes with it (they are
-                # another trajectory, or the same one at other stamps); kept as it was for
-                # its clouds still on their way
-                self.previous = PoseBuffer(self.max_age_ns, self.tolerance_ns, None)
-                self.previous._stamps, self.previous._t, self.previous._q = (
-                    self._stamps, self._t, self._q)
-                self._stamps, self._t, self._q = [], [], []
-            else:           # one pose stamped ahead (a glitch): only it goes
-                del self._stamps[cut:], self._t[cut:], self._q[cut:]
-            self._held = []
-            for held in run:
-                self._insert(*held)
+            self._went_back([p for p, _ in self._run] + [pose],
+                            {p[0] for p, placed in self._run if placed})
+            self._run = []
             self.rewinds += 1
         elif pose[0] < self._stamps[-1]:   # before the newest: late, or a new line's first
-            in_run = set(self._line.run)
-            for held in self._held:        # no longer a new line's: late, in place
-                if held[0] not in in_run:
-                    self._insert(*held)
-            self._held = [h for h in self._held if h[0] in in_run and h[0] != pose[0]]
-            self._held.append(pose)        # (a repeated stamp replaces: at most a run's)
+            if len(self._line.run) == 1:   # a run of its own: the one before was late
+                self._place_held()
+            # after the newest but one: late by less than a message, or the way on after one
+            # pose stamped ahead; in place now. Further back: held until the line is settled
+            placed = len(self._stamps) < 2 or pose[0] > self._stamps[-2]
+            if placed:
+                self._insert(*pose)
+            self._run.append((pose, placed))
         else:                              # the newest: whatever was held came late
-            for held in self._held:
-                self._insert(*held)
-            self._held.clear()
+            self._place_held()
             self._insert(*pose)
         cut = bisect.bisect_left(self._stamps, self._stamps[-1] - self.max_age_ns)
         if cut:
             del self._stamps[:cut], self._t[:cut], self._q[:cut]
+
+    def _place_held(self) -> None:
+        """The held poses of the run were late messages: in place."""
+        for pose, placed in self._run:
+            if not placed:
+                self._insert(*pose)
+        self._run = []
+
+    def _went_back(self, run: list[Pose], placed: set[int]) -> None:
+        """The poses of ``run`` are a time line that went back (``placed``: those already in
+        place): the buffer starts again from them, the line before kept as :attr:`previous`;
+        where a single pose lies after their first that is not one of them, it was stamped
+        ahead (a glitch), and only it goes."""
+        i = bisect.bisect_left(self._stamps, min(p[0] for p in run))
+        others = [k for k in range(i, len(self._stamps)) if self._stamps[k] not in placed]
+        if len(others) <= 1:
+            for k in reversed(others):
+                del self._stamps[k], self._t[k], self._q[k]
+        else:
+            keep = [k for k, stamp in enumerate(self._stamps) if stamp not in placed]
+            self.previous = PoseBuffer(self.max_age_ns, self.tolerance_ns, None)
+            self.previous._stamps = [self._stamps[k] for k in keep]
+            self.previous._t = [self._t[k] for k in keep]
+            self.previous._q = [self._q[k] for k in keep]
+            self._stamps, self._t, self._q = [], [], []
+        for pose in run:
+            self._insert(*pose)
 
     def _insert(self, stamp_ns: int, t: NDArray[np.float64], q: NDArray[np.float64]) -> None:
         i = bisect.bisect_left(self._stamps, stamp_ns)
