@@ -313,6 +313,19 @@ def render(r: Comparison, title: str, command: str) -> str:
     return '\n'.join(lines) + '\n'
 
 
+def _variant(run: str, checkpoints: list[str]) -> str:
+    """The variant a run (or the first run of a difference) is, without its checkpoint and
+    the tracker: 'real car ends' of 'suit, tracking, real car ends - suit, tracking'."""
+    name = run.split(' - ')[0]
+    for c in checkpoints:
+        if name == c:
+            return 'plain'
+        if name.startswith(c + ', '):
+            name = name[len(c) + 2:]
+            break
+    return name if name == 'tracking' else name.removeprefix('tracking, ')
+
+
 def _left_out(r: Comparison, heldout: bool = False) -> list[str]:
     """A line naming the intervals that left out resamples in which their metric is undefined
     (none when every resample defined every metric): of the validation tables, or with
@@ -322,12 +335,30 @@ def _left_out(r: Comparison, heldout: bool = False) -> list[str]:
               else {**left_out_counts(r.stats), **left_out_counts(r.diffs)})
     if not counts:
         return []
-    per_run = '; '.join(f'{run}: ' + ', '.join(f'{k} {n}' for k, n in m.items())
-                        for run, m in counts.items())
+    # the runs that leave out the same, together (most runs share their drives' count): the
+    # largest group last, by its size when it is large
+    groups: dict[tuple[tuple[str, int], ...], list[str]] = {}
+    for run, m in counts.items():
+        groups.setdefault(tuple(m.items()), []).append(run)
+    ordered = sorted(groups.items(), key=lambda g: len(g[1]))
+    parts = []
+    for i, (key, runs) in enumerate(ordered):
+        what = ', '.join(f'{k} {n}' for k, n in key)
+        diffs = sum(' - ' in run for run in runs)
+        size = ' and '.join(f'{n} {kind}{"s" if n > 1 else ""}' for n, kind in (
+            (len(runs) - diffs, 'run'), (diffs, 'difference')) if n)
+        if len(runs) <= 6:
+            who = ', '.join(f'`{run}`' for run in runs)      # (names hold commas)
+        elif i == len(ordered) - 1 and len(ordered) > 1:
+            who = f'the other {size}'
+        else:                        # by the variants they are (the same drives)
+            names = list(r.meta.get('checkpoints', {}))
+            who = ', '.join(dict.fromkeys(_variant(run, names) for run in runs)) + f' ({size})'
+        parts.append(f'{what}: {who}')
     return ['', f'Resamples in which a metric is undefined (their drives hold no object of a '
             f'class; for the car heading and velocity figures, the run matched no car, or no '
             f'two moving cars) are left out of its interval, which is then over the resamples '
-            f'that define it; of {r.meta["resamples"]}: {per_run}.']
+            f'that define it; of {r.meta["resamples"]}: {"; ".join(parts)}.']
 
 
 def _extra_sections(r: Comparison) -> list[str]:
@@ -373,6 +404,32 @@ def write(result: Comparison, out: Path, title: str, command: str) -> str:
     text = render(result, title, command)
     (out / 'results.md').write_text(text, encoding='utf-8')
     return text
+
+
+def read(path: Path) -> Comparison:
+    """A comparison back from the ``results.json`` that :func:`write` wrote (to render its
+    page again without the runs)."""
+    import json
+
+    from suit_ros.accuracy import Interval
+    d = json.loads(Path(path).read_text(encoding='utf-8'))
+    left = d.get('resamples_left_out', {})
+
+    def intervals(key: str) -> dict[str, dict[str, Interval]]:
+        counts = left.get(key, {})
+        def interval(run: str, k: str, v: list[float | None]) -> Interval:
+            value, low, high = (float('nan') if x is None else float(x) for x in v)
+            return Interval(value, low, high, counts.get(run, {}).get(k, 0))
+        return {run: {k: interval(run, k, v) for k, v in m.items()}
+                for run, m in d.get(key, {}).items()}
+    stats = intervals('runs')
+    names = [k.removeprefix('AP ') for k in next(iter(stats.values()), {})
+             if k.startswith('AP ')]
+    return Comparison(stats, intervals('differences'), d.get('latency_p50_ms', {}),
+                      {run: {int(n): b for n, b in m.items()}
+                       for run, m in d.get('memory_bytes', {}).items()},
+                      d['meta'], names, intervals('heldout_sensor'),
+                      d.get('clutter_fp_per_frame', {}), d.get('past_share_at_car_centres', {}))
 
 
 # ------------------------------------------------------------------ command line

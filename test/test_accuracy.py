@@ -248,3 +248,29 @@ def test_run_metrics_score_what_evaluation_scores():
     no_ignore = ModelRun([gt], [det], run.num_points, [0.1], [0], {}, [0])
     assert got['AP car'] > RunMetrics(no_ignore, NAMES)()['AP car']   # the bicycle's box
     assert got['car flipped %'] == 0.0
+
+
+def test_the_left_out_line_groups_the_runs_that_leave_out_the_same():
+    """Most runs of the ablation share their drives' count (mAP vis 1-5 4 of 100): the line
+    names the few that differ and counts the rest, rather than one entry a run."""
+    from suit_ros.accuracy import Interval
+    from suit_ros.compare import Comparison, _left_out
+    stats = {f'run {k}': {'mAP vis 1-5': Interval(0.1, 0.0, 0.2, 4),
+                          'mAP': Interval(0.5, 0.4, 0.6)} for k in range(10)}
+    stats['world'] = {'mAP vis 1-5': Interval(0.1, 0.0, 0.2, 12)}
+    stats['none'] = {'mAP': Interval(0.5, 0.4, 0.6)}
+    line = _left_out(Comparison(stats, {}, {}, {}, {'resamples': 100}, ['car']))[-1]
+    assert line.endswith('of 100: mAP vis 1-5 12: `world`; mAP vis 1-5 4: the other 10 runs.')
+    few = {k: v for k, v in stats.items() if k in ('run 0', 'run 1', 'world')}
+    line = _left_out(Comparison(few, {}, {}, {}, {'resamples': 100}, ['car']))[-1]
+    assert line.endswith(': mAP vis 1-5 12: `world`; mAP vis 1-5 4: `run 0`, `run 1`.')
+    # a larger group that is not the largest: by the variants its runs are
+    worlds = {f'{c}, {t}{w}': {'mAP vis 1-5': Interval(0.1, 0.0, 0.2, 12)}
+              for c in ('single', 'suit') for t in ('', 'tracking, ') for w in ('dark', 'ends')}
+    worlds['suit, dark - single, dark'] = worlds['suit, dark']
+    plain = {f'{c}{v}': {'mAP vis 1-5': Interval(0.1, 0.0, 0.2, 4)}
+             for c in ('single', 'suit') for v in ('', ', tracking', ', a', ', b', ', c')}
+    meta = {'resamples': 100, 'checkpoints': {'single': 'x', 'suit': 'y'}}
+    line = _left_out(Comparison({**worlds, **plain}, {}, {}, {}, meta, ['car']))[-1]
+    assert line.endswith(': mAP vis 1-5 12: dark, ends (8 runs and 1 difference); '
+                         'mAP vis 1-5 4: the other 10 runs.')

@@ -51,6 +51,11 @@ def test_compare_command_writes_paired_results(tmp_path):
     assert same == [0.0, 0.0, 0.0]                 # one checkpoint twice: no difference
     assert 'a - a, memory dropped' in data['differences']
     assert '## Paired differences' in (out / 'results.md').read_text()
+    # the page renders again from its JSON, figure for figure (a change of the page alone
+    # needs no new runs)
+    from suit_ros.compare import read, render
+    assert render(read(out / 'results.json'), 'Checkpoint comparison',
+                  'suit-ros compare ...') == (out / 'results.md').read_text()
     bad = subprocess.run(cmd[:4] + ['--out', str(out)], capture_output=True, text=True)
     assert bad.returncode != 0 and 'give checkpoints' in bad.stderr
     missing = subprocess.run(cmd[:4] + ['--run', 'x', str(tmp_path / 'nope.safetensors'),
