@@ -184,6 +184,8 @@ def run(args: argparse.Namespace) -> int:
             with open_writer(out_path, args.storage) as bag:
                 pipe = build_pipeline(params, MessageClasses.from_rosbags(bag.store))
                 summary = _process_bag(args, params, reader, bag, pipe, copied)
+                if summary.read_error and not summary.frames:
+                    raise BagError(summary.read_error)
                 if summary.frames and summary.warnings['unusable_cloud'] == summary.frames:
                     raise BagError(f'none of the {summary.frames} clouds could be read: '
                                    f'{summary.examples["unusable_cloud"]}; check the cloud '
@@ -195,6 +197,11 @@ def run(args: argparse.Namespace) -> int:
     summary.print(time.monotonic() - t0, pipe.class_names)
     print(f'wrote {out_path} ({DET_TOPIC}, {MARKER_TOPIC}'
           f'{", inputs copied" if args.copy_inputs else ""})', file=sys.stderr)
+    if summary.read_error:      # a damaged bag: its frames before the damage are not lost
+        print(f'suit-ros detect-bag: error: {summary.read_error}; the {summary.frames} frames '
+              f'read before it (messages to {summary.read_until_ns * 1e-9:.3f} s of the '
+              f'recording) are in {out_path}', file=sys.stderr)
+        return 1
     return 0
 
 
@@ -212,6 +219,10 @@ class Summary:
         self.dets: dict[int, Any] = {}
         self.traffic_side = ''              # the last frame's (auto: and the votes)
         self.single: collections.Counter[str] = collections.Counter()   # frames by reason
+        # the bag could not be read on (a damaged chunk, a truncated file): why, and the log
+        # time of the last message read
+        self.read_error = ''
+        self.read_until_ns = 0
 
     def add(self, stamp: int, out: Any) -> None:
         """Count one frame's output."""
@@ -285,11 +296,23 @@ def _copied_topics(reader: Any, args: argparse.Namespace) -> set[str]:
 
 def _process_bag(args: argparse.Namespace, params: DetectorParams, reader: Any, bag: Any,
                  pipe: Any, copied: set[str]) -> Summary:
+    """Every message of the bag through the pipeline; a bag that cannot be read on (a
+    damaged chunk, a truncated file) ends it, said in the summary (``read_error``)."""
+    summary = Summary()
+    try:
+        _read_all(args, params, reader, bag, pipe, copied, summary)
+    except BagError as exc:     # what was read before it is kept (run: unless nothing)
+        summary.read_error = str(exc)
+    return summary
+
+
+def _read_all(args: argparse.Namespace, params: DetectorParams, reader: Any, bag: Any,
+              pipe: Any, copied: set[str], summary: Summary) -> None:
     from suit_ros.data.bag import messages
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
     from suit_ros.msg_adapters.odometry import stamp_to_ns
-    summary = Summary()
     for conn, log_ns, raw in messages(reader):
+        summary.read_until_ns = log_ns
         if conn.topic in copied:
             bag.copy(conn, log_ns, raw, reader.typestore)
         if conn.topic == params.odom_topic:
@@ -305,4 +328,3 @@ def _process_bag(args: argparse.Namespace, params: DetectorParams, reader: Any, 
             bag.write(MARKER_TOPIC, 'visualization_msgs/msg/MarkerArray', stamp,
                       out.markers_msg)
             summary.add(stamp, out)
-    return summary

@@ -270,3 +270,26 @@ def test_the_mcap_bags_written_here_carry_chunk_crcs(tmp_path):
     not_mcap.write_bytes(b'not an mcap file')
     with pytest.raises(BagError, match='not an mcap file'):
         write_chunk_crcs(not_mcap)
+
+
+def test_a_bag_damaged_part_way_keeps_the_frames_before_the_damage(tmp_path, capsys):
+    """A long bag with one damaged chunk late in it: detect-bag exits 1 and says why, and the
+    detections of the frames read before the damage are kept in the output, not thrown away
+    with the run (a bag damaged before any cloud leaves nothing: test_playback)."""
+    from suit_ros.cli import main
+    from suit_ros.data.bag import open_reader, write_chunk_crcs
+    from suit_ros.data.sim import preset
+    from suit_ros.data.sim.recording import write_bag
+    write_bag(tmp_path / 'b', preset('test', frames=6), 1, 'mcap')
+    mcap = next((tmp_path / 'b').glob('*.mcap'))
+    assert write_chunk_crcs(mcap) >= 2               # rosbags cuts the bag into chunks
+    data = bytearray(mcap.read_bytes())
+    at = int(len(data) * 0.8)                         # inside the last clouds
+    data[at:at + 64] = bytes(64)
+    mcap.write_bytes(bytes(data))
+    assert main(['detect-bag', str(tmp_path / 'b'), str(tmp_path / 'o')]) == 1
+    err = capsys.readouterr().err
+    assert 'Chunk checksum mismatch' in err and 'frames read before it' in err
+    with open_reader(tmp_path / 'o') as r:
+        kept = sum(1 for c, _, _ in r.messages() if c.topic == '/detector/detections')
+    assert 0 < kept < 6 and f'the {kept} frames' in err

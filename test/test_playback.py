@@ -227,6 +227,7 @@ def test_corrupt_bags_and_checkpoints_are_rejected(bag, tmp_path, capsys):
     mcap.write_bytes(bytes(data))
     assert main(['detect-bag', str(tmp_path / 'c'), str(tmp_path / 'o4')]) == 1
     assert 'Chunk checksum mismatch' in capsys.readouterr().err
+    assert not (tmp_path / 'o4').exists()            # nothing was read: nothing written
     junk = tmp_path / 'junk.safetensors'
     junk.write_bytes(b'not a checkpoint' * 10)
     assert main(['detect-bag', str(bag), str(tmp_path / 'o3'), '--checkpoint', str(junk)]) == 1
