@@ -96,11 +96,11 @@ def write_chunk_crcs(path: str | os.PathLike[str]) -> int:
             raise BagError(f'{path} is not an mcap file')
         pos = 8
         while pos + 9 <= len(m):
-            if pos + 9 + struct.unpack_from('<Q', m, pos + 1)[0] > len(m):
-                raise BagError(f'{path}: a record at byte {pos} runs past the end of the '
-                               'file (truncated)')
             op, length = m[pos], struct.unpack_from('<Q', m, pos + 1)[0]
             body = pos + 9
+            if body + length > len(m):
+                raise BagError(f'{path}: a record at byte {pos} runs past the end of the '
+                               'file (truncated)')
             if op == 0x0F:          # data end: the summary follows
                 break
             if op == 0x06:          # chunk: 3 x u64, crc u32, compression, records
