@@ -151,13 +151,16 @@ class OdometryGate(Generic[T]):
         self.delays: collections.deque[float] = collections.deque(maxlen=500)
         self.closed = False
 
-    def put(self, msg: T, stamp_ns: int, now_ns: int, max_ahead_s: float) -> None:
-        """Queue a message; ``now_ns`` 0 (a simulated clock not started) checks nothing."""
+    def put(self, msg: T, stamp_ns: int, now_ns: int, max_ahead_s: float,
+            usable: bool = True) -> None:
+        """Queue a message; ``now_ns`` 0 (a simulated clock not started) checks nothing. One
+        the pipeline will refuse (not ``usable``: a NaN position, a zero quaternion) is
+        queued to be counted there, but its stamp is no odometry a cloud can wait for."""
         delay = (now_ns - stamp_ns) * 1e-9
         with self._cv:
             self.delays.append(delay)
             self._queue.append(msg)
-            if not now_ns or -delay <= max_ahead_s:
+            if usable and (not now_ns or -delay <= max_ahead_s):
                 if self._line.went_back(stamp_ns, self.latest_ns):
                     self.previous_latest, self.latest_ns = self.latest_ns, stamp_ns
                     self.rewinds += 1

@@ -34,6 +34,8 @@ from visualization_msgs.msg import MarkerArray
 
 from suit_ros.errors import ConfigError, SuitRosError
 from suit_ros.health import Reasons, health_report
+from suit_ros.msg_adapters.errors import MessageError
+from suit_ros.msg_adapters.odometry import odometry_to_pose
 from suit_ros.params import DetectorParams, parameter_descriptions
 from suit_ros.points_subscription import FollowingSubscription
 from suit_ros.ros_params import (
@@ -188,8 +190,13 @@ class DetectorNode(Node):
                                 dedupe=overlapping)
 
     def _on_odom(self, msg: Odometry) -> None:
+        try:
+            odometry_to_pose(msg)
+            usable = True
+        except MessageError:      # refused (and counted) when the worker drains it
+            usable = False
         self.worker.odometry.put(msg, stamp_ns(msg), self.get_clock().now().nanoseconds,
-                          self.params.max_stamp_skew_s)
+                                 self.params.max_stamp_skew_s, usable)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:

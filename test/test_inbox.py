@@ -190,3 +190,17 @@ def test_odometry_from_before_a_cloud_that_went_back_is_not_its_odometry():
         gate.put('b', t, 0, 1.0)
     waiter.join(2.0)
     assert got == [True]
+
+
+def test_odometry_the_pipeline_will_refuse_is_no_odometry_to_wait_for():
+    """A message with a NaN position or a zero quaternion is queued (the pipeline counts and
+    reports it) but moves neither the gate's newest stamp nor its time line: a cloud must not
+    be taken as covered, nor time as gone back, by poses that will never be buffered."""
+    gate: OdometryGate[str] = OdometryGate()
+    gate.put('a', 10 * S, 0, 1.0)
+    gate.put('bad', 11 * S, 0, 1.0, usable=False)          # ahead: not the newest
+    assert gate.latest_ns == 10 * S and not gate.covers(10 * S + S // 2)
+    for k in range(3):                                    # back, three in a row: no rewind
+        gate.put('bad', 9 * S + k * S // 10, 0, 1.0, usable=False)
+    assert gate.rewinds == 0 and gate.latest_ns == 10 * S
+    assert gate.drain() == ['a', 'bad', 'bad', 'bad', 'bad']

@@ -408,3 +408,16 @@ def test_a_set_the_pipeline_cannot_apply_is_set_back_on_the_node(make_node):
     assert node.pipeline.params.max_detections == 9
     node._restore_parameters()
     assert node.get_parameter('max_detections').value == 9
+
+
+def test_odometry_the_pipeline_refuses_covers_no_cloud(make_node):
+    """A zero quaternion is refused when the worker drains it (counted, said); its stamp
+    must not tell the worker that odometry reached a cloud it will have no pose for."""
+    node = make_node(input_timeout_s=60.0)
+    t = node.get_clock().now().nanoseconds
+    bad = odom(t)
+    bad.pose.pose.orientation.w = 0.0
+    node._on_odom(bad)
+    assert node.worker.odometry.latest_ns == -1
+    node._on_odom(odom(t - S // 10))
+    assert node.worker.odometry.latest_ns == t - S // 10
