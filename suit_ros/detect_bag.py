@@ -298,33 +298,28 @@ def _process_bag(args: argparse.Namespace, params: DetectorParams, reader: Any, 
                  pipe: Any, copied: set[str]) -> Summary:
     """Every message of the bag through the pipeline; a bag that cannot be read on (a
     damaged chunk, a truncated file) ends it, said in the summary (``read_error``)."""
-    summary = Summary()
-    try:
-        _read_all(args, params, reader, bag, pipe, copied, summary)
-    except BagError as exc:     # what was read before it is kept (run: unless nothing)
-        summary.read_error = str(exc)
-    return summary
-
-
-def _read_all(args: argparse.Namespace, params: DetectorParams, reader: Any, bag: Any,
-              pipe: Any, copied: set[str], summary: Summary) -> None:
     from suit_ros.data.bag import messages
     from suit_ros.msg_adapters.detections import pointcloud2_to_detections
     from suit_ros.msg_adapters.odometry import stamp_to_ns
-    for conn, log_ns, raw in messages(reader):
-        summary.read_until_ns = log_ns
-        if conn.topic in copied:
-            bag.copy(conn, log_ns, raw, reader.typestore)
-        if conn.topic == params.odom_topic:
-            pipe.add_odometry(reader.deserialize(raw, conn.msgtype))
-        elif conn.topic == args.gt_topic:
-            msg = reader.deserialize(raw, conn.msgtype)
-            summary.gts[stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
-        elif conn.topic == params.points_topic:
-            msg = reader.deserialize(raw, conn.msgtype)
-            out = pipe.process(msg)
-            stamp = stamp_to_ns(msg.header.stamp)
-            bag.write(DET_TOPIC, 'sensor_msgs/msg/PointCloud2', stamp, out.detections_msg)
-            bag.write(MARKER_TOPIC, 'visualization_msgs/msg/MarkerArray', stamp,
-                      out.markers_msg)
-            summary.add(stamp, out)
+    summary = Summary()
+    try:
+        for conn, log_ns, raw in messages(reader):
+            summary.read_until_ns = log_ns
+            if conn.topic in copied:
+                bag.copy(conn, log_ns, raw, reader.typestore)
+            if conn.topic == params.odom_topic:
+                pipe.add_odometry(reader.deserialize(raw, conn.msgtype))
+            elif conn.topic == args.gt_topic:
+                msg = reader.deserialize(raw, conn.msgtype)
+                summary.gts[stamp_to_ns(msg.header.stamp)] = pointcloud2_to_detections(msg)
+            elif conn.topic == params.points_topic:
+                msg = reader.deserialize(raw, conn.msgtype)
+                out = pipe.process(msg)
+                stamp = stamp_to_ns(msg.header.stamp)
+                bag.write(DET_TOPIC, 'sensor_msgs/msg/PointCloud2', stamp, out.detections_msg)
+                bag.write(MARKER_TOPIC, 'visualization_msgs/msg/MarkerArray', stamp,
+                          out.markers_msg)
+                summary.add(stamp, out)
+    except BagError as exc:     # what was read before it is kept (run: unless nothing)
+        summary.read_error = str(exc)
+    return summary

@@ -79,9 +79,8 @@ def run(args: argparse.Namespace) -> int:
                           'carry branch')
     # (a checkpoint `suit-ros train` wrote has none: it would keep the decoding threshold,
     # 0.1, and choose carry thresholds for that)
-    missing = ([c for c in names if c not in (meta.get('publish_thresholds') or {})]
-               if args.keep_published else [])
-    if missing:
+    missing = [c for c in names if c not in (meta.get('publish_thresholds') or {})]
+    if args.keep_published and missing:
         raise ConfigError(f'--keep-published: {path} has no published thresholds for '
                           f'{", ".join(missing)} to keep; copy them from the checkpoint it '
                           'was trained from (its publish_thresholds metadata), or choose them '
