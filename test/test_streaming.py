@@ -180,6 +180,27 @@ def test_a_memory_with_no_sample_fuses_nothing(temporal):
     assert empty.memory is not None and len(empty.memory.batch_index) == 0
 
 
+def test_the_past_term_goes_beside_only_where_torch_leaves_a_core(monkeypatch):
+    """By default the second thread is used where torch's threads leave the process a core
+    (the node's one thread on two cores), not where the encoder's threads take every core;
+    an explicit choice stands either way."""
+    import suit_ros.model.streaming as streaming
+    model = SUITDetector(small_config())
+    auto = StreamingDetector(model)
+    threads = torch.get_num_threads()
+    monkeypatch.setattr(streaming, '_usable_cores', lambda: 2)
+    try:
+        torch.set_num_threads(1)
+        assert auto.uses_beside()
+        torch.set_num_threads(2)
+        assert not auto.uses_beside()
+        assert StreamingDetector(model, beside=True).uses_beside()
+        torch.set_num_threads(1)
+        assert not StreamingDetector(model, beside=False).uses_beside()
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_the_past_term_beside_the_encoder_gives_the_same_steps():
     """The past term computed in a second thread while the encoder runs (``beside``) gives
     the serial step's boxes, scores, memory and carried flags bit for bit, frame by frame (a

@@ -133,7 +133,10 @@ class StreamingDetector:
         The same results; the step's latency shorter by about the past term's time (1-2 ms),
         its CPU time the same. The thread is started by the thread that steps (it takes that
         thread's priority: the node's model thread runs below its callbacks); :meth:`close`
-        ends it. None: where this process may use more than one core (on the CPU). The next
+        ends it. None: on the CPU where the process may use a core that torch's threads
+        leave free, decided at each step (the node's default on two cores: one torch
+        thread): where the encoder's threads take every core, the past term's thread
+        lengthens the encoder by more than it saves (docs/experiments/step_serial). The next
         memory's sampling stays in the step's own thread: beside the tracker (both mostly
         interpreter work) it lengthened the step (docs/experiments/step_beside).
     """
@@ -146,8 +149,7 @@ class StreamingDetector:
                  overhang: OverhangMode | None = None, box_fit: BoxFitMode = 'off',
                  beside: bool | None = None) -> None:
         self.device = torch.device(device) if device is not None else model.device
-        self.beside = (self.device.type == 'cpu' and _usable_cores() > 1
-                       if beside is None else bool(beside))
+        self.beside: bool | None = None if beside is None else bool(beside)
         self._worker: ThreadPoolExecutor | None = None
         self._worker_owner = 0
         self.precision = resolve_precision(precision, self.device)
@@ -307,7 +309,7 @@ class StreamingDetector:
     def _start(self, fn: Callable[..., Result], *args: Any) -> Future[Result] | None:
         """``fn(*args)`` started in the step's second thread (:attr:`beside`; in inference
         mode), or None: the caller runs it itself."""
-        if not self.beside:
+        if not self.uses_beside():
             return None
         caller = threading.get_ident()
         if self._worker is not None and self._worker_owner != caller:
@@ -325,6 +327,13 @@ class StreamingDetector:
             self._worker.submit(int).result()
             torch.set_num_threads(threads)
         return self._worker.submit(_in_inference_mode, fn, *args)
+
+    def uses_beside(self) -> bool:
+        """Whether a step now computes the past term in the second thread (:attr:`beside`;
+        None: on the CPU, where torch's threads leave this process a core)."""
+        if self.beside is not None:
+            return self.beside
+        return self.device.type == 'cpu' and _usable_cores() > torch.get_num_threads()
 
     def close(self) -> None:
         """End the second thread (:attr:`beside`), if one runs; a later step starts another."""
