@@ -20,7 +20,9 @@ from suit_ros.config import SPARSE_MEMORIES, ModelConfig, TemporalMode, model_co
 from suit_ros.errors import CheckpointError, ConfigError
 
 FORMAT = 'suit_ros/1'
-DEFAULT_NAME = 'suit_default.safetensors'
+# the node's default since 2026-12-08: SUIT with a carry branch (docs/experiments/
+# carry_node_default); suit_default is its base, without the carry
+DEFAULT_NAME = 'suit_carry.safetensors'
 
 
 def default_checkpoint_path() -> Path:
@@ -29,7 +31,7 @@ def default_checkpoint_path() -> Path:
 
 
 def shipped_checkpoints() -> list[str]:
-    """The names of the checkpoints shipped with the package (``suit_default``, ...)."""
+    """The names of the checkpoints shipped with the package (``suit_carry``, ...)."""
     return sorted(p.stem for p in default_checkpoint_path().parent.glob('*.safetensors'))
 
 

@@ -460,6 +460,7 @@ def run(args: argparse.Namespace) -> int:
     import torch
 
     from suit_ros.checkpoint import (
+        default_checkpoint_path,
         resolve_checkpoint,
         shipped_checkpoints,
     )
@@ -468,7 +469,8 @@ def run(args: argparse.Namespace) -> int:
     checkpoints = [(n, p) for n, p in args.run]
     variants = list(dict.fromkeys(args.variant))
     if args.ablation:
-        checkpoints = checkpoints or [('single', 'centerpoint_single'), ('suit', 'suit_default')]
+        checkpoints = checkpoints or [('single', 'centerpoint_single'),
+                                      ('suit', default_checkpoint_path().stem)]
         variants = list(VARIANTS)
     if not checkpoints:
         raise SuitRosError('give checkpoints to compare (--run NAME CHECKPOINT, repeatable) '

@@ -406,7 +406,8 @@ def _interval(value: float, samples: Sequence[float]) -> list[float]:
 def configure_parser(parser: argparse.ArgumentParser) -> None:
     """Add ``outage`` options."""
     parser.add_argument('--checkpoint', action='append', metavar='NAME=PATH',
-                        help='a model to measure (repeatable; default: the two shipped ones)')
+                        help='a model to measure (repeatable; default: the three shipped ones, '
+                             "the node's default suit_carry as 'SUIT carry')")
     parser.add_argument('--drives', type=int, default=16)
     parser.add_argument('--frames', type=int, default=40)
     parser.add_argument('--width', type=float, default=120.0, help='sector (degrees)')
@@ -437,7 +438,9 @@ def run(args: argparse.Namespace) -> int:
         if path:                    # checked before the runs, not after them
             output_file(path, f'{option} file')
     shipped = default_checkpoint_path().parent
+    # the labels docs/outage/README.md's tables (and scripts/model_card.py) read
     models = dict(a.split('=', 1) for a in args.checkpoint) if args.checkpoint else {
+        'SUIT carry': str(shipped / 'suit_carry.safetensors'),
         'SUIT': str(shipped / 'suit_default.safetensors'),
         'single frame': str(shipped / 'centerpoint_single.safetensors')}
     plain = synthetic_split('outage', args.drives, args.frames, args.cache_dir)

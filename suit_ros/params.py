@@ -56,9 +56,10 @@ class DetectorParams:
     """Every setting of the detector node and ``detect-bag`` (defaults are the node's)."""
 
     checkpoint: str = field(default='', metadata=_spec(
-        'model checkpoint: a .safetensors path or a shipped one by name (suit_default; '
-        'suit_carry: holds objects through lost returns, docs/outage; centerpoint_single); '
-        'empty: suit_default', read_only=True))
+        'model checkpoint: a .safetensors path or a shipped one by name (suit_carry: SUIT '
+        'that holds objects through lost returns, docs/outage; suit_default: the same '
+        'without the carry, a shorter step; centerpoint_single); empty: suit_carry',
+        read_only=True))
     device: Device = field(default='auto', metadata=_spec(
         'auto | cpu | cuda', read_only=True, choices=get_args(Device)))
     threads: int = field(default=0, metadata=_spec(

@@ -115,6 +115,9 @@ def test_shipped_checkpoints_by_name(tmp_path, monkeypatch):
     assert {'suit_default', 'centerpoint_single'} <= set(names)
     shipped = default_checkpoint_path().parent
     assert resolve_checkpoint('') == default_checkpoint_path()
+    # the node's default: SUIT with its carry branch (docs/experiments/carry_node_default)
+    assert default_checkpoint_path() == shipped / 'suit_carry.safetensors'
+    assert read_metadata(default_checkpoint_path())['config']['fusion_gate'] == 'carry_branch'
     assert resolve_checkpoint('centerpoint_single') == shipped / 'centerpoint_single.safetensors'
     assert resolve_checkpoint('centerpoint_single.safetensors') == resolve_checkpoint(
         'centerpoint_single')

@@ -256,13 +256,13 @@ def test_outage_command_runs(tmp_path, capsys):
     assert main(['outage', '--drives', '1', '--frames', '14', '--cache-dir',
                  str(tmp_path / 'cache'), '--json-out', str(out)]) == 0
     text = capsys.readouterr().out
-    assert 'SUIT, tracker' in text and 'single frame' in text and out.is_file()
+    assert 'SUIT carry, tracker' in text and 'single frame' in text and out.is_file()
     assert 'occlusion events' in text and 'occlusion mAP' in text
     assert 'passing events' in text and 'passing mAP' in text
-    assert 'SUIT - single frame' in text
+    assert 'SUIT carry - single frame' in text and 'SUIT carry - SUIT:' in text
     result = json.loads(out.read_text())
-    assert set(result['passing']) == {'SUIT', 'SUIT, tracker', 'single frame',
-                                      'single frame, tracker'}
+    assert set(result['passing']) == {'SUIT carry', 'SUIT carry, tracker', 'SUIT',
+                                      'SUIT, tracker', 'single frame', 'single frame, tracker'}
     assert 'Passing occluders' in tables(result)
     assert set(result['counts']) == {'outage', 'occlusion', 'passing'}
 
