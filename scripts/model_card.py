@@ -12,6 +12,7 @@ from typing import Any
 
 SPREAD_VAL = 'docs/experiments/velocity_filter/val_spread.json'
 MIRRORED = 'docs/experiments/either_way/run33/validation.json'   # suit_default as 'before'
+DEFAULT = 'suit_carry'     # the node's default (suit_ros.checkpoint.DEFAULT_NAME)
 CKPTS = {'suit': 'suit_ros/checkpoints/suit_default.safetensors',
          'single': 'suit_ros/checkpoints/centerpoint_single.safetensors'}
 
@@ -74,8 +75,8 @@ CARRY_STEP = ("Its step is 1.13-1.16x the single frame's at one torch thread (th
               'bfloat16 units (float32; the single frame 42-47 and 28-31 ms at 37k points; '
               'docs/experiments/carry_node_default); on a VM with AMX (bfloat16, a single-frame '
               'step of 17-22 ms) 1.21x and 1.34x (docs/experiments/carry_step). '
-              '`checkpoint: suit_default` runs the same model without the carry: 1.08x and '
-              '1.15x there.')
+              '`checkpoint: suit_default` runs the same model without the carry: 1.07-1.09x and '
+              '1.09-1.12x on the Intel VM.')
 
 
 def sweep_spread_lines() -> list[str]:
@@ -254,7 +255,10 @@ def main() -> int:
         'time, weight decay 0.01, rotation +-45 degrees, scaling 0.95-1.05, intensity dropout '
         '20%, no flip.', '',
         f'**Validation** ({len(res["meta"]["val_drives"])} drives from seeds 9000+, 40 frames '
-        f'each, sensors {", ".join(sensors)}; value [95% per-drive bootstrap interval]):', '',
+        f'each, sensors {", ".join(sensors)}; value [95% per-drive bootstrap interval]; SUIT: '
+        f'`{res["meta"]["checkpoints"].get("suit", "?")}`'
+        + (", the node's default" if res['meta']['checkpoints'].get('suit') == DEFAULT else '')
+        + '):', '',
         '| | SUIT | single frame | SUIT - single |', '|---|---|---|---|']
     for key in ('mAP', 'NDS', 'mAP moving', 'mAVE', 'mAOE', 'car heading err', 'car flipped %',
                 'moving car vel err', 'AP car', 'AP truck', 'AP pedestrian', 'AP cyclist'):
