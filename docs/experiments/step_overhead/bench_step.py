@@ -1,6 +1,7 @@
 """`suit-ros bench`'s step measurement alone (its runners, frames and interleaving: the single
 frame, SUIT and the dense memory step each frame in turn, tracker on, precision auto): p50 of
-each model's step and SUIT's over the single frame's. Run it in two source trees (git
+each model's step, SUIT's over the single frame's, and SUIT's memory over the dense one's after
+2 and 10 frames (since stop 67). Run it in two source trees (git
 worktrees) in turn to compare them on one machine.
 
 Usage: python bench_step.py CHECKPOINT THREADS FRAMES
@@ -32,5 +33,7 @@ runners = {t: StreamingDetector(bench._model(args, t), 'cpu', precision='auto',
                                 tracker=TrackerConfig()) for t in ('none', 'suit', 'dense')}
 res = bench._per_stage(runners, frames, clouds, C)
 s = res['step_ms']
+mem = res['memory_ratio_suit_dense']
 print(f"{checkpoint} threads {threads}: none {s['none']['p50']:.1f} suit {s['suit']['p50']:.1f}"
-      f" dense {s['dense']['p50']:.1f} ms, SUIT / single {res['suit_over_single']:.3f}")
+      f" dense {s['dense']['p50']:.1f} ms, SUIT / single {res['suit_over_single']:.3f},"
+      f" memory after 2 / 10 frames {mem[2]:.2%} / {mem[10]:.2%}")
