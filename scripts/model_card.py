@@ -12,7 +12,6 @@ from typing import Any
 
 SPREAD_VAL = 'docs/experiments/velocity_filter/val_spread.json'
 MIRRORED = 'docs/experiments/either_way/run33/validation.json'   # suit_default as 'before'
-DEFAULT = 'suit_carry'     # the node's default (suit_ros.checkpoint.DEFAULT_NAME)
 CKPTS = {'suit': 'suit_ros/checkpoints/suit_default.safetensors',
          'single': 'suit_ros/checkpoints/centerpoint_single.safetensors'}
 
@@ -177,7 +176,7 @@ def real_dev_lines(meta: dict[str, dict[str, Any]]) -> list[str]:
 
 
 def main() -> int:
-    from suit_ros.checkpoint import read_metadata
+    from suit_ros.checkpoint import default_checkpoint_path, read_metadata
     res = json.loads(Path('docs/results.json').read_text())
     runs, diffs = res['runs'], res['differences']
     meta = {k: read_metadata(v) for k, v in CKPTS.items()}
@@ -257,7 +256,8 @@ def main() -> int:
         f'**Validation** ({len(res["meta"]["val_drives"])} drives from seeds 9000+, 40 frames '
         f'each, sensors {", ".join(sensors)}; value [95% per-drive bootstrap interval]; SUIT: '
         f'`{res["meta"]["checkpoints"].get("suit", "?")}`'
-        + (", the node's default" if res['meta']['checkpoints'].get('suit') == DEFAULT else '')
+        + (", the node's default" if res['meta']['checkpoints'].get('suit')
+           == default_checkpoint_path().stem else '')
         + '):', '',
         '| | SUIT | single frame | SUIT - single |', '|---|---|---|---|']
     for key in ('mAP', 'NDS', 'mAP moving', 'mAVE', 'mAOE', 'car heading err', 'car flipped %',

@@ -136,7 +136,7 @@ class StreamingDetector:
         ends it. None: on the CPU where the process may use a core that torch's threads
         leave free, decided at each step (the node's default on two cores: one torch
         thread): where the encoder's threads take every core, the past term's thread
-        lengthens the encoder by more than it saves (docs/experiments/step_serial). The next
+        lengthens the encoder by more than it saves (docs/experiments/carry_node_default). The next
         memory's sampling stays in the step's own thread: beside the tracker (both mostly
         interpreter work) it lengthened the step (docs/experiments/step_beside).
     """
